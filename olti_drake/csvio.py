@@ -1,0 +1,110 @@
+"""CSV tables in the shared format (shared/spec/formats.md).
+
+Comma separated, one header row, ``#`` starts a comment line, UTF-8; required
+columns in any order, extra columns kept. Every error is one line naming the
+file, the 1-based line number (as an editor shows it) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from typing import Dict, Iterable, Sequence
+
+import numpy as np
+
+
+class InputError(ValueError):
+    """Bad input file or parameter; the message is one line, ready for the user."""
+
+
+def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
+               integer: Iterable[str] = ()) -> Dict[str, np.ndarray]:
+    """Read numeric columns of a CSV file.
+
+    Args:
+        path: CSV file.
+        required: columns that must be present.
+        optional: columns read when present (absent ones are not in the result).
+        integer: columns whose values must be whole numbers.
+
+    Returns:
+        dict column -> float array, plus ``"_line"``: the 1-based file line of
+        every data row (for row-numbered errors later).
+    """
+    name = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            text = f.read()
+    except OSError as e:
+        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    rows = [(i + 1, line) for i, line in enumerate(text.splitlines())
+            if line.strip() and not line.lstrip().startswith("#")]
+    if not rows:
+        raise InputError(f"{name}: no header row")
+    header_line, header = rows[0]
+    cols = [c.strip() for c in next(csv.reader([header]))]
+    missing = [c for c in required if c not in cols]
+    if missing:
+        raise InputError(f"{name}: missing required column '{missing[0]}' (header on line {header_line})")
+    wanted = [c for c in list(required) + list(optional) if c in cols]
+    index = {c: cols.index(c) for c in wanted}
+    integer = set(integer)
+    out = {c: np.empty(len(rows) - 1) for c in wanted}
+    lines = np.empty(len(rows) - 1, dtype=int)
+    for r, (lineno, line) in enumerate(rows[1:]):
+        fields = next(csv.reader(io.StringIO(line)))
+        lines[r] = lineno
+        for c, j in index.items():
+            raw = fields[j].strip() if j < len(fields) else ""
+            try:
+                v = float(raw)
+            except ValueError:
+                raise InputError(f"{name}: line {lineno}, column '{c}': "
+                                 f"{'missing value' if not raw else repr(raw) + ' is not a number'}") from None
+            if c in integer and np.isfinite(v) and v != round(v):
+                raise InputError(f"{name}: line {lineno}, column '{c}': {raw!r} is not a whole number")
+            out[c][r] = v
+    out["_line"] = lines
+    return out
+
+
+def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], rows=None) -> None:
+    """Raise naming file, line and column of the first non-finite value (in ``rows`` if given)."""
+    sel = np.arange(len(table["_line"])) if rows is None else np.flatnonzero(rows)
+    for c in columns:
+        bad = sel[~np.isfinite(table[c][sel])]
+        if bad.size:
+            raise InputError(f"{os.fspath(path)}: line {table['_line'][bad[0]]}, column '{c}': "
+                             f"value is not finite")
+
+
+def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> None:
+    """Raise naming file, line and column of the first value not in ``allowed``."""
+    bad = np.flatnonzero(~np.isin(table[column], allowed))
+    if bad.size:
+        raise InputError(f"{os.fspath(path)}: line {table['_line'][bad[0]]}, column '{column}': "
+                         f"{table[column][bad[0]]:g} is not one of {', '.join(f'{a:g}' for a in allowed)}")
+
+
+def write_table(path, columns: Dict[str, Sequence], formats: Dict[str, str],
+                comments: Sequence[str] = ()) -> None:
+    """Write a CSV with ``# comment`` lines, a header and one row per entry.
+
+    ``formats`` maps column -> %-format; deterministic output (same data, same
+    bytes) is what makes campaigns reproducible byte for byte.
+    """
+    names = list(columns)
+    n = len(columns[names[0]])
+    with open(path, "w", encoding="utf-8", newline="\n") as f:
+        for c in comments:
+            f.write(f"# {c}\n")
+        f.write(",".join(names) + "\n")
+        for r in range(n):
+            f.write(",".join(_fmt(formats.get(c, "%.12g"), columns[c][r]) for c in names) + "\n")
+
+
+def _fmt(fmt: str, v) -> str:
+    s = fmt % v
+    return "0" if s in ("-0", "-0.0") else s

@@ -1,0 +1,191 @@
+"""SCARA kinematics with the bidirectional error map -- the one kinematic model.
+
+Paper 000: Eq. (3) forward kinematics, Eq. (7)-(9) actual angle from the
+command angle through the error map. The simulator (Drake systems) and the
+identifier both call these functions.
+
+Units: lengths in **mm**, angles in **degrees** (arguments, results and
+Jacobians: dp/dθ is in mm/deg). The trigonometry converts internally.
+Frame: origin on the J1 axis, X along the arm at θ1* = θ2* = 0 (000 Fig. 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errormap import ErrorMap
+
+DEG = np.pi / 180.0
+
+#: The paper's robot (Mitsubishi RH-3FRH-5515, 000 Table 1), mm.
+PAPER_L1_MM = 325.0
+PAPER_L2_MM = 225.0
+
+
+@dataclass(frozen=True)
+class JointCommands:
+    """Commanded J1, J2 angles (deg) and approach directions (+1/-1), each (N,)."""
+
+    theta1_deg: np.ndarray
+    theta2_deg: np.ndarray
+    dir1: np.ndarray
+    dir2: np.ndarray
+
+    def __post_init__(self):
+        arrays = [np.asarray(getattr(self, f.name), dtype=float).ravel()
+                  for f in dataclasses.fields(self)]
+        n = arrays[0].size
+        for f, a in zip(dataclasses.fields(self), arrays):
+            if a.size != n:
+                raise ValueError(f"joint commands: {f.name} has {a.size} entries, expected {n}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"joint commands: {f.name} contains a non-finite value")
+            if f.name.startswith("dir") and not np.all(np.isin(a, (-1.0, 1.0))):
+                raise ValueError(f"joint commands: {f.name} must be +1 or -1")
+            object.__setattr__(self, f.name, a)
+
+    def __len__(self) -> int:
+        return self.theta1_deg.size
+
+
+def forward_kinematics(theta1_deg, theta2_deg, L1_mm, L2_mm):
+    """End-effector XY position and its partial derivatives (Eq. 3 of 000).
+
+    ``theta2_deg`` is the angle of link 2 relative to link 1 *including* any
+    offset θ20 (the caller adds it), so p = [L1 c1 + L2 c12, L1 s1 + L2 s12].
+
+    Args:
+        theta1_deg, theta2_deg: (N,) actual joint angles, deg.
+        L1_mm, L2_mm: link lengths, mm.
+
+    Returns:
+        p: (N, 2) position, mm.
+        dp: dict of (N, 2) partials: ``theta1`` and ``theta2`` in mm/deg,
+            ``L1`` and ``L2`` dimensionless.
+    """
+    t1 = np.asarray(theta1_deg, dtype=float) * DEG
+    t12 = t1 + np.asarray(theta2_deg, dtype=float) * DEG
+    u1 = np.stack([np.cos(t1), np.sin(t1)], axis=-1)
+    u12 = np.stack([np.cos(t12), np.sin(t12)], axis=-1)
+    p = L1_mm * u1 + L2_mm * u12
+    perp1 = np.stack([-u1[..., 1], u1[..., 0]], axis=-1)
+    perp12 = np.stack([-u12[..., 1], u12[..., 0]], axis=-1)
+    d_theta2 = L2_mm * perp12 * DEG
+    return p, {"theta1": L1_mm * perp1 * DEG + d_theta2, "theta2": d_theta2,
+               "L1": u1, "L2": u12}
+
+
+def inverse_kinematics(x_mm, y_mm, L1_mm, L2_mm, elbow: int = 1):
+    """Joint angles (deg) that put the end effector at (x, y) mm, nominal Eq. (3).
+
+    ``elbow=+1`` gives θ2 ≥ 0, ``-1`` gives θ2 ≤ 0. Raises ValueError naming the
+    first unreachable row (0-based).
+    """
+    x = np.atleast_1d(np.asarray(x_mm, dtype=float))
+    y = np.atleast_1d(np.asarray(y_mm, dtype=float))
+    c2 = (x**2 + y**2 - L1_mm**2 - L2_mm**2) / (2 * L1_mm * L2_mm)
+    bad = np.flatnonzero(~(np.abs(c2) <= 1 + 1e-12))
+    if bad.size:
+        k = bad[0]
+        raise ValueError(f"target row {k} ({x[k]:g}, {y[k]:g}) mm is outside the reach "
+                         f"[{abs(L1_mm - L2_mm):g}, {L1_mm + L2_mm:g}] mm")
+    t2 = elbow * np.arccos(np.clip(c2, -1, 1))
+    t1 = np.arctan2(y, x) - np.arctan2(L2_mm * np.sin(t2), L1_mm + L2_mm * np.cos(t2))
+    t1 = (t1 + np.pi) % (2 * np.pi) - np.pi
+    return t1 / DEG, t2 / DEG
+
+
+@dataclass(frozen=True)
+class ScaraModel:
+    """Robot part of the D-H model (Eq. 4) or of the error-map model (Eq. 6) of 000.
+
+    * D-H: ``L1_mm``, ``L2_mm``, ``theta20_deg``; maps are None.
+    * Error map: ``L1_mm``, ``L2_mm`` and maps for J1 and J2 (θ20 absorbed in
+      the J2 map, so ``theta20_deg`` is None).
+
+    The parameter vector (:meth:`parameter_names`) is ordered as in Eq. (4)/(6):
+    lengths mm, angles deg.
+    """
+
+    L1_mm: float = PAPER_L1_MM
+    L2_mm: float = PAPER_L2_MM
+    theta20_deg: Optional[float] = 0.0
+    map1: Optional[ErrorMap] = None
+    map2: Optional[ErrorMap] = None
+
+    def __post_init__(self):
+        if (self.map1 is None) != (self.map2 is None):
+            raise ValueError("error-map model needs maps for both J1 and J2")
+        if self.map1 is not None and self.theta20_deg is not None:
+            raise ValueError("error-map model absorbs theta20 in the J2 map: set theta20_deg=None")
+
+    @property
+    def is_errormap(self) -> bool:
+        return self.map1 is not None
+
+    def parameter_names(self) -> list[str]:
+        """Names of the robot parameters, e.g. ``L1_mm``, ``J2_reverse_deg[3]``."""
+        names = ["L1_mm", "L2_mm"]
+        if not self.is_errormap:
+            return names + ["theta20_deg"]
+        for axis, m in (("J1", self.map1), ("J2", self.map2)):
+            for block in ("forward", "reverse"):
+                names += [f"{axis}_{block}_deg[{i}]" for i in range(m.n_nodes)]
+        return names
+
+    def parameter_vector(self) -> np.ndarray:
+        head = [self.L1_mm, self.L2_mm]
+        if not self.is_errormap:
+            return np.array(head + [self.theta20_deg])
+        return np.concatenate([head, self.map1.values, self.map2.values])
+
+    def with_parameters(self, x) -> "ScaraModel":
+        """A copy with the parameter vector ``x`` (same layout as :meth:`parameter_names`)."""
+        x = np.asarray(x, dtype=float)
+        if x.size != len(self.parameter_names()):
+            raise ValueError(f"expected {len(self.parameter_names())} parameters, got {x.size}")
+        if not self.is_errormap:
+            return ScaraModel(float(x[0]), float(x[1]), float(x[2]))
+        n1 = 2 * self.map1.n_nodes
+        return ScaraModel(float(x[0]), float(x[1]), None,
+                          self.map1.with_values(x[2:2 + n1]), self.map2.with_values(x[2 + n1:]))
+
+    def actual_angles(self, cmd: JointCommands):
+        """Actual J1, J2 angles (deg) and the sparse dθ/dparameters (Eq. 7 of 000).
+
+        Returns (theta1, theta2, W1, W2), W_n of shape (N, 2 N_n) or None for D-H.
+        """
+        if not self.is_errormap:
+            return cmd.theta1_deg, cmd.theta2_deg + self.theta20_deg, None, None
+        w1 = self.map1.weights(cmd.theta1_deg, cmd.dir1)
+        w2 = self.map2.weights(cmd.theta2_deg, cmd.dir2)
+        return (cmd.theta1_deg + w1 @ self.map1.values,
+                cmd.theta2_deg + w2 @ self.map2.values, w1, w2)
+
+    def positions(self, cmd: JointCommands) -> np.ndarray:
+        """Predicted actual end-effector positions (N, 2) mm (Eq. 3 with Eq. 7)."""
+        return self.positions_and_jacobian(cmd)[0]
+
+    def positions_and_jacobian(self, cmd: JointCommands):
+        """Positions (N, 2) mm and sparse Jacobians d x/d params, d y/d params.
+
+        Returns ``(p, Jx, Jy)``; Jx, Jy are CSR (N, P) in the units of
+        :meth:`parameter_names` (mm/mm, mm/deg). Analytic: Eq. (3) chain-ruled
+        through the interpolation weights of Eq. (7)-(9).
+        """
+        t1, t2, w1, w2 = self.actual_angles(cmd)
+        p, dp = forward_kinematics(t1, t2, self.L1_mm, self.L2_mm)
+        jac = []
+        for c in (0, 1):
+            cols = [sp.csr_matrix(dp["L1"][:, c:c + 1]), sp.csr_matrix(dp["L2"][:, c:c + 1])]
+            if w1 is None:
+                cols.append(sp.csr_matrix(dp["theta2"][:, c:c + 1]))
+            else:
+                cols += [sp.diags(dp["theta1"][:, c]) @ w1, sp.diags(dp["theta2"][:, c]) @ w2]
+            jac.append(sp.hstack(cols, format="csr"))
+        return p, jac[0], jac[1]

@@ -1,0 +1,225 @@
+"""Drake systems of the open-loop tracking interferometer campaign (paper 000 §2).
+
+Thin ``LeafSystem`` wrappers over the numpy modules (error map, steering,
+interferometer), so the simulation and the identifier share one model.
+
+Ports carry **SI units** as Drake's MultibodyPlant does: joint angles in rad,
+J3 stroke and the displacement in m. Files and the CLI stay in mm/deg; the
+conversion happens at these ports only.
+
+One clock drives a campaign: every ``period_s`` the :class:`PlanSequencer`
+steps to the next plan row (move), and half a period later the
+:class:`CampaignRecorder` takes the reading (settle, read).
+"""
+
+from __future__ import annotations
+
+from typing import List, Optional, Sequence
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+
+from .budget import Budget
+from .errormap import approach_directions
+from .interferometer import InterferometerOptions, simulate_readings
+from .steering import beam_command_deg
+
+M_TO_MM = 1e3
+
+
+def _deg_mm(values, revolute):
+    """Port values (rad, m) -> (deg, mm), per axis."""
+    return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
+
+
+class ErrorMapJoint(LeafSystem):
+    """Commanded -> actual joint positions through the error map (000 Eq. 7).
+
+    Input ``command`` (n): commanded joint positions θ* (rad; m for prismatic).
+    State: the last command and the approach direction of every axis, updated
+    every simulator step by the spec's rule (an axis that did not move keeps
+    its direction).
+    Outputs ``position`` (n): θ = θ* + Δθ(θ*, dir); ``direction`` (n): ±1.
+
+    Outputs combine the stored state with the *current* input, so they are
+    right at the instant a command changes, whatever the event ordering.
+    """
+
+    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
+                 initial_direction: float = 1.0):
+        super().__init__()
+        n = len(deviations)
+        self._dev = list(deviations)
+        self._revolute = np.asarray(revolute, dtype=bool)
+        self._n = n
+        self.DeclareVectorInputPort("command", n)
+        self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
+        self.DeclarePerStepDiscreteUpdateEvent(self._remember)
+        self.DeclareVectorOutputPort("position", n, self._calc_position)
+        self.DeclareVectorOutputPort("direction", n, self._calc_direction)
+
+    def _command_and_direction(self, context):
+        cmd = _deg_mm(self.get_input_port(0).Eval(context), self._revolute)
+        s = context.get_discrete_state_vector().value()
+        return cmd, approach_directions(cmd[None], s[:self._n], s[self._n:])[0]
+
+    def _remember(self, context, discrete_state):
+        cmd, direction = self._command_and_direction(context)
+        discrete_state.set_value(np.concatenate([cmd, direction]))
+
+    def _calc_direction(self, context, output: BasicVector):
+        output.SetFromVector(self._command_and_direction(context)[1])
+
+    def _calc_position(self, context, output: BasicVector):
+        cmd, direction = self._command_and_direction(context)
+        actual = cmd.copy()
+        for i, dev in enumerate(self._dev):
+            if dev is not None:
+                actual[i] += dev(cmd[i:i + 1], direction[i:i + 1])[0]
+        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+
+
+class BeamSteering(LeafSystem):
+    """Open-loop J4 command toward the *estimated* reflector (000 Eq. 1).
+
+    Inputs ``arm_command`` (2): θ1*, θ2* (rad); ``reflector`` (1): index j.
+    Output ``joint_command`` (4): θ1*, θ2*, J3 stroke (m), θ4* (rad).
+    Uses the nominal link lengths (mm) -- the command position -- and the
+    estimates of the reflector positions (mm) and θ40 (deg).
+    """
+
+    def __init__(self, L1_mm: float, L2_mm: float, reflectors_estimate_mm, theta40_estimate_deg: float,
+                 stroke_m: float = 0.0):
+        super().__init__()
+        self._L = (L1_mm, L2_mm)
+        self._P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
+        self._theta40 = theta40_estimate_deg
+        self._stroke = stroke_m
+        self.DeclareVectorInputPort("arm_command", 2)
+        self.DeclareVectorInputPort("reflector", 1)
+        self.DeclareVectorOutputPort("joint_command", 4, self._calc)
+
+    def _calc(self, context, output: BasicVector):
+        t1, t2 = np.degrees(self.get_input_port(0).Eval(context))
+        j = int(self.get_input_port(1).Eval(context)[0])
+        t4 = beam_command_deg(t1, t2, self._P[j], *self._L, self._theta40)
+        output.SetFromVector([np.radians(t1), np.radians(t2), self._stroke, np.radians(float(np.ravel(t4)[0]))])
+
+
+class LaserInterferometer(LeafSystem):
+    """The laser range sensor on J4 (000 §2, §5; Table 2 noise).
+
+    Inputs ``geometry_query`` (QueryObject of the SceneGraph holding the
+    robot; the laser head pose comes from the flange body's pose) and
+    ``reflector`` (1): index j of the reflector in use.
+    Outputs ``displacement`` (1, m): reading with the counter zero at
+    ``dead_paths_mm[j]``; ``valid`` (1): 0 when the beam misses the cat's eye
+    centre by more than the acceptance; ``miss`` (1, m): that miss.
+
+    Noise is a deterministic function of (seed, sample count): the count is a
+    discrete state stepped every ``period_s``, so re-evaluating a port gives
+    the same reading and the same seed gives the same campaign.
+    """
+
+    def __init__(self, flange_frame_id, X_FL, reflectors_mm, dead_paths_mm,
+                 options: InterferometerOptions, budget: Budget, seed: int, period_s: float):
+        super().__init__()
+        self._frame = flange_frame_id
+        self._X_FL = X_FL
+        self._P = np.asarray(reflectors_mm, dtype=float).reshape(-1, 2)
+        self._d0 = np.asarray(dead_paths_mm, dtype=float)
+        self._options, self._budget, self._seed = options, budget, int(seed)
+        self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.DeclareVectorInputPort("reflector", 1)
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
+        self._reading = self.DeclareCacheEntry(
+            "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc),
+            {self.all_sources_ticket()})
+        for i, name in enumerate(("displacement", "valid", "miss")):
+            self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+
+    def _count(self, context, discrete_state):
+        discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
+
+    def _calc(self, context, value):
+        X_WL = self.get_input_port(0).Eval(context).GetPoseInWorld(self._frame) @ self._X_FL
+        j = int(self.get_input_port(1).Eval(context)[0])
+        origin = X_WL.translation()[:2] * M_TO_MM
+        x_axis = X_WL.rotation().matrix()[:2, 0]
+        angle = np.degrees(np.arctan2(x_axis[1], x_axis[0]))
+        rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
+        reading, valid, miss = simulate_readings(origin[None], [angle], self._P[j][None], [self._d0[j]],
+                                                 self._options, self._budget, rng)
+        value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
+
+
+class PlanSequencer(LeafSystem):
+    """Walks the measurement plan once per reflector position, one row per period.
+
+    Outputs ``arm_command`` (2, rad), ``reflector`` (1), ``measure`` (1, 0/1)
+    and ``row`` (1, the plan row within the current reflector's run).
+    """
+
+    def __init__(self, theta1_deg, theta2_deg, measure, n_reflectors: int, period_s: float):
+        super().__init__()
+        k = len(theta1_deg)
+        self._cmd = np.radians(np.column_stack([np.tile(theta1_deg, n_reflectors),
+                                                np.tile(theta2_deg, n_reflectors)]))
+        self._measure = np.tile(np.asarray(measure, dtype=float), n_reflectors)
+        self._reflector = np.repeat(np.arange(n_reflectors, dtype=float), k)
+        self._row = np.tile(np.arange(k, dtype=float), n_reflectors)
+        self.period_s = period_s
+        self.n_steps = k * n_reflectors
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s, self._advance)
+        for name, table in (("arm_command", self._cmd), ("reflector", self._reflector),
+                            ("measure", self._measure), ("row", self._row)):
+            size = table.shape[1] if table.ndim == 2 else 1
+            self.DeclareVectorOutputPort(name, size, lambda c, o, t=table: o.SetFromVector(
+                np.atleast_1d(t[self._index(c)])))
+
+    def _index(self, context) -> int:
+        return int(context.get_discrete_state_vector()[0])
+
+    def _advance(self, context, discrete_state):
+        discrete_state.set_value([min(self._index(context) + 1, self.n_steps - 1)])
+
+    @property
+    def duration_s(self) -> float:
+        """Simulated time that covers every row and its reading."""
+        return self.n_steps * self.period_s
+
+
+class CampaignRecorder(LeafSystem):
+    """Takes the reading half a period after each move and keeps measured rows.
+
+    Inputs ``joint_command`` (4), ``direction`` (4), ``displacement`` (1, m),
+    ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1). Each kept
+    row is (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid,
+    plan row) in mm/deg, appended to :attr:`rows` (a sink, like a file).
+    """
+
+    COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm",
+               "theta4_deg", "valid", "plan_row")
+
+    def __init__(self, period_s: float):
+        super().__init__()
+        self.rows: List[tuple] = []
+        for name, size in (("joint_command", 4), ("direction", 4), ("displacement", 1), ("valid", 1),
+                           ("reflector", 1), ("measure", 1), ("row", 1)):
+            self.DeclareVectorInputPort(name, size)
+        self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
+
+    def _record(self, context):
+        u = [self.get_input_port(i).Eval(context) for i in range(self.num_input_ports())]
+        cmd, direction, disp, valid, refl, measure, row = u
+        if measure[0] < 0.5:
+            return
+        ok = valid[0] > 0.5
+        # A lost beam has no reading: NaN, never a plausible-looking number.
+        self.rows.append((int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
+                          int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
+                          int(ok), int(row[0])))
