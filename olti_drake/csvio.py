@@ -1,14 +1,13 @@
 """CSV tables in the shared format (shared/spec/formats.md).
 
 Comma separated, one header row, ``#`` starts a comment line, UTF-8; required
-columns in any order, extra columns kept. Every error is one line naming the
-file, the 1-based line number (as an editor shows it) and the column.
+columns in any order, extra columns ignored. Every error is one line
+``FILE:LINE: column 'NAME': ...`` with the 1-based line number an editor shows.
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import os
 from typing import Dict, Iterable, Sequence
 
@@ -42,29 +41,36 @@ def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
     rows = [(i + 1, line) for i, line in enumerate(text.splitlines())
             if line.strip() and not line.lstrip().startswith("#")]
     if not rows:
-        raise InputError(f"{name}: no header row")
+        raise InputError(f"{name}: empty file (no header row)")
     header_line, header = rows[0]
     cols = [c.strip() for c in next(csv.reader([header]))]
+    dup = [c for c in cols if cols.count(c) > 1]
+    if dup:
+        raise InputError(f"{name}:{header_line}: duplicate column '{dup[0]}'")
     missing = [c for c in required if c not in cols]
     if missing:
-        raise InputError(f"{name}: missing required column '{missing[0]}' (header on line {header_line})")
-    wanted = [c for c in list(required) + list(optional) if c in cols]
-    index = {c: cols.index(c) for c in wanted}
+        raise InputError(f"{name}:{header_line}: missing required column '{missing[0]}' "
+                         f"(header has {', '.join(cols)})")
+    if len(rows) == 1:
+        raise InputError(f"{name}: empty file (no data rows)")
+    index = {c: cols.index(c) for c in list(required) + list(optional) if c in cols}
     integer = set(integer)
-    out = {c: np.empty(len(rows) - 1) for c in wanted}
+    out = {c: np.empty(len(rows) - 1) for c in index}
     lines = np.empty(len(rows) - 1, dtype=int)
     for r, (lineno, line) in enumerate(rows[1:]):
-        fields = next(csv.reader(io.StringIO(line)))
+        fields = [f.strip() for f in next(csv.reader([line]))]
+        if len(fields) != len(cols):
+            raise InputError(f"{name}:{lineno}: expected {len(cols)} fields as in the header, got {len(fields)}")
         lines[r] = lineno
         for c, j in index.items():
-            raw = fields[j].strip() if j < len(fields) else ""
+            raw = fields[j]
             try:
                 v = float(raw)
             except ValueError:
-                raise InputError(f"{name}: line {lineno}, column '{c}': "
+                raise InputError(f"{name}:{lineno}: column '{c}': "
                                  f"{'missing value' if not raw else repr(raw) + ' is not a number'}") from None
             if c in integer and np.isfinite(v) and v != round(v):
-                raise InputError(f"{name}: line {lineno}, column '{c}': {raw!r} is not a whole number")
+                raise InputError(f"{name}:{lineno}: column '{c}': {raw!r} is not a whole number")
             out[c][r] = v
     out["_line"] = lines
     return out
@@ -76,15 +82,15 @@ def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], row
     for c in columns:
         bad = sel[~np.isfinite(table[c][sel])]
         if bad.size:
-            raise InputError(f"{os.fspath(path)}: line {table['_line'][bad[0]]}, column '{c}': "
-                             f"value is not finite")
+            raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{c}': "
+                             f"{table[c][bad[0]]!r} is not finite")
 
 
 def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> None:
     """Raise naming file, line and column of the first value not in ``allowed``."""
     bad = np.flatnonzero(~np.isin(table[column], allowed))
     if bad.size:
-        raise InputError(f"{os.fspath(path)}: line {table['_line'][bad[0]]}, column '{column}': "
+        raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{column}': "
                          f"{table[column][bad[0]]:g} is not one of {', '.join(f'{a:g}' for a in allowed)}")
 
 

@@ -16,7 +16,6 @@ row), or a YAML :class:`BidirectionalGrid` mapping (``.yaml``/``.yml``).
 
 # No "from __future__ import annotations": pydrake yaml_load_typed reads the
 # dataclass field types, and string annotations break it.
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .csvio import check_finite, check_values, read_table
 from .errormap import MOTION_TOLERANCE_DEG, approach_directions
 
 #: Tolerance (deg) for "step divides the range".
@@ -235,45 +235,12 @@ def load_plan(path) -> Plan:
     path = Path(path)
     if path.suffix.lower() in (".yaml", ".yml"):
         return _load_yaml(path)
-    with open(path, encoding="utf-8", newline="") as f:
-        lines = f.read().splitlines()
-    header, cols, data = None, {}, {k: [] for k in COLUMNS}
-    for lineno, line in enumerate(lines, 1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        fields = [s.strip() for s in next(csv.reader([line]))]
-        if header is None:
-            header = lineno
-            cols = {name: i for i, name in enumerate(fields)}
-            if len(cols) != len(fields):
-                dup = next(n for n in fields if fields.count(n) > 1)
-                raise ValueError(f"{path}:{lineno}: duplicate column {dup!r}")
-            for name in COLUMNS[:2]:
-                if name not in cols:
-                    raise ValueError(f"{path}:{lineno}: missing required column {name!r} "
-                                     f"(header has {', '.join(fields)})")
-            continue
-        if len(fields) != len(cols):
-            raise ValueError(f"{path}:{lineno}: expected {len(cols)} fields as in the header, "
-                             f"got {len(fields)}")
-        for name in COLUMNS:
-            if name not in cols:
-                continue
-            text = fields[cols[name]]
-            try:
-                v = float(text)
-            except ValueError:
-                raise ValueError(f"{path}:{lineno}: column {name!r}: {text!r} is not a number") from None
-            if not math.isfinite(v):
-                raise ValueError(f"{path}:{lineno}: column {name!r}: {text!r} is not finite")
-            if name == "measure" and v not in (0.0, 1.0):
-                raise ValueError(f"{path}:{lineno}: column 'measure': {text!r} must be 0 or 1")
-            data[name].append(v)
-    if header is None or not data["theta1_deg"]:
-        raise ValueError(f"{path}: empty plan (no header row or no data rows)")
-    measure = data["measure"] if "measure" in cols else [1.0] * len(data["theta1_deg"])
+    t = read_table(path, COLUMNS[:2], optional=COLUMNS[2:])
+    check_finite(t, path, [c for c in COLUMNS if c in t])
+    if "measure" in t:
+        check_values(t, path, "measure", (0.0, 1.0))
+    measure = t["measure"] == 1.0 if "measure" in t else np.ones(len(t["_line"]), dtype=bool)
     try:
-        return Plan(np.array(data["theta1_deg"]), np.array(data["theta2_deg"]),
-                    np.array(measure) == 1.0)
+        return Plan(t["theta1_deg"], t["theta2_deg"], measure)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None

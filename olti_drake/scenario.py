@@ -94,7 +94,7 @@ class SearchEstimate:
     ``angle_noise_mdeg`` uses the default search imprecision.
     """
 
-    positions_mm: List[List[float]] = field(default_factory=list)
+    positions_mm: list[list[float]] = field(default_factory=list)
     angle_noise_mdeg: float = -1.0
 
 
@@ -118,7 +118,7 @@ class PlanFile:
     path: str = ""
 
 
-def _paper_reflectors() -> List[List[float]]:
+def _paper_reflectors() -> list[list[float]]:
     # Nearly collinear, outside the reach (like 000 Fig. 5; the paper gives no numbers).
     return [[650.0, -450.0], [700.0, -50.0], [650.0, 350.0]]
 
@@ -133,7 +133,7 @@ class Scenario:
     """
 
     robot: Robot = field(default_factory=Robot)
-    reflectors_mm: List[List[float]] = field(default_factory=_paper_reflectors)
+    reflectors_mm: list[list[float]] = field(default_factory=_paper_reflectors)
     reflector_estimate: Union[SearchEstimate, PerturbedEstimate, ExactEstimate] = field(
         default_factory=SearchEstimate)
     interferometer: InterferometerOptions = field(default_factory=InterferometerOptions)
@@ -141,10 +141,10 @@ class Scenario:
     plan: Union[BidirectionalGrid, PlanFile] = field(default_factory=BidirectionalGrid)
     seed: int = 0
     period_s: float = 1.0
-    base_dir: str = field(default="", metadata={"yaml": False})
 
     def resolve(self, path: str) -> str:
-        return path if os.path.isabs(path) else os.path.join(self.base_dir, path)
+        """A path from the scenario, relative to the scenario file's directory."""
+        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", ""), path)
 
     def load_plan(self) -> Plan:
         if isinstance(self.plan, PlanFile):
@@ -224,10 +224,54 @@ def load_scenario(path=None) -> Scenario:
         raise InputError(f"{name}: scenario file not found")
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=name)
-    except Exception as e:  # pydrake's messages are multi-line; the first names the key
-        raise InputError(f"scenario {name}: {_first_line(e)}") from None
+    except Exception as e:  # pydrake's messages are multi-line and may not name the key
+        where = _locate_bad_field(Scenario, name)
+        raise InputError(f"scenario {name}: {where + ': ' if where else ''}{_first_line(e)}") from None
     scenario.base_dir = os.path.dirname(os.path.abspath(name))
     return scenario.validate(f"scenario {name}")
+
+
+def _locate_bad_field(schema, filename: str) -> str:
+    """Dotted path of the first field that does not load on its own ('' if none found).
+
+    pydrake reports e.g. a non-integer seed without naming it; this retries the
+    untagged parts of the document field by field to name the culprit.
+    """
+    import typing
+
+    import yaml
+    from pydrake.common.yaml import yaml_load_typed
+
+    class _Loader(yaml.SafeLoader):
+        pass
+
+    tagged = object()
+    _Loader.add_multi_constructor("!", lambda loader, suffix, node: tagged)
+    try:
+        with open(filename, encoding="utf-8") as f:
+            raw = yaml.load(f, Loader=_Loader)
+    except yaml.YAMLError:
+        return ""
+
+    def walk(cls, data, prefix):
+        if not isinstance(data, dict):
+            return ""
+        hints = typing.get_type_hints(cls)
+        for key, value in data.items():
+            if value is tagged or key not in hints:
+                continue
+            try:
+                yaml_load_typed(schema=cls, data=yaml.safe_dump({key: value}))
+            except Exception:
+                sub = hints[key]
+                deeper = walk(sub, value, f"{prefix}{key}.") if is_dataclass(sub) else ""
+                return deeper or f"{prefix}{key}"
+        return ""
+
+    try:
+        return walk(schema, raw, "")
+    except yaml.YAMLError:  # a subtree with tags nested inside plain data
+        return ""
 
 
 def _first_line(e: Exception) -> str:
@@ -244,8 +288,7 @@ def dump_scenario(scenario: Scenario) -> str:
 def as_plain(obj):
     """Dataclass tree -> plain dict/list (for truth.json provenance)."""
     if is_dataclass(obj):
-        out = {f.name: as_plain(getattr(obj, f.name)) for f in fields(obj)
-               if f.metadata.get("yaml", True)}
+        out = {f.name: as_plain(getattr(obj, f.name)) for f in fields(obj)}
         out["_type"] = type(obj).__name__
         return out
     if isinstance(obj, (list, tuple)):

@@ -1,0 +1,127 @@
+"""How long does ``olti simulate`` of the paper campaign take, and where does it go?
+
+    python benchmarks/bench_simulate.py
+
+Times, on this machine:
+
+(a) ``olti simulate`` as a subprocess, start-up (imports) included: the
+    issue's target is < 5 s on the 2-core machine; exits 1 when the best of
+    the repeats misses it;
+(b) the Drake diagram alone: ``prepare`` and ``run_campaign`` in-process;
+(c) a numpy-only baseline of the same readings (no Drake): the package's
+    vectorized model -- ``campaign_commands``, ``TrueRobot.laser_beam``,
+    ``simulate_readings`` -- which bounds what the diagram's per-reading
+    Python events cost.
+
+Units: readings in mm, times in s.
+"""
+
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from olti_drake.campaign import (STREAM_LASER, build_campaign_diagram, campaign_commands, prepare,
+                                 run_campaign)
+from olti_drake.interferometer import simulate_readings
+from olti_drake.scenario import Scenario
+
+#: The issue's target for ``olti simulate`` of the paper campaign, start-up included (s).
+TARGET_S = 5.0
+REPEATS = 3
+#: The baseline takes ~1 ms: more repeats for a stable best.
+BASELINE_REPEATS = 20
+
+
+def numpy_baseline(setup, rng=None) -> dict:
+    """The campaign's measured readings computed vectorized, without Drake.
+
+    Same commands, truth and interferometer model as the diagram; the noise
+    comes from one generator for all readings, so it equals the diagram's
+    only with noise off. Returns dict of (N,) arrays: ``reflector``,
+    ``theta1_deg``, ``theta2_deg``, ``theta4_deg``, ``displacement_mm``
+    (NaN where the beam is lost, as in the campaign), ``valid`` (0/1).
+    """
+    s, r = setup.scenario, setup.scenario.robot
+    if rng is None:
+        rng = np.random.default_rng([s.seed, STREAM_LASER])
+    c = campaign_commands(setup.plan, setup.reflectors_estimate_mm, setup.theta40_estimate_deg,
+                          r.nominal_L1_mm, r.nominal_L2_mm)
+    keep = setup.plan.measure[c["plan_row"]]
+    c = {k: v[keep] for k, v in c.items()}
+    j = c["reflector"]
+    origin, angle = setup.robot.laser_beam(*(c[k] for k in ("theta1", "theta2", "theta4",
+                                                             "dir1", "dir2", "dir4")))
+    reading, valid, _ = simulate_readings(origin, angle, setup.reflectors_mm[j], setup.dead_paths_mm[j],
+                                          s.interferometer, setup.budget, rng)
+    return {"reflector": j, "theta1_deg": c["theta1"], "theta2_deg": c["theta2"],
+            "theta4_deg": c["theta4"], "displacement_mm": np.where(valid, reading, np.nan),
+            "valid": valid.astype(int)}
+
+
+def olti_command() -> list:
+    """The installed ``olti`` script, or the module when it is not on PATH."""
+    exe = shutil.which("olti")
+    return [exe] if exe else [sys.executable, "-m", "olti_drake.cli"]
+
+
+def time_cli(repeats: int = REPEATS) -> list:
+    """Wall times (s) of ``olti simulate --out TMP``, each a fresh process."""
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            subprocess.run(olti_command() + ["simulate", "--out", tmp], check=True,
+                           stdout=subprocess.DEVNULL)
+            times.append(time.perf_counter() - t0)
+    return times
+
+
+def best_of(fn, repeats: int = REPEATS):
+    """(best wall time in s, last result) of ``repeats`` calls of ``fn()``."""
+    best, out = np.inf, None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main() -> int:
+    cli = time_cli()
+    t_prep, setup = best_of(lambda: prepare(Scenario()))
+    t_build, _ = best_of(lambda: build_campaign_diagram(setup))
+    t_diag, campaign = best_of(lambda: run_campaign(setup))
+    t_base, base = best_of(lambda: numpy_baseline(setup), repeats=BASELINE_REPEATS)
+    n = campaign.n_readings
+    if len(base["valid"]) != n:
+        sys.exit(f"error: the baseline has {len(base['valid'])} readings, the diagram {n}")
+
+    rows = [("(a) olti simulate, subprocess, best", min(cli)),
+            ("    olti simulate, subprocess, median", statistics.median(cli)),
+            ("(b) prepare (Eq. 2 search, counter zeros)", t_prep),
+            ("    build_campaign_diagram (in run_campaign)", t_build),
+            ("    run_campaign (build + simulate diagram)", t_diag),
+            ("(c) numpy baseline (vectorized, no Drake)", t_base)]
+    print(f"paper-000 campaign: {n} readings, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, "
+          f"best of {REPEATS} (baseline: of {BASELINE_REPEATS})")
+    print(f"{'':46s}{'time ms':>10s}{'readings/s':>12s}")
+    for name, t in rows:
+        rate = "" if "prepare" in name or "build_" in name else f"{n / t:.0f}"
+        print(f"{name:46s}{1e3 * t:10.2f}{rate:>12s}")
+    print(f"diagram / baseline: {t_diag / t_base:.0f}x; "
+          f"Python-event overhead {1e3 * (t_diag - t_build - t_base) / n:.3f} ms per reading "
+          f"(simulation minus build minus baseline)")
+    ok = min(cli) <= TARGET_S
+    print(f"target: olti simulate < {TARGET_S:g} s, start-up included: "
+          f"{'met' if ok else 'MISSED'} (best {min(cli):.2f} s)")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
