@@ -130,7 +130,7 @@ def make_station(builder, setup: Setup, name: str = "station"):
     joints = inner.AddNamedSystem("error_map_joint", ErrorMapJoint(
         [r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
     laser = inner.AddNamedSystem("laser_interferometer", LaserInterferometer(
-        plant.flange_frame_id, plant.laser_head_in_flange, setup.reflectors_mm, setup.dead_paths_mm,
+        plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
         s.interferometer, setup.budget, seed=_stream_seed(s.seed, STREAM_LASER), period_s=s.period_s))
     inner.Connect(joints.GetOutputPort("position"), plant.position_input)
     inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))

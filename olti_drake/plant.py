@@ -70,6 +70,11 @@ class ScaraPlant:
         """SceneGraph FrameId of the flange body (for QueryObject.GetPoseInWorld)."""
         return self.plant.GetBodyFrameIdOrThrow(self.flange.index())
 
+    @property
+    def reflector_frame_ids(self) -> list:
+        """SceneGraph FrameIds of the reflector bodies, index j = reflector j."""
+        return [self.plant.GetBodyFrameIdOrThrow(b.index()) for b in self.reflector_bodies]
+
     def reflector_positions_m(self) -> np.ndarray:
         """(Nt, 3) world positions of the reflector centres, m."""
         ctx = self.plant.CreateDefaultContext()

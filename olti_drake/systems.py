@@ -112,8 +112,9 @@ class LaserInterferometer(LeafSystem):
     """The laser range sensor on J4 (000 §2, §5; Table 2 noise).
 
     Inputs ``geometry_query`` (QueryObject of the SceneGraph holding the
-    robot; the laser head pose comes from the flange body's pose) and
-    ``reflector`` (1): index j of the reflector in use.
+    robot: the laser head pose comes from the flange body's pose, the
+    reflector centres from the reflector bodies') and ``reflector`` (1):
+    index j of the reflector in use.
     Outputs ``displacement`` (1, m): reading with the counter zero at
     ``dead_paths_mm[j]``; ``valid`` (1): 0 when the beam misses the cat's eye
     centre by more than the acceptance; ``miss`` (1, m): that miss.
@@ -123,12 +124,12 @@ class LaserInterferometer(LeafSystem):
     the same reading and the same seed gives the same campaign.
     """
 
-    def __init__(self, flange_frame_id, X_FL, reflectors_mm, dead_paths_mm,
+    def __init__(self, flange_frame_id, X_FL, reflector_frame_ids, dead_paths_mm,
                  options: InterferometerOptions, budget: Budget, seed: int, period_s: float):
         super().__init__()
         self._frame = flange_frame_id
         self._X_FL = X_FL
-        self._P = np.asarray(reflectors_mm, dtype=float).reshape(-1, 2)
+        self._reflectors = list(reflector_frame_ids)
         self._d0 = np.asarray(dead_paths_mm, dtype=float)
         self._options, self._budget, self._seed = options, budget, int(seed)
         self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
@@ -145,13 +146,15 @@ class LaserInterferometer(LeafSystem):
         discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
 
     def _calc(self, context, value):
-        X_WL = self.get_input_port(0).Eval(context).GetPoseInWorld(self._frame) @ self._X_FL
+        query = self.get_input_port(0).Eval(context)
+        X_WL = query.GetPoseInWorld(self._frame) @ self._X_FL
         j = int(self.get_input_port(1).Eval(context)[0])
+        P = query.GetPoseInWorld(self._reflectors[j]).translation()[:2] * M_TO_MM
         origin = X_WL.translation()[:2] * M_TO_MM
         x_axis = X_WL.rotation().matrix()[:2, 0]
         angle = np.degrees(np.arctan2(x_axis[1], x_axis[0]))
         rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-        reading, valid, miss = simulate_readings(origin[None], [angle], self._P[j][None], [self._d0[j]],
+        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self._d0[j]],
                                                  self._options, self._budget, rng)
         value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
 

@@ -212,3 +212,11 @@ def test_yaml_plan(tmp_path):
 def _write(path, text):
     path.write_text(text)
     return path
+
+
+def test_shipped_yaml_plan_expands_to_the_shipped_csv():
+    data = Path(__file__).resolve().parent.parent / "data"
+    a, b = load_plan(data / "plan_paper000.yaml"), load_plan(data / "plan_paper000.csv")
+    np.testing.assert_array_equal(a.theta1_deg, b.theta1_deg)
+    np.testing.assert_array_equal(a.theta2_deg, b.theta2_deg)
+    np.testing.assert_array_equal(a.measure, b.measure)
