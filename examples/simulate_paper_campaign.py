@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake.campaign import Campaign, make_station, prepare, truth_result, write_campaign
+from olti_drake.campaign import Campaign, make_station, prepare, write_campaign
 from olti_drake.scenario import load_scenario
 from olti_drake.systems import BeamSteering, CampaignRecorder, PlanSequencer
 
@@ -61,13 +61,6 @@ def build(setup, meshcat=None):
     return builder.Build(), sequencer, recorder, visualizer
 
 
-def to_campaign(setup, recorder) -> Campaign:
-    """The recorder's rows (mm/deg) as a :class:`Campaign` with the simulated truth."""
-    rows = np.array(recorder.rows, dtype=float).reshape(-1, len(CampaignRecorder.COLUMNS))
-    columns = {c: rows[:, i] for i, c in enumerate(CampaignRecorder.COLUMNS)}
-    return Campaign(columns, truth_result(setup, columns))
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
@@ -86,7 +79,7 @@ def main(argv=None) -> int:
     if visualizer is not None:
         visualizer.StartRecording()
     Simulator(diagram).AdvanceTo(sequencer.duration_s)  # every row of every run, and its reading
-    campaign = to_campaign(setup, recorder)
+    campaign = Campaign.from_recorder(setup, recorder)
 
     source = args.scenario or "embedded default (paper 000 experiment)"
     paths = write_campaign(campaign, args.out, comments=[

@@ -190,6 +190,14 @@ class Campaign:
     def n_readings(self) -> int:
         return len(self.columns["reflector"])
 
+    @classmethod
+    def from_recorder(cls, setup: Setup, recorder) -> "Campaign":
+        """The recorder's rows (mm/deg) as columns, with the simulated truth."""
+        names = type(recorder).COLUMNS
+        rows = np.array(recorder.rows, dtype=float).reshape(-1, len(names))
+        columns = {c: rows[:, i] for i, c in enumerate(names)}
+        return cls(columns, truth_result(setup, columns))
+
 
 def run_campaign(setup: Setup, progress=None) -> Campaign:
     """Simulate the diagram through the whole plan and collect the readings.
@@ -198,8 +206,6 @@ def run_campaign(setup: Setup, progress=None) -> Campaign:
     """
     from pydrake.systems.analysis import Simulator
 
-    from .systems import CampaignRecorder
-
     diagram, rec, seq = build_campaign_diagram(setup)
     simulator = Simulator(diagram)
     chunks = 50 if progress else 1
@@ -207,9 +213,7 @@ def run_campaign(setup: Setup, progress=None) -> Campaign:
         simulator.AdvanceTo(seq.duration_s * k / chunks)
         if progress:
             progress(k / chunks)
-    rows = np.array(rec.rows, dtype=float).reshape(-1, len(CampaignRecorder.COLUMNS))
-    columns = {c: rows[:, i] for i, c in enumerate(CampaignRecorder.COLUMNS)}
-    return Campaign(columns, truth_result(setup, columns))
+    return Campaign.from_recorder(setup, rec)
 
 
 def simulate(scenario: Scenario) -> Campaign:
