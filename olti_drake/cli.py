@@ -101,6 +101,89 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _pairs(text: str, name: str, size: int):
+    try:
+        rows = [[float(v) for v in part.split(",")] for part in text.replace(";", " ").split()]
+    except ValueError:
+        rows = []
+    if not rows or any(len(r) != size for r in rows):
+        raise ValueError(f"{name}: expected {'x,y;x,y;...' if size == 2 else 'L1,L2'} in mm, got {text!r}")
+    return rows
+
+
+def identification_summary(ident) -> str:
+    """Parameters ± standard uncertainty (k = 1), residual RMS, iterations, conditioning."""
+    import numpy as np
+
+    m = ident.model
+    u = {n: s for n, s in zip(ident.names, ident.std)}
+    lines = [f"model {'errormap' if m.is_errormap else 'dh'}: {ident.n_readings} readings, "
+             f"{len(ident.names)} parameters, solver {ident.solver}",
+             f"  L1 = {m.L1_mm:.4f} +- {u['L1_mm']:.4f} mm, L2 = {m.L2_mm:.4f} +- {u['L2_mm']:.4f} mm (k = 1)"]
+    if m.is_errormap:
+        for axis, mp in (("J1", m.map1), ("J2", m.map2)):
+            s = np.array([u[n] for n in ident.names if n.startswith(axis + "_")])
+            back = mp.forward_deg - mp.reverse_deg
+            lines.append(f"  {axis} map: {mp.n_nodes} nodes {mp.grid_deg[0]:g}..{mp.grid_deg[-1]:g} deg, "
+                         f"deviation {1e3 * mp.values.min():.2f}..{1e3 * mp.values.max():.2f} mdeg, "
+                         f"mean backlash {1e3 * back.mean():.2f} mdeg, u up to {1e3 * s.max():.3f} mdeg")
+    else:
+        lines.append(f"  theta20 = {1e3 * m.theta20_deg:.3f} +- {1e3 * u['theta20_deg']:.3f} mdeg")
+    for j, (p, d0) in enumerate(zip(ident.reflectors_mm, ident.dead_paths_mm)):
+        lines.append(f"  P{j} = ({p[0]:.3f}, {p[1]:.3f}) mm, d0_{j} = {d0:.3f} mm")
+    lines.append(f"  residual RMS {1e3 * ident.residual_rms_mm:.2f} um, {ident.iterations} iterations, "
+                 f"condition number {ident.condition_number:.3g} (scaled, within the gauge)")
+    lines.append(f"  gauge: {ident.gauge}")
+    for note in ident.notes:
+        lines.append(f"  note: {note}")
+    if ident.outliers:
+        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in ident.outliers[:10])
+        more = f" and {len(ident.outliers) - 10} more" if len(ident.outliers) > 10 else ""
+        lines.append(f"  {len(ident.outliers)} suspect reading(s) beyond the outlier threshold: {shown}{more}")
+    return "\n".join(lines)
+
+
+def cmd_identify(args) -> int:
+    from .campaign_io import load_campaign
+    from .identification import IdentificationOptions, identify, parse_grid
+    from .result import write_result
+
+    _refuse_overwrite([args.out], [args.campaign])
+    nominal = _pairs(args.nominal_mm, "--nominal-mm", 2)[0] if args.nominal_mm else (325.0, 225.0)
+    options = IdentificationOptions(
+        model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
+        grid1_deg=parse_grid(args.grid1_deg, "--grid1-deg") if args.grid1_deg else None,
+        grid2_deg=parse_grid(args.grid2_deg, "--grid2-deg") if args.grid2_deg else None,
+        reflectors_mm=_pairs(args.reflectors_mm, "--reflectors-mm", 2) if args.reflectors_mm else None,
+        fix_reflectors=args.fix_reflectors, loss=args.loss, huber_k=args.huber_k,
+        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+    if options.fix_reflectors and options.reflectors_mm is None:
+        raise ValueError("--fix-reflectors needs --reflectors-mm")
+    data = load_campaign(args.campaign)
+    ident = identify(data, options)
+    write_result(ident, args.out)
+    print(identification_summary(ident))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_predict(args) -> int:
+    from .campaign_io import load_commands
+    from .csvio import write_table
+    from .result import load_result
+
+    _refuse_overwrite([args.out], [args.result, args.commands])
+    model, _, _, _ = load_result(args.result, outside=args.outside)
+    cmd = load_commands(args.commands)
+    p = model.positions(cmd)
+    cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg, "dir1": cmd.dir1, "dir2": cmd.dir2,
+            "x_mm": p[:, 0], "y_mm": p[:, 1]}
+    write_table(args.out, cols, {"dir1": "%d", "dir2": "%d", "x_mm": "%.6f", "y_mm": "%.6f"},
+                comments=[f"olti predict: {args.result} applied to {args.commands}; mm and degrees"])
+    print(f"predicted {len(cmd)} positions; wrote {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
@@ -119,6 +202,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+                       description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
+                                   "from a campaign CSV; print a summary; write RESULT.json.")
+    p.add_argument("campaign", help="campaign CSV (formats.md)")
+    p.add_argument("--model", choices=("dh", "errormap"), required=True)
+    p.add_argument("--out", required=True, help="result JSON to write")
+    p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
+    p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
+    p.add_argument("--nominal-mm", help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
+    p.add_argument("--reflectors-mm", help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
+    p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
+    p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
+    p.add_argument("--huber-k", type=float, default=3.0, help="Huber threshold in robust sigmas (default 3)")
+    p.add_argument("--outlier-threshold", type=float, default=4.0,
+                   help="report readings whose normalized residual exceeds this (default 4)")
+    p.add_argument("--regularize", action="store_true",
+                   help="regularize unidentifiable parameters (and say so) instead of stopping")
+    p.add_argument("--solver", choices=("lm", "nlp"), default="lm",
+                   help="lm: Levenberg-Marquardt steps as Drake programs (default); nlp: Drake NLP solver")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
+                       description="Apply an identified model to commands (formats.md commands.csv); write "
+                                   "the commands with the predicted x_mm, y_mm.")
+    p.add_argument("result", help="result JSON from olti identify")
+    p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
+    p.add_argument("--out", required=True, help="prediction CSV to write")
+    p.add_argument("--outside", choices=("error", "clamp"), default="error",
+                   help="commands outside the map grid: refuse (default) or hold the end values")
+    p.set_defaults(func=cmd_predict)
     return parser
 
 

@@ -1,0 +1,82 @@
+"""Reading SCARA campaign files for identification (shared/spec/formats.md).
+
+Units: mm and degrees. Rows with ``valid`` = 0 are kept in the file and
+skipped here; every error names the file, the line and the column.
+"""
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .csvio import InputError, check_finite, check_values, read_table
+from .kinematics import JointCommands
+
+REQUIRED = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm")
+OPTIONAL = ("theta4_deg", "valid")
+
+
+@dataclass(frozen=True)
+class CampaignData:
+    """The valid readings of a campaign: reflector index j, commands, d_j(k) (mm), file lines."""
+
+    reflector: np.ndarray
+    commands: JointCommands
+    displacement_mm: np.ndarray
+    line: np.ndarray
+    source: str = ""
+    n_skipped: int = 0
+
+    def __len__(self) -> int:
+        return self.reflector.size
+
+    @property
+    def n_reflectors(self) -> int:
+        return int(self.reflector.max()) + 1
+
+    def subset(self, rows) -> "CampaignData":
+        """The readings at ``rows`` (a boolean mask or indices)."""
+        c = self.commands
+        return CampaignData(self.reflector[rows], JointCommands(c.theta1_deg[rows], c.theta2_deg[rows],
+                                                                c.dir1[rows], c.dir2[rows]),
+                            self.displacement_mm[rows], self.line[rows], self.source, self.n_skipped)
+
+
+def load_campaign(path) -> CampaignData:
+    """Load a SCARA campaign CSV; skip ``valid`` = 0 rows; validate what is used.
+
+    Checks (one-line errors): required columns, numbers, finite values in the
+    valid rows, directions ±1, reflector indices whole numbers 0..N_t-1 with
+    every index used.
+    """
+    name = os.fspath(path)
+    t = read_table(path, REQUIRED, OPTIONAL, integer=("reflector", "dir1", "dir2", "valid"))
+    if "valid" in t:
+        check_values(t, path, "valid", (0.0, 1.0))
+    keep = t["valid"] == 1 if "valid" in t else np.ones(t["_line"].size, dtype=bool)
+    if not keep.any():
+        raise InputError(f"{name}: no valid readings (every row has valid = 0)")
+    t = {k: v[keep] for k, v in t.items()}
+    check_finite(t, path, REQUIRED)
+    for c in ("dir1", "dir2"):
+        check_values(t, path, c, (-1.0, 1.0))
+    j = t["reflector"]
+    if np.any(j < 0):
+        bad = np.flatnonzero(j < 0)[0]
+        raise InputError(f"{name}:{t['_line'][bad]}: column 'reflector': {j[bad]:g} is negative")
+    missing = sorted(set(range(int(j.max()) + 1)) - set(j.astype(int)))
+    if missing:
+        raise InputError(f"{name}: reflector index {missing[0]} has no valid reading "
+                         f"(indices must run 0..{int(j.max())})")
+    return CampaignData(j.astype(int), JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]),
+                        t["displacement_mm"], t["_line"], name, int((~keep).sum()))
+
+
+def load_commands(path) -> JointCommands:
+    """Load a ``commands.csv`` (θ1*, θ2* deg; dir1, dir2 ±1), formats.md."""
+    cols = ("theta1_deg", "theta2_deg", "dir1", "dir2")
+    t = read_table(path, cols, integer=("dir1", "dir2"))
+    check_finite(t, path, cols)
+    for c in ("dir1", "dir2"):
+        check_values(t, path, c, (-1.0, 1.0))
+    return JointCommands(*(t[c] for c in cols))

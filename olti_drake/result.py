@@ -1,0 +1,100 @@
+"""Identification results as ``result.json`` (shared/spec/formats.md), and back.
+
+Units: mm and degrees. Standard uncertainties (k = 1) go in ``uncertainty``
+with the same keys and shapes as the values.
+"""
+
+import json
+import os
+
+import numpy as np
+
+from .csvio import InputError
+from .errormap import ErrorMap
+from .kinematics import ScaraModel
+
+FORMAT = "olti-result/1"
+
+
+def _values(model: ScaraModel, P, d0) -> dict:
+    out = {"L1_mm": float(model.L1_mm), "L2_mm": float(model.L2_mm)}
+    if model.is_errormap:
+        out["error_map"] = {"J1": model.map1.to_dict(), "J2": model.map2.to_dict()}
+    else:
+        out["theta20_deg"] = float(model.theta20_deg)
+    out["reflectors_mm"] = np.asarray(P, dtype=float).reshape(-1, 2).tolist()
+    out["dead_paths_mm"] = np.asarray(d0, dtype=float).tolist()
+    return out
+
+
+def result_dict(ident, identifier=None) -> dict:
+    """The ``result.json`` object of an :class:`~olti_drake.identification.Identification`."""
+    model = ident.model
+    out = {"format": FORMAT, "model": "errormap" if model.is_errormap else "dh"}
+    out.update(_values(model, ident.reflectors_mm, ident.dead_paths_mm))
+    out["gauge"] = ident.gauge
+    out["residual_rms_mm"] = ident.residual_rms_mm
+    out["n_readings"] = ident.n_readings
+    # Uncertainty: the same layout, filled with the standard uncertainties.
+    std_model = model.with_parameters(ident.std[:len(model.parameter_names())])
+    n = len(model.parameter_names())
+    n_t = len(ident.dead_paths_mm)
+    unc = _values(std_model, ident.std[n:n + 2 * n_t], ident.std[n + 2 * n_t:])
+    unc.update({"k": 1, "method": "linear propagation of the identification Jacobian (JCGM 100), "
+                                  "residual-based reading uncertainty"})
+    if model.is_errormap:
+        for axis in ("J1", "J2"):
+            unc["error_map"][axis].pop("grid_deg")
+    out["uncertainty"] = unc
+    out["iterations"] = ident.iterations
+    out["condition_number"] = ident.condition_number
+    out["solver"] = ident.solver
+    out["outliers"] = ident.outliers
+    if ident.notes:
+        out["notes"] = ident.notes
+    return out
+
+
+def write_result(ident, path) -> None:
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(result_dict(ident), f, indent=1)
+        f.write("\n")
+
+
+def load_result(path, outside: str = "error"):
+    """Read a result.json -> (ScaraModel, reflectors (Nt, 2) mm, dead paths (Nt,) mm, raw dict).
+
+    Errors name the file and the missing or bad key.
+    """
+    name = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as e:
+        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InputError(f"{name}: 'format' must be {FORMAT!r}")
+    kind = data.get("model")
+    need = ["L1_mm", "L2_mm"] + (["theta20_deg"] if kind == "dh" else ["error_map"])
+    if kind not in ("dh", "errormap"):
+        raise InputError(f"{name}: 'model' must be 'dh' or 'errormap', got {kind!r}")
+    missing = [k for k in need if k not in data]
+    if missing:
+        raise InputError(f"{name}: missing key '{missing[0]}' (model {kind})")
+    try:
+        if kind == "dh":
+            model = ScaraModel(float(data["L1_mm"]), float(data["L2_mm"]), float(data["theta20_deg"]))
+        else:
+            maps = []
+            for axis in ("J1", "J2"):
+                if axis not in data["error_map"]:
+                    raise InputError(f"{name}: missing key 'error_map.{axis}'")
+                maps.append(ErrorMap.from_dict(data["error_map"][axis], axis, outside))
+            model = ScaraModel(float(data["L1_mm"]), float(data["L2_mm"]), None, *maps)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{name}: {e}") from None
+    P = np.asarray(data.get("reflectors_mm", []), dtype=float).reshape(-1, 2)
+    d0 = np.asarray(data.get("dead_paths_mm", []), dtype=float)
+    return model, P, d0, data
