@@ -40,7 +40,11 @@ RANK_TOLERANCE = 1e-12
 
 
 class UnidentifiableError(InputError):
-    """The campaign cannot determine the named parameters."""
+    """The campaign cannot determine the named parameters (listed in :attr:`names`)."""
+
+    def __init__(self, message: str, names=()):
+        super().__init__(message)
+        self.names = list(names)
 
 
 @dataclass
@@ -298,7 +302,8 @@ class Identifier:
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
         if untouched:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
-                                      f"{'it' if len(untouched) == 1 else 'them'} (set a coarser map grid)")
+                                      f"{'it' if len(untouched) == 1 else 'them'} (set a coarser map grid)",
+                                      untouched)
         M, N, s = self._reduced_hessian(H)
         lam, vec = np.linalg.eigh(M)
         weak = lam < RANK_TOLERANCE * lam[-1]
@@ -308,12 +313,12 @@ class Identifier:
             names = [self.names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
             raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
                                       f"reading unchanged (rank deficient by {int(weak.sum())}; check the "
-                                      f"reflector layout, e.g. collinear reflectors, or fix a parameter)")
+                                      f"reflector layout, e.g. collinear reflectors, or fix a parameter)", names)
         return float(np.sqrt(lam[-1] / lam[0]))
 
     def _regularize(self, error: UnidentifiableError):
         """Weak prior on the named parameters (1e-6 of a typical reading's weight)."""
-        names = [n for n in self.names if n in str(error)]
+        names = error.names
         idx = [self.names.index(n) for n in names]
         w = 1e-6 * len(self.data)
         self.prog.AddQuadraticCost(w * np.eye(len(idx)), -w * self.x0[idx], self.variables[idx], is_convex=True)
@@ -333,6 +338,7 @@ class Identifier:
             if not o.regularize:
                 raise
             self._regularize(e)
+        self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
         x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
         return self._result(x, iterations, weights)
 
@@ -360,7 +366,8 @@ class Identifier:
                 x_new = x + delta
                 r_new, J_new = self.residuals(x_new)
                 cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
-                if cost_new <= cost or lam > 1e12:
+                # Stop damping once the step is at rounding level: the minimum is reached.
+                if cost_new <= cost or lam > 1e12 or np.max(np.abs(delta)) < 1e-13:
                     break
                 lam *= 8.0
             if cost_new > cost:  # no descent even with a tiny step: at the minimum
@@ -410,6 +417,7 @@ class Identifier:
                 raise InputError(f"NLP solver {result.get_solver_id().name()} failed: {result.get_solution_result()}")
             x = result.GetSolution(self.variables)
             weights[:] = self._weights(self.residuals(x)[0])
+        self._solver_used = f"nlp: {result.get_solver_id().name()}"
         return x, rounds, weights
 
     def _result(self, x, iterations, weights) -> Identification:
@@ -427,7 +435,7 @@ class Identifier:
                for k in np.argsort(-np.abs(z)) if abs(z[k]) > self.options.outlier_threshold]
         return Identification(model, P, d0, list(self.names), x, np.sqrt(np.maximum(np.diag(cov), 0)), cov, r,
                               iterations, float(np.sqrt(lam[-1] / lam[0])), self.gauge,
-                              f"{self.options.solver} ({self.options.loss})", out, list(self.notes), len(r))
+                              f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes), len(r))
 
 
 def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
