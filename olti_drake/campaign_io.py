@@ -72,11 +72,11 @@ def load_campaign(path) -> CampaignData:
                         t["displacement_mm"], t["_line"], name, int((~keep).sum()))
 
 
-def load_commands(path) -> JointCommands:
-    """Load a ``commands.csv`` (θ1*, θ2* deg; dir1, dir2 ±1), formats.md."""
+def load_commands(path):
+    """Load a ``commands.csv`` (θ1*, θ2* deg; dir1, dir2 ±1), formats.md -> (JointCommands, file lines)."""
     cols = ("theta1_deg", "theta2_deg", "dir1", "dir2")
     t = read_table(path, cols, integer=("dir1", "dir2"))
     check_finite(t, path, cols)
     for c in ("dir1", "dir2"):
         check_values(t, path, c, (-1.0, 1.0))
-    return JointCommands(*(t[c] for c in cols))
+    return JointCommands(*(t[c] for c in cols)), t["_line"]

@@ -88,16 +88,30 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
     from .figures import write_campaign_figures
+    from .result import write_result
+    from .validation import campaign_data, validate_models, validation_table, write_validation_figures
 
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(None, args.out)
     print("paper 000 experiment, simulated (open-loop tracking interferometer on a SCARA robot)")
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
-    for path in write_campaign_figures(setup, campaign, args.out):
+    r = setup.scenario.robot
+    report = validate_models(campaign_data(campaign), setup.robot, (r.nominal_L1_mm, r.nominal_L2_mm),
+                             seed=setup.scenario.seed)
+    for (label, ident), name in zip(report.identifications.items(), ("result_dh.json", "result_errormap.json")):
+        print(f"\nidentified {label} model (000 §4.2):")
+        print(identification_summary(ident))
+        write_result(ident, os.path.join(args.out, name))
+        print(f"wrote {os.path.join(args.out, name)}")
+    print()
+    print(validation_table(report))
+    figures = write_campaign_figures(setup, campaign, args.out) + write_validation_figures(report, args.out, setup)
+    for path in figures:
         print(f"wrote {path}")
-    print("identification of the D-H and error-map models: not yet available in this version")
+    print(f"demo done in {time.perf_counter() - t0:.1f} s")
     return 0
 
 
@@ -173,9 +187,14 @@ def cmd_predict(args) -> int:
     from .result import load_result
 
     _refuse_overwrite([args.out], [args.result, args.commands])
+    from .errormap import OutsideGridError
+
     model, _, _, _ = load_result(args.result, outside=args.outside)
-    cmd = load_commands(args.commands)
-    p = model.positions(cmd)
+    cmd, lines = load_commands(args.commands)
+    try:
+        p = model.positions(cmd)
+    except OutsideGridError as e:
+        raise ValueError(f"{args.commands}:{lines[e.row]}: {e} -- or run with --outside clamp") from None
     cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg, "dir1": cmd.dir1, "dir2": cmd.dir2,
             "x_mm": p[:, 0], "y_mm": p[:, 1]}
     write_table(args.out, cols, {"dir1": "%d", "dir2": "%d", "x_mm": "%.6f", "y_mm": "%.6f"},
@@ -189,9 +208,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
-    p = sub.add_parser("demo", help="simulate the paper-000 experiment and summarize it; write figures",
+    p = sub.add_parser("demo", help="simulate the paper-000 experiment, identify D-H and error-map models, "
+                                    "compare them on unseen paths; write results and figures",
                        description="Simulate the paper-000 SCARA experiment on the embedded default "
-                                   "scenario, summarize the campaign and write figures (PNG).")
+                                   "scenario, identify the D-H and error-map models (000 §4.2), compare "
+                                   "their predictions with a simulated laser tracker on paths not used in "
+                                   "the identification (000 §4.3), write result_dh.json, "
+                                   "result_errormap.json and figures (PNG).")
     p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
@@ -236,8 +259,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options whose values may start with '-' (negative angles, coordinates).
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm")
+
+
+def _join_signed_values(argv):
+    """``--grid1-deg -140:60:20`` -> ``--grid1-deg=-140:60:20`` (argparse would take it for an option)."""
+    out, it = [], iter(argv)
+    for a in it:
+        if a in _SIGNED_VALUE_OPTIONS:
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
     from .csvio import InputError
 
     try:

@@ -83,7 +83,7 @@ def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], row
         bad = sel[~np.isfinite(table[c][sel])]
         if bad.size:
             raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{c}': "
-                             f"{table[c][bad[0]]!r} is not finite")
+                             f"{table[c][bad[0]]:g} is not finite")
 
 
 def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> None:

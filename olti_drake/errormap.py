@@ -32,7 +32,14 @@ GRID_TOLERANCE_DEG = 1e-9
 
 
 class OutsideGridError(ValueError):
-    """A command angle lies outside an error map's grid and the policy is 'error'."""
+    """A command angle lies outside an error map's grid and the policy is 'error'.
+
+    ``row`` is the 0-based index of the first offending command.
+    """
+
+    def __init__(self, message: str, row: int):
+        super().__init__(message)
+        self.row = row
 
 
 def _directions(direction, n: int) -> np.ndarray:
@@ -156,10 +163,10 @@ class ErrorMap:
         lo, hi = g[0] - GRID_TOLERANCE_DEG, g[-1] + GRID_TOLERANCE_DEG
         out = (th < lo) | (th > hi)
         if np.any(out) and self.outside == "error":
-            bad = th[out][0]
+            row = int(np.flatnonzero(out)[0])
             raise OutsideGridError(
-                f"error map {self.axis}: command angle {bad:g} deg is outside the map grid "
-                f"[{g[0]:g}, {g[-1]:g}] deg (policy 'error'; use outside='clamp' to hold the end values)")
+                f"error map {self.axis}: command angle {th[row]:g} deg is outside the map grid "
+                f"[{g[0]:g}, {g[-1]:g}] deg (policy 'error'; clamping would hold the end values)", row)
         thc = np.clip(th, g[0], g[-1])
         block = np.where(d > 0, 0, n)
         rows = np.arange(k)

@@ -1,6 +1,6 @@
 """Figures in the manner of paper 000 (matplotlib, PNG, no display needed).
 
-Units on every axis: mm and mdeg.
+Units on every axis: mm, mdeg, and µm for positioning errors.
 """
 
 import os
@@ -71,3 +71,138 @@ def write_campaign_figures(setup, campaign, out_dir):
     os.makedirs(out_dir, exist_ok=True)
     return [plot_poses_and_reflectors(setup, campaign, os.path.join(out_dir, "fig5_poses_reflectors.png")),
             plot_truth_maps(setup, os.path.join(out_dir, "fig6_truth_maps.png"))]
+
+
+# -- identification and validation (000 Figs. 6, 9-11) ---------------------------------------------
+_DIRECTIONS = ((1, "tab:red", "positive (+1)"), (-1, "tab:blue", "negative (-1)"))
+_PASSES = ((1, "tab:red", "forward pass (+1)"), (-1, "tab:blue", "return pass (-1)"))
+
+
+def _save(fig, plt, path):
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _gauge_node(grid_deg) -> float:
+    """Where the identification fixes the J1 rotation: θ1* = 0 clipped into the grid (deg)."""
+    return float(np.clip(0.0, grid_deg[0], grid_deg[-1]))
+
+
+def plot_identified_maps(ident, truth, path):
+    """Identified Δθ_map(θ*, ±1) of J1 and J2 with k = 1 error bars, as 000 Fig. 6.
+
+    ``ident``: an error-map :class:`~olti_drake.identification.Identification`
+    (deviations and ``ident.std`` in deg, plotted in mdeg). ``truth``: the
+    simulated robot (TrueRobot, or a campaign Setup) to overlay as continuous
+    curves, or None. The J1 truth is shifted by the gauge constant -- its mean
+    of (+1, -1) at θ1* = 0 -- because the identification fixes that level to 0
+    (a rotation about J1 is unobservable); J2 needs no shift.
+    """
+    plt = _pyplot()
+    robot = getattr(truth, "robot", truth)  # a Setup carries its TrueRobot
+    std = dict(zip(ident.names, ident.std))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, axis, m, label in ((axes[0], "J1", ident.model.map1, "a"), (axes[1], "J2", ident.model.map2, "b")):
+        g = m.grid_deg
+        shift, note = 0.0, ""
+        if robot is not None and axis == "J1":
+            at = _gauge_node(g)
+            shift = float(np.mean(robot.deviation("J1")(np.array([at, at]), np.array([1.0, -1.0]))))
+            note = f" - {1e3 * shift:.2f} mdeg (gauge: mean at {at:g} deg = 0)"
+        for d, color, name in _DIRECTIONS:
+            block = "forward" if d > 0 else "reverse"
+            u = np.array([std[f"{axis}_{block}_deg[{i}]"] for i in range(m.n_nodes)])
+            values = m.forward_deg if d > 0 else m.reverse_deg
+            ax.errorbar(g, 1e3 * values, yerr=1e3 * u, fmt="o", color=color, ms=4, capsize=3,
+                        label=f"identified, {name}, error bar u (k = 1)")
+            if robot is not None:
+                dense = np.linspace(g[0], g[-1], 400)
+                ax.plot(dense, 1e3 * (robot.deviation(axis)(dense, d) - shift), color=color, lw=1, alpha=0.6,
+                        label=f"truth, {name}{note}")
+        ax.set(xlabel=f"{axis} command angle θ{axis[1]}*, deg", ylabel="angular positioning deviation, mdeg",
+               title=f"{label}) {axis}: identified bidirectional deviation (000 Fig. 6{label})")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    return _save(fig, plt, path)
+
+
+def plot_path_deviation(xy_cmd_mm, pass_dir, measured_mm, dh_mm, errormap_mm, path):
+    """E_YY and E_XY along a Y-path (X = 200 mm in 000): measured vs model, as 000 Figs. 9-10.
+
+    All positions (N, 2) mm; ``pass_dir`` (N,) +1/-1 (forward/return pass).
+    Columns: E_YY = y - y* (Fig. 9), E_XY = x - x* (Fig. 10), in µm vs the
+    command Y (mm). Rows: a) D-H model (green ○), b) error-map model (○ red/blue).
+    Measured: × red/blue by direction.
+    """
+    plt = _pyplot()
+    cmd, meas = np.asarray(xy_cmd_mm), np.asarray(measured_mm)
+    y = cmd[:, 1]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7.5), sharex=True)
+    for col, (c, name, fig_no) in enumerate(((1, "E_YY = y - y*", 9), (0, "E_XY = x - x*", 10))):
+        for row, (label, model, pred) in enumerate((("a", "D-H model", dh_mm), ("b", "error-map model", errormap_mm))):
+            ax = axes[row, col]
+            for d, color, dname in _PASSES:
+                s = np.asarray(pass_dir) == d
+                ax.plot(y[s], 1e3 * (meas[s, c] - cmd[s, c]), "x", color=color, ms=6, label=f"measured, {dname}")
+                if row == 1:
+                    ax.plot(y[s], 1e3 * (pred[s, c] - cmd[s, c]), "o", mfc="none", color=color, ms=7,
+                            label=f"error-map model, {dname}")
+            if row == 0:
+                ax.plot(y, 1e3 * (pred[:, c] - cmd[:, c]), "o", mfc="none", color="tab:green", ms=7,
+                        label="D-H model")
+            ax.set(ylabel=f"{name}, µm", title=f"Fig. {fig_no}{label}: measured vs {model}")
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7)
+        axes[1, col].set_xlabel("command Y, mm (X = %g mm)" % np.round(np.median(cmd[:, 0]), 3))
+    return _save(fig, plt, path)
+
+
+def plot_error_vectors(xy_cmd_mm, pass_dir, path_id, measured_mm, errormap_mm, dh_mm, path,
+                       magnification: float = 1000.0, scale_um: float = 200.0):
+    """Error vectors over the workspace, as 000 Fig. 11 (four panels).
+
+    a) measured, b) error-map model, c) D-H model: the error vector from the
+    command position (black dot) to the position; d) measured - error-map
+    model, drawn from the command position. Positions (N, 2) mm; vectors
+    magnified ``magnification`` times (1000: an error of ``scale_um`` = 200 µm
+    is drawn 200 mm long, the "error scale"). Red/blue: forward/return pass
+    (``pass_dir`` +1/-1); the magnified positions (○) of one pass of one path
+    (``path_id``) are joined, as the paper's trajectories.
+    """
+    plt = _pyplot()
+    cmd, meas = np.asarray(xy_cmd_mm), np.asarray(measured_mm)
+    pass_dir, path_id = np.asarray(pass_dir), np.asarray(path_id)
+    panels = (("a) measured (tracker)", meas - cmd), ("b) error-map model", errormap_mm - cmd),
+              ("c) D-H model", dh_mm - cmd), ("d) measured - error-map model", meas - errormap_mm))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 13.5), sharex=True, sharey=True)
+    for ax, (title, err) in zip(axes.ravel(), panels):
+        tip = cmd + magnification * err
+        for d, color, name in _PASSES:
+            s = pass_dir == d
+            # The vectors themselves, faint: the joined tips carry the message.
+            ax.plot(np.stack([cmd[s, 0], tip[s, 0]]), np.stack([cmd[s, 1], tip[s, 1]]), "-", color=color,
+                    lw=0.5, alpha=0.35)
+            for i in np.unique(path_id[s]):
+                k = s & (path_id == i)
+                ax.plot(tip[k, 0], tip[k, 1], "o-", color=color, ms=2.5, lw=0.9, mfc="none",
+                        label=name if i == path_id[s].min() else None)
+        ax.plot(cmd[:, 0], cmd[:, 1], ".", color="k", ms=4, label="command positions")
+        rms = 1e3 * np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
+        ax.set_title(f"{title}\nRMS {rms:.1f} µm", fontsize=10)
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+    # The error scale: a bar of scale_um µm, magnified.
+    ax = axes[0, 0]
+    x0, y0 = cmd[:, 0].min(), cmd[:, 1].max() + 80
+    ax.plot([x0, x0 + magnification * scale_um * 1e-3], [y0, y0], "k-", lw=2.5)
+    ax.annotate(f"error scale: {scale_um:g} µm (x{magnification:g})", (x0, y0), textcoords="offset points",
+                xytext=(0, 5), fontsize=8)
+    ax.legend(fontsize=8, loc="lower left")
+    for ax in axes[1]:
+        ax.set_xlabel("X, mm")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("Y, mm")
+    fig.suptitle("Positioning error on paths not used in the identification (000 Fig. 11)")
+    return _save(fig, plt, path)

@@ -192,11 +192,12 @@ class Identifier:
             raise UnidentifiableError(
                 f"{d.source}: {counts.size} reflector position(s); with unknown reflector positions at least 3 "
                 f"are needed (000 §3.2.2 Remark 1) -- P and d0 of every reflector are not identifiable")
-        few = np.flatnonzero(counts <= 3)
+        few = np.flatnonzero(counts < 3)
         if few.size:
             raise UnidentifiableError(
-                f"{d.source}: reflector {few[0]} has {counts[few[0]]} valid reading(s); each reflector needs more "
-                f"than 3 (its position P{few[0]} and dead path d0_{few[0]} are 3 unknowns)")
+                f"{d.source}: reflector {few[0]} has {counts[few[0]]} valid reading(s); each reflector needs at "
+                f"least 3 (its position P{few[0]} and dead path d0_{few[0]} are 3 unknowns)",
+                [f"P{few[0]}_x_mm", f"P{few[0]}_y_mm", f"d0_{few[0]}_mm"])
 
     def _robot_start(self) -> ScaraModel:
         o, c = self.options, self.data.commands
@@ -298,7 +299,7 @@ class Identifier:
         """
         x = self.x0 if x is None else x
         _, J = self.residuals(x)
-        H = (J.T @ J).toarray()
+        H = (J.T @ J).toarray() + self._prior_hessian()  # priors do determine what they constrain
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
         if untouched:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
@@ -332,12 +333,14 @@ class Identifier:
             raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
         if o.loss not in ("l2", "huber"):
             raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
-        try:
-            self.check_identifiability()
-        except UnidentifiableError as e:
-            if not o.regularize:
-                raise
-            self._regularize(e)
+        for _ in range(len(self.names)):
+            try:
+                self.check_identifiability()
+                break
+            except UnidentifiableError as e:
+                if not o.regularize:
+                    raise
+                self._regularize(e)
         self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
         x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
         return self._result(x, iterations, weights)
@@ -388,6 +391,10 @@ class Identifier:
         _shift_bindings(self.prog, step, d, x)
         result = Solve(step)
         if not result.is_success():
+            # EqConstrainedQP can refuse a nearly singular KKT system at the optimum: retry interior-point.
+            from pydrake.solvers import ClarabelSolver
+            result = ClarabelSolver().Solve(step)
+        if not result.is_success():
             raise InputError(f"the constraints added to the program cannot be satisfied "
                              f"({result.get_solver_id().name()}: {result.get_solution_result()})")
         return result.GetSolution(d)
@@ -420,11 +427,25 @@ class Identifier:
         self._solver_used = f"nlp: {result.get_solver_id().name()}"
         return x, rounds, weights
 
+    def _prior_hessian(self) -> np.ndarray:
+        """Hessian of the program's quadratic costs (priors, regularization), over all variables."""
+        from pydrake.solvers import QuadraticCost
+
+        Q = np.zeros((len(self.names), len(self.names)))
+        for b in self.prog.GetAllCosts():
+            if isinstance(b.evaluator(), QuadraticCost):
+                idx = self.prog.FindDecisionVariableIndices(b.variables())
+                Q[np.ix_(idx, idx)] += b.evaluator().Q()
+        return Q
+
     def _result(self, x, iterations, weights) -> Identification:
         r, J = self.residuals(x)
         H = (J.T @ sp.diags(weights) @ J).toarray()
-        M, N, s = self._reduced_hessian(H)
-        lam = np.linalg.eigvalsh(M)
+        M_data, _, _ = self._reduced_hessian(H)
+        lam = np.linalg.eigvalsh(M_data)
+        cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
+        # Priors (user costs, regularization) inform the estimate: include them in the covariance.
+        M, N, s = self._reduced_hessian(H + self._prior_hessian())
         dof = max(len(r) - N.shape[1], 1)
         sigma2 = np.sum(weights * r * r) / dof
         cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
@@ -434,7 +455,7 @@ class Identifier:
                 "residual_mm": float(r[k]), "normalized": float(z[k])}
                for k in np.argsort(-np.abs(z)) if abs(z[k]) > self.options.outlier_threshold]
         return Identification(model, P, d0, list(self.names), x, np.sqrt(np.maximum(np.diag(cov), 0)), cov, r,
-                              iterations, float(np.sqrt(lam[-1] / lam[0])), self.gauge,
+                              iterations, cond, self.gauge,
                               f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes), len(r))
 
 
@@ -455,7 +476,13 @@ def _shift_bindings(src, dst, d, x):
             raise InputError(f"constraint {type(e).__name__} is not linear: use the 'nlp' solver")
         A = e.GetDenseA()
         shift = A @ x[idx]
-        dst.AddLinearConstraint(A, e.lower_bound() - shift, e.upper_bound() - shift, d[idx])
+        lo, hi = e.lower_bound() - shift, e.upper_bound() - shift
+        eq = e.lower_bound() == e.upper_bound()
+        # Equalities stay equalities, so Drake can pick its exact EqConstrainedQP solver.
+        if eq.any():
+            dst.AddLinearEqualityConstraint(A[eq], lo[eq], d[idx])
+        if (~eq).any():
+            dst.AddLinearConstraint(A[~eq], lo[~eq], hi[~eq], d[idx])
     for b in src.GetAllCosts():
         e = b.evaluator()
         idx = src.FindDecisionVariableIndices(b.variables())
