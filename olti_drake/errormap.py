@@ -141,27 +141,26 @@ class ErrorMap:
         n = self.n_nodes
         return dataclasses.replace(self, forward_deg=v[:n], reverse_deg=v[n:])
 
-    def weights(self, theta_deg, direction) -> sp.csr_matrix:
-        """Sparse interpolation matrix W with Δθ = W @ values (Eq. 7-9 of 000).
+    def interpolation(self, theta_deg, direction):
+        """Bracketing nodes and weights of every command (Eq. 8-9 of 000).
 
         Args:
             theta_deg: (K,) command angles, deg.
             direction: (K,) or scalar approach directions, +1/-1.
 
         Returns:
-            (K, 2N) CSR matrix; row k holds (1-α) and α on the two bracketing
-            nodes, in the forward block for +1 and the reverse block for -1.
-            This is also dΔθ/d(values): the model is linear in the node values.
+            (cols, w), each (K, 2): Δθ_k = Σ_c w[k, c] · values[cols[k, c]],
+            with (1-α, α) on the two bracketing nodes, in the forward block
+            (0..N-1) for +1 and the reverse block (N..2N-1) for -1. These are
+            also dΔθ/d(values): the model is linear in the node values.
         """
         th = np.asarray(theta_deg, dtype=float).ravel()
-        k = th.size
-        d = _directions(direction, k)
+        d = _directions(direction, th.size)
         g = self.grid_deg
         n = g.size
         if not np.all(np.isfinite(th)):
             raise ValueError(f"error map {self.axis}: command angle is not finite")
-        lo, hi = g[0] - GRID_TOLERANCE_DEG, g[-1] + GRID_TOLERANCE_DEG
-        out = (th < lo) | (th > hi)
+        out = (th < g[0] - GRID_TOLERANCE_DEG) | (th > g[-1] + GRID_TOLERANCE_DEG)
         if np.any(out) and self.outside == "error":
             row = int(np.flatnonzero(out)[0])
             raise OutsideGridError(
@@ -169,18 +168,22 @@ class ErrorMap:
                 f"[{g[0]:g}, {g[-1]:g}] deg (policy 'error'; clamping would hold the end values)", row)
         thc = np.clip(th, g[0], g[-1])
         block = np.where(d > 0, 0, n)
-        rows = np.arange(k)
-        if n == 1:
-            return sp.csr_matrix((np.ones(k), (rows, block)), shape=(k, 2))
+        if n == 1:  # a constant map: all weight on the single node
+            return np.column_stack([block, block]), np.column_stack([np.ones(th.size), np.zeros(th.size)])
         i = np.clip(np.searchsorted(g, thc, side="right") - 1, 0, n - 2)
         alpha = (thc - g[i]) / (g[i + 1] - g[i])  # Eq. (9)
-        data = np.concatenate([1.0 - alpha, alpha])
-        cols = np.concatenate([block + i, block + i + 1])
-        return sp.csr_matrix((data, (np.tile(rows, 2), cols)), shape=(k, 2 * n))
+        return np.column_stack([block + i, block + i + 1]), np.column_stack([1.0 - alpha, alpha])
+
+    def weights(self, theta_deg, direction) -> sp.csr_matrix:
+        """Sparse interpolation matrix W (K, 2N) with Δθ = W @ values (Eq. 7-9 of 000)."""
+        cols, w = self.interpolation(theta_deg, direction)
+        k = len(cols)
+        return sp.csr_matrix((w.ravel(), cols.ravel(), np.arange(0, 2 * k + 1, 2)), shape=(k, 2 * self.n_nodes))
 
     def __call__(self, theta_deg, direction) -> np.ndarray:
         """Δθ(θ*, dir) in deg, (K,) -- Eq. (7) of 000 with corrected weights."""
-        return self.weights(theta_deg, direction) @ self.values
+        cols, w = self.interpolation(theta_deg, direction)
+        return np.sum(w * self.values[cols], axis=1)
 
     def to_dict(self) -> dict:
         """The ``error_map.Jn`` object of the result format (formats.md)."""

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from .campaign_io import CampaignData
 from .csvio import InputError
 from .errormap import ErrorMap
-from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel
+from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 
 #: Relative eigenvalue below which a parameter combination counts as unidentifiable.
 RANK_TOLERANCE = 1e-12
@@ -220,19 +220,22 @@ class Identifier:
         return (self.robot0.with_parameters(x[:n]), x[n:n + 2 * self.n_t].reshape(-1, 2), x[n + 2 * self.n_t:])
 
     def residuals(self, x):
-        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and sparse dr/dx."""
+        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and sparse dr/dx.
+
+        Each row of dr/dx has the robot's few non-zeros (kinematics), and −u on
+        P_j and −1 on d0_j, u the unit vector from P_j to p̂(k).
+        """
         model, P, d0 = self.split(x)
         j = self.data.reflector
-        p, jx, jy = model.positions_and_jacobian(self.data.commands)
+        p, cols, dx, dy = model.jacobian_rows(self.data.commands)
         diff = p - P[j]
         dist = np.hypot(diff[:, 0], diff[:, 1])
         u = diff / dist[:, None]
         r = dist - d0[j] - self.data.displacement_mm
-        rows = np.arange(len(j))
-        jp = sp.csr_matrix((-u.ravel(), (np.repeat(rows, 2), (2 * j[:, None] + [0, 1]).ravel())),
-                           shape=(len(j), 2 * self.n_t))
-        jd = sp.csr_matrix((-np.ones(len(j)), (rows, j)), shape=(len(j), self.n_t))
-        return r, sp.hstack([sp.diags(u[:, 0]) @ jx + sp.diags(u[:, 1]) @ jy, jp, jd], format="csr")
+        n = self.n_robot
+        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * self.n_t + j])
+        vals = np.column_stack([u[:, :1] * dx + u[:, 1:] * dy, -u, -np.ones(len(j))])
+        return r, rows_to_csr(cols, vals, len(self.names))
 
     # -- start and gauge -----------------------------------------------------------------------
     def _initial_guess(self) -> np.ndarray:
@@ -299,7 +302,7 @@ class Identifier:
         """
         x = self.x0 if x is None else x
         _, J = self.residuals(x)
-        H = (J.T @ J).toarray() + self._prior_hessian()  # priors do determine what they constrain
+        H = _normal_matrix(J, np.ones(J.shape[0])) + self._prior_hessian()  # priors determine what they constrain
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
         if untouched:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
@@ -358,10 +361,10 @@ class Identifier:
     def _solve_lm(self):
         x = self.x0.copy()
         r, J = self.residuals(x)
-        lam, it = 1e-6, 0
-        for it in range(1, self.options.max_iterations + 1):
+        lam, steps = 1e-6, 0
+        for _ in range(self.options.max_iterations):
             w = self._weights(r)
-            H = (J.T @ sp.diags(w) @ J).toarray()
+            H = _normal_matrix(J, w)
             g = J.T @ (w * r)
             cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
             while True:
@@ -369,17 +372,19 @@ class Identifier:
                 x_new = x + delta
                 r_new, J_new = self.residuals(x_new)
                 cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
-                # Stop damping once the step is at rounding level: the minimum is reached.
-                if cost_new <= cost or lam > 1e12 or np.max(np.abs(delta)) < 1e-13:
+                # What the quadratic model promised: below rounding level, we are at the minimum.
+                predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
+                if cost_new <= cost or predicted <= 1e-12 * cost or lam > 1e12:
                     break
                 lam *= 8.0
-            if cost_new > cost:  # no descent even with a tiny step: at the minimum
+            if cost_new > cost:
                 break
-            x, r, J = x_new, r_new, J_new
+            x, r, J, steps = x_new, r_new, J_new, steps + 1
             lam = max(lam / 4.0, 1e-9)
-            if cost - cost_new <= 1e-15 * cost + 1e-30 and np.max(np.abs(delta)) < 1e-9:
+            if cost - cost_new <= 1e-12 * cost:
                 break
-        return x, it, self._weights(r)
+        self._final = (x, r, J)
+        return x, steps, self._weights(r)
 
     def _step(self, x, Hd, g):
         """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ."""
@@ -439,13 +444,17 @@ class Identifier:
         return Q
 
     def _result(self, x, iterations, weights) -> Identification:
-        r, J = self.residuals(x)
-        H = (J.T @ sp.diags(weights) @ J).toarray()
-        M_data, _, _ = self._reduced_hessian(H)
+        final = getattr(self, "_final", None)
+        r, J = final[1:] if final is not None and final[0] is x else self.residuals(x)
+        H = _normal_matrix(J, weights)
+        M_data, N, s = self._reduced_hessian(H)
         lam = np.linalg.eigvalsh(M_data)
         cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
-        M, N, s = self._reduced_hessian(H + self._prior_hessian())
+        prior = self._prior_hessian()
+        M = M_data if not prior.any() else None
+        if M is None:
+            M, N, s = self._reduced_hessian(H + prior)
         dof = max(len(r) - N.shape[1], 1)
         sigma2 = np.sum(weights * r * r) / dof
         cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
@@ -492,6 +501,14 @@ def _shift_bindings(src, dst, d, x):
             dst.AddLinearCost(e.a(), 0.0, d[idx])
         else:
             raise InputError(f"cost {type(e).__name__} is not linear or quadratic: use the 'nlp' solver")
+
+
+def _normal_matrix(J, w) -> np.ndarray:
+    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there)."""
+    if J.shape[1] <= 300:
+        Jd = J.toarray()
+        return Jd.T @ (w[:, None] * Jd)
+    return (J.T @ sp.diags(w) @ J).toarray()
 
 
 def _null_space(A, rtol=1e-12):

@@ -155,21 +155,37 @@ class ScaraModel:
         return ScaraModel(float(x[0]), float(x[1]), None,
                           self.map1.with_values(x[2:2 + n1]), self.map2.with_values(x[2 + n1:]))
 
-    def actual_angles(self, cmd: JointCommands):
-        """Actual J1, J2 angles (deg) and the sparse dθ/dparameters (Eq. 7 of 000).
-
-        Returns (theta1, theta2, W1, W2), W_n of shape (N, 2 N_n) or None for D-H.
-        """
-        if not self.is_errormap:
-            return cmd.theta1_deg, cmd.theta2_deg + self.theta20_deg, None, None
-        w1 = self.map1.weights(cmd.theta1_deg, cmd.dir1)
-        w2 = self.map2.weights(cmd.theta2_deg, cmd.dir2)
-        return (cmd.theta1_deg + w1 @ self.map1.values,
-                cmd.theta2_deg + w2 @ self.map2.values, w1, w2)
-
     def positions(self, cmd: JointCommands) -> np.ndarray:
         """Predicted actual end-effector positions (N, 2) mm (Eq. 3 with Eq. 7)."""
-        return self.positions_and_jacobian(cmd)[0]
+        return self.jacobian_rows(cmd)[0]
+
+    def jacobian_rows(self, cmd: JointCommands):
+        """Positions and the Jacobian in row-compressed form (Eq. 3 with Eq. 7-9 of 000).
+
+        Every row has the same few non-zeros: L1, L2 and θ20 (D-H), or L1, L2
+        and the two bracketing nodes of each map (error map).
+
+        Returns:
+            p (N, 2) mm; cols (N, m) parameter indices (layout of
+            :meth:`parameter_names`); dx, dy (N, m) the matching entries of
+            dx/dparams and dy/dparams (mm/mm, mm/deg).
+        """
+        n = len(cmd)
+        if not self.is_errormap:
+            p, dp = forward_kinematics(cmd.theta1_deg, cmd.theta2_deg + self.theta20_deg, self.L1_mm, self.L2_mm)
+            cols = np.broadcast_to(np.arange(3), (n, 3))
+            d = [np.column_stack([dp["L1"][:, c], dp["L2"][:, c], dp["theta2"][:, c]]) for c in (0, 1)]
+            return p, cols, d[0], d[1]
+        c1, w1 = self.map1.interpolation(cmd.theta1_deg, cmd.dir1)
+        c2, w2 = self.map2.interpolation(cmd.theta2_deg, cmd.dir2)
+        t1 = cmd.theta1_deg + np.sum(w1 * self.map1.values[c1], axis=1)  # Eq. (7)
+        t2 = cmd.theta2_deg + np.sum(w2 * self.map2.values[c2], axis=1)
+        p, dp = forward_kinematics(t1, t2, self.L1_mm, self.L2_mm)
+        off2 = 2 + 2 * self.map1.n_nodes
+        cols = np.column_stack([np.zeros(n, int), np.ones(n, int), 2 + c1, off2 + c2])
+        d = [np.column_stack([dp["L1"][:, c], dp["L2"][:, c], dp["theta1"][:, c:c + 1] * w1,
+                              dp["theta2"][:, c:c + 1] * w2]) for c in (0, 1)]
+        return p, cols, d[0], d[1]
 
     def positions_and_jacobian(self, cmd: JointCommands):
         """Positions (N, 2) mm and sparse Jacobians d x/d params, d y/d params.
@@ -178,14 +194,11 @@ class ScaraModel:
         :meth:`parameter_names` (mm/mm, mm/deg). Analytic: Eq. (3) chain-ruled
         through the interpolation weights of Eq. (7)-(9).
         """
-        t1, t2, w1, w2 = self.actual_angles(cmd)
-        p, dp = forward_kinematics(t1, t2, self.L1_mm, self.L2_mm)
-        jac = []
-        for c in (0, 1):
-            cols = [sp.csr_matrix(dp["L1"][:, c:c + 1]), sp.csr_matrix(dp["L2"][:, c:c + 1])]
-            if w1 is None:
-                cols.append(sp.csr_matrix(dp["theta2"][:, c:c + 1]))
-            else:
-                cols += [sp.diags(dp["theta1"][:, c]) @ w1, sp.diags(dp["theta2"][:, c]) @ w2]
-            jac.append(sp.hstack(cols, format="csr"))
-        return p, jac[0], jac[1]
+        p, cols, dx, dy = self.jacobian_rows(cmd)
+        return p, rows_to_csr(cols, dx, len(self.parameter_names())), rows_to_csr(cols, dy, len(self.parameter_names()))
+
+
+def rows_to_csr(cols, values, n_cols: int) -> sp.csr_matrix:
+    """CSR matrix from a row-compressed (N, m) column/value layout (duplicates add up)."""
+    n, m = values.shape
+    return sp.csr_matrix((values.ravel(), np.asarray(cols).ravel(), np.arange(0, n * m + 1, m)), shape=(n, n_cols))
