@@ -205,7 +205,8 @@ class Identifier:
             return ScaraModel(o.nominal_L1_mm, o.nominal_L2_mm, 0.0)
         maps = []
         for axis, grid, cmd in (("J1", o.grid1_deg, c.theta1_deg), ("J2", o.grid2_deg, c.theta2_deg)):
-            g = np.unique(cmd) if grid is None else np.asarray(grid, dtype=float)
+            # Distinct commanded angles; files written elsewhere may carry 1e-12 deg of float noise.
+            g = np.unique(np.round(cmd, 9)) if grid is None else np.asarray(grid, dtype=float)
             out = (cmd < g[0] - 1e-9) | (cmd > g[-1] + 1e-9)
             if out.any():
                 k = np.flatnonzero(out)[0]
