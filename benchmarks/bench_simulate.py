@@ -9,7 +9,7 @@ Times, on this machine:
     the repeats misses it;
 (b) the Drake diagram alone: ``prepare`` and ``run_campaign`` in-process;
 (c) a numpy-only baseline of the same readings (no Drake): the package's
-    vectorized model -- ``campaign_commands``, ``TrueRobot.laser_beam``,
+    vectorized model -- ``campaign.simulate_vectorized``: ``TrueRobot.laser_beam``,
     ``simulate_readings`` -- which bounds what the diagram's per-reading
     Python events cost.
 
@@ -26,9 +26,7 @@ import time
 
 import numpy as np
 
-from olti_drake.campaign import (STREAM_LASER, build_campaign_diagram, campaign_commands, prepare,
-                                 run_campaign)
-from olti_drake.interferometer import simulate_readings
+from olti_drake.campaign import STREAM_LASER, build_campaign_diagram, prepare, run_campaign, simulate_vectorized
 from olti_drake.scenario import Scenario
 
 #: The issue's target for ``olti simulate`` of the paper campaign, start-up included (s).
@@ -39,29 +37,10 @@ BASELINE_REPEATS = 20
 
 
 def numpy_baseline(setup, rng=None) -> dict:
-    """The campaign's measured readings computed vectorized, without Drake.
-
-    Same commands, truth and interferometer model as the diagram; the noise
-    comes from one generator for all readings, so it equals the diagram's
-    only with noise off. Returns dict of (N,) arrays: ``reflector``,
-    ``theta1_deg``, ``theta2_deg``, ``theta4_deg``, ``displacement_mm``
-    (NaN where the beam is lost, as in the campaign), ``valid`` (0/1).
-    """
-    s, r = setup.scenario, setup.scenario.robot
+    """The campaign's measured readings computed vectorized, without Drake (columns, mm/deg)."""
     if rng is None:
-        rng = np.random.default_rng([s.seed, STREAM_LASER])
-    c = campaign_commands(setup.plan, setup.reflectors_estimate_mm, setup.theta40_estimate_deg,
-                          r.nominal_L1_mm, r.nominal_L2_mm)
-    keep = setup.plan.measure[c["plan_row"]]
-    c = {k: v[keep] for k, v in c.items()}
-    j = c["reflector"]
-    origin, angle = setup.robot.laser_beam(*(c[k] for k in ("theta1", "theta2", "theta4",
-                                                             "dir1", "dir2", "dir4")))
-    reading, valid, _ = simulate_readings(origin, angle, setup.reflectors_mm[j], setup.dead_paths_mm[j],
-                                          s.interferometer, setup.budget, rng)
-    return {"reflector": j, "theta1_deg": c["theta1"], "theta2_deg": c["theta2"],
-            "theta4_deg": c["theta4"], "displacement_mm": np.where(valid, reading, np.nan),
-            "valid": valid.astype(int)}
+        rng = np.random.default_rng([setup.scenario.seed, STREAM_LASER])
+    return simulate_vectorized(setup, rng).columns
 
 
 def olti_command() -> list:

@@ -31,7 +31,11 @@ ACTS_ON = {"reading": LENGTH_UNITS_MM, "pose": LENGTH_UNITS_MM, "beam_direction"
 
 @dataclass
 class Contributor:
-    """One row of an uncertainty budget; ``value`` is an expanded uncertainty with factor ``k``."""
+    """One row of an uncertainty budget; ``value`` is an expanded uncertainty with factor ``k``.
+
+    ``distribution`` (``normal`` or ``uniform``) is the shape the Monte Carlo
+    draws with the standard uncertainty value/k (JCGM 101 §6.4).
+    """
 
     symbol: str = ""
     name: str = ""
@@ -40,6 +44,7 @@ class Contributor:
     k: float = 1.0
     type: str = "B"
     acts_on: str = "reading"
+    distribution: str = "normal"
 
     def standard(self) -> float:
         """Standard uncertainty (k = 1): mm for lengths, rad for angles."""
@@ -71,6 +76,8 @@ class Budget:
                 raise InputError(f"{label}: value must be finite and >= 0, got {c.value!r}")
             if not (np.isfinite(c.k) and c.k > 0):
                 raise InputError(f"{label}: k must be > 0, got {c.k!r}")
+            if c.distribution not in ("normal", "uniform"):
+                raise InputError(f"{label}: distribution must be 'normal' or 'uniform', got {c.distribution!r}")
             if c.type not in ("A", "B"):
                 raise InputError(f"{label}: type must be 'A' or 'B', got {c.type!r}")
         return self

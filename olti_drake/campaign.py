@@ -18,7 +18,7 @@ import numpy as np
 
 from .csvio import write_table
 from .errormap import approach_directions, sample_map
-from .interferometer import beam_geometry
+from .interferometer import beam_geometry, simulate_readings
 from .plan import Plan
 from .scenario import ExactEstimate, PerturbedEstimate, Scenario, as_plain
 from .steering import (SearchData, beam_command_deg, default_search_positions_mm, fit_reflectors,
@@ -214,6 +214,29 @@ def run_campaign(setup: Setup, progress=None) -> Campaign:
         if progress:
             progress(k / chunks)
     return Campaign.from_recorder(setup, rec)
+
+
+def simulate_vectorized(setup: Setup, rng: np.random.Generator) -> Campaign:
+    """The same campaign computed in one vectorized pass, without Drake (the numpy twin).
+
+    Same commands, truth and interferometer model as the diagram; the noise
+    comes from ``rng`` for all readings at once, so it equals the diagram's
+    readings only with the noise off. For many independent campaigns fast
+    (uncertainty checks, benchmarks' baseline).
+    """
+    s, r = setup.scenario, setup.scenario.robot
+    c = campaign_commands(setup.plan, setup.reflectors_estimate_mm, setup.theta40_estimate_deg,
+                          r.nominal_L1_mm, r.nominal_L2_mm)
+    keep = setup.plan.measure[c["plan_row"]]
+    c = {k: v[keep] for k, v in c.items()}
+    j = c["reflector"]
+    origin, angle = setup.robot.laser_beam(*(c[k] for k in ("theta1", "theta2", "theta4", "dir1", "dir2", "dir4")))
+    reading, valid, _ = simulate_readings(origin, angle, setup.reflectors_mm[j], setup.dead_paths_mm[j],
+                                          s.interferometer, setup.budget, rng)
+    columns = {"reflector": j.astype(float), "theta1_deg": c["theta1"], "theta2_deg": c["theta2"],
+               "dir1": c["dir1"], "dir2": c["dir2"], "displacement_mm": np.where(valid, reading, np.nan),
+               "theta4_deg": c["theta4"], "valid": valid.astype(float), "plan_row": c["plan_row"].astype(float)}
+    return Campaign(columns, truth_result(setup, columns))
 
 
 def simulate(scenario: Scenario) -> Campaign:

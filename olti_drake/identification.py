@@ -220,23 +220,35 @@ class Identifier:
         n = self.n_robot
         return (self.robot0.with_parameters(x[:n]), x[n:n + 2 * self.n_t].reshape(-1, 2), x[n + 2 * self.n_t:])
 
-    def residuals(self, x):
-        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and sparse dr/dx.
+    def residual_rows(self, X, displacement_mm=None):
+        """Eq. (10) residuals of T parameter vectors at once, Jacobian row-compressed.
 
-        Each row of dr/dx has the robot's few non-zeros (kinematics), and −u on
-        P_j and −1 on d0_j, u the unit vector from P_j to p̂(k).
+        Args:
+            X: (T, n) parameter vectors (layout of :attr:`names`).
+            displacement_mm: readings (K,) or per trial (T, K); default the campaign's.
+
+        Returns:
+            r (T, K) mm; cols (K, m) parameter indices shared by all trials;
+            vals (T, K, m) the matching dr/dx entries: the robot's few non-zeros
+            (kinematics), −u on P_j, −1 on d0_j, u the unit vector from P_j to p̂(k).
         """
-        model, P, d0 = self.split(x)
-        j = self.data.reflector
-        p, cols, dx, dy = model.jacobian_rows(self.data.commands)
-        diff = p - P[j]
-        dist = np.hypot(diff[:, 0], diff[:, 1])
-        u = diff / dist[:, None]
-        r = dist - d0[j] - self.data.displacement_mm
-        n = self.n_robot
-        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * self.n_t + j])
-        vals = np.column_stack([u[:, :1] * dx + u[:, 1:] * dy, -u, -np.ones(len(j))])
-        return r, rows_to_csr(cols, vals, len(self.names))
+        X = np.atleast_2d(X)
+        n, n_t, j = self.n_robot, self.n_t, self.data.reflector
+        p, cols, dx, dy = self.robot0.jacobian_rows(self.data.commands, X[:, :n])
+        P = X[:, n:n + 2 * n_t].reshape(len(X), n_t, 2)
+        diff = p - P[:, j]
+        dist = np.hypot(diff[..., 0], diff[..., 1])
+        u = diff / dist[..., None]
+        d = self.data.displacement_mm if displacement_mm is None else displacement_mm
+        r = dist - X[:, n + 2 * n_t:][:, j] - d
+        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * n_t + j])
+        vals = np.concatenate([u[..., :1] * dx + u[..., 1:] * dy, -u, -np.ones(r.shape + (1,))], axis=-1)
+        return r, cols, vals
+
+    def residuals(self, x):
+        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and the sparse dr/dx."""
+        r, cols, vals = self.residual_rows(np.asarray(x)[None])
+        return r[0], rows_to_csr(cols, vals[0], len(self.names))
 
     # -- start and gauge -----------------------------------------------------------------------
     def _initial_guess(self) -> np.ndarray:
@@ -287,7 +299,7 @@ class Identifier:
             return np.zeros((0, len(self.names))), np.zeros(0)
         return np.vstack(rows), np.concatenate(rhs)
 
-    def _reduced_hessian(self, H):
+    def reduced_hessian(self, H):
         """Column-scaled H restricted to the null space of the equality constraints."""
         scale = np.sqrt(np.diag(H))
         A, _ = self._equality_rows()
@@ -309,7 +321,7 @@ class Identifier:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
                                       f"{'it' if len(untouched) == 1 else 'them'} (set a coarser map grid)",
                                       untouched)
-        M, N, s = self._reduced_hessian(H)
+        M, N, s = self.reduced_hessian(H)
         lam, vec = np.linalg.eigh(M)
         weak = lam < RANK_TOLERANCE * lam[-1]
         if weak.any():
@@ -433,29 +445,33 @@ class Identifier:
         self._solver_used = f"nlp: {result.get_solver_id().name()}"
         return x, rounds, weights
 
-    def _prior_hessian(self) -> np.ndarray:
-        """Hessian of the program's quadratic costs (priors, regularization), over all variables."""
+    def quadratic_costs(self):
+        """(Q, b) of the program's quadratic costs ½xᵀQx + bᵀx (priors, regularization), all variables."""
         from pydrake.solvers import QuadraticCost
 
-        Q = np.zeros((len(self.names), len(self.names)))
+        Q, q = np.zeros((len(self.names), len(self.names))), np.zeros(len(self.names))
         for b in self.prog.GetAllCosts():
             if isinstance(b.evaluator(), QuadraticCost):
                 idx = self.prog.FindDecisionVariableIndices(b.variables())
                 Q[np.ix_(idx, idx)] += b.evaluator().Q()
-        return Q
+                q[idx] += b.evaluator().b()
+        return Q, q
+
+    def _prior_hessian(self) -> np.ndarray:
+        return self.quadratic_costs()[0]
 
     def _result(self, x, iterations, weights) -> Identification:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is x else self.residuals(x)
         H = _normal_matrix(J, weights)
-        M_data, N, s = self._reduced_hessian(H)
+        M_data, N, s = self.reduced_hessian(H)
         lam = np.linalg.eigvalsh(M_data)
         cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
         M = M_data if not prior.any() else None
         if M is None:
-            M, N, s = self._reduced_hessian(H + prior)
+            M, N, s = self.reduced_hessian(H + prior)
         dof = max(len(r) - N.shape[1], 1)
         sigma2 = np.sum(weights * r * r) / dof
         cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2

@@ -159,33 +159,50 @@ class ScaraModel:
         """Predicted actual end-effector positions (N, 2) mm (Eq. 3 with Eq. 7)."""
         return self.jacobian_rows(cmd)[0]
 
-    def jacobian_rows(self, cmd: JointCommands):
+    def jacobian_rows(self, cmd: JointCommands, X=None):
         """Positions and the Jacobian in row-compressed form (Eq. 3 with Eq. 7-9 of 000).
 
         Every row has the same few non-zeros: L1, L2 and θ20 (D-H), or L1, L2
         and the two bracketing nodes of each map (error map).
 
+        Args:
+            cmd: N commands.
+            X: optional (T, P) parameter vectors (layout of :meth:`parameter_names`)
+                evaluated at once -- the grid, hence the interpolation, is shared;
+                default: this model's own parameters.
+
         Returns:
-            p (N, 2) mm; cols (N, m) parameter indices (layout of
-            :meth:`parameter_names`); dx, dy (N, m) the matching entries of
-            dx/dparams and dy/dparams (mm/mm, mm/deg).
+            p (N, 2) mm; cols (N, m) parameter indices; dx, dy (N, m) the
+            matching entries of dx/dparams and dy/dparams (mm/mm, mm/deg).
+            With X: p, dx, dy get a leading trial axis (T, ...).
         """
+        batch = X is not None
+        X = np.atleast_2d(self.parameter_vector() if X is None else np.asarray(X, dtype=float))
         n = len(cmd)
+        L1, L2 = X[:, :1, None], X[:, 1:2, None]
         if not self.is_errormap:
-            p, dp = forward_kinematics(cmd.theta1_deg, cmd.theta2_deg + self.theta20_deg, self.L1_mm, self.L2_mm)
+            t1 = np.broadcast_to(cmd.theta1_deg, (len(X), n))
+            p, dp = forward_kinematics(t1, cmd.theta2_deg + X[:, 2:3], L1, L2)
             cols = np.broadcast_to(np.arange(3), (n, 3))
-            d = [np.column_stack([dp["L1"][:, c], dp["L2"][:, c], dp["theta2"][:, c]]) for c in (0, 1)]
+            d = [np.stack(np.broadcast_arrays(dp["L1"][..., c], dp["L2"][..., c], dp["theta2"][..., c]), -1)
+                 for c in (0, 1)]
+        else:
+            c1, w1 = self.map1.interpolation(cmd.theta1_deg, cmd.dir1)
+            c2, w2 = self.map2.interpolation(cmd.theta2_deg, cmd.dir2)
+            off2 = 2 + 2 * self.map1.n_nodes
+            t1 = cmd.theta1_deg + np.sum(w1 * X[:, 2 + c1], axis=-1)  # Eq. (7)
+            t2 = cmd.theta2_deg + np.sum(w2 * X[:, off2 + c2], axis=-1)
+            p, dp = forward_kinematics(t1, t2, L1, L2)
+            cols = np.column_stack([np.zeros(n, int), np.ones(n, int), 2 + c1, off2 + c2])
+            d = [np.concatenate([dp["L1"][..., c:c + 1], dp["L2"][..., c:c + 1], dp["theta1"][..., c:c + 1] * w1,
+                                 dp["theta2"][..., c:c + 1] * w2], axis=-1) for c in (0, 1)]
+        if batch:
             return p, cols, d[0], d[1]
-        c1, w1 = self.map1.interpolation(cmd.theta1_deg, cmd.dir1)
-        c2, w2 = self.map2.interpolation(cmd.theta2_deg, cmd.dir2)
-        t1 = cmd.theta1_deg + np.sum(w1 * self.map1.values[c1], axis=1)  # Eq. (7)
-        t2 = cmd.theta2_deg + np.sum(w2 * self.map2.values[c2], axis=1)
-        p, dp = forward_kinematics(t1, t2, self.L1_mm, self.L2_mm)
-        off2 = 2 + 2 * self.map1.n_nodes
-        cols = np.column_stack([np.zeros(n, int), np.ones(n, int), 2 + c1, off2 + c2])
-        d = [np.column_stack([dp["L1"][:, c], dp["L2"][:, c], dp["theta1"][:, c:c + 1] * w1,
-                              dp["theta2"][:, c:c + 1] * w2]) for c in (0, 1)]
-        return p, cols, d[0], d[1]
+        return p[0], cols, d[0][0], d[1][0]
+
+    def positions_batch(self, cmd: JointCommands, X) -> np.ndarray:
+        """Positions (T, N, 2) mm for T parameter vectors X (T, P) at once (Eq. 3 with Eq. 7)."""
+        return self.jacobian_rows(cmd, X)[0]
 
     def positions_and_jacobian(self, cmd: JointCommands):
         """Positions (N, 2) mm and sparse Jacobians d x/d params, d y/d params.

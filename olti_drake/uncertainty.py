@@ -1,0 +1,267 @@
+"""Uncertainty of identified parameters and predictions (000 §5, 001 §4.4).
+
+Two methods from one reading-error model built from a budget (000 Table 2,
+001 Table 4):
+
+* **linear** (JCGM 100, the Jacobian method 000 §5 Remark names): the
+  sensitivity of the least-squares solution to every reading, within the
+  gauge and other equality constraints, propagates the per-reading variances.
+* **mc** (JCGM 101): draw every reading's error from the budget, re-solve the
+  nonlinear problem (10), collect the estimates. Trials are solved in batches:
+  the exact gradient J(x)ᵀr(x) of every trial with the Hessian factorized once
+  at the solution -- a chord iteration that converges to each trial's own
+  least-squares solution -- over worker processes on the machine's cores.
+
+Reading errors (per reading k at reflector distance D_k):
+``reading`` contributors add along the beam; ``pose`` contributors displace
+the laser head isotropically, so their along-beam part adds; ``beam_direction``
+contributors tilt the beam by ψ, which shortens the reading by D ψ²/2 (the
+cosine error). Units: mm and degrees; angles of the budget in rad.
+"""
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+import scipy.sparse as sp
+
+from .budget import Budget
+from .csvio import InputError
+
+#: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
+BATCH = 250
+
+
+@dataclass
+class ReadingErrors:
+    """The budget as per-reading error distributions (lengths mm, angles rad)."""
+
+    budget: Budget
+
+    def _terms(self, acts_on):
+        return [c for c in self.budget.contributors if c.acts_on == acts_on]
+
+    def std(self, distance_mm) -> np.ndarray:
+        """Standard uncertainty of every reading (K,) mm -- the linear method's input.
+
+        The cosine error -D ψ²/2 of ψ ~ N(0, u_ψ²) has standard deviation D u_ψ²/√2.
+        """
+        D = np.asarray(distance_mm, dtype=float)
+        u_psi = self.budget.combined("beam_direction")
+        return np.sqrt(self.budget.combined("reading") ** 2 + self.budget.combined("pose") ** 2
+                       + (D * u_psi ** 2) ** 2 / 2)
+
+    def draw(self, rng: np.random.Generator, distance_mm, trials: int) -> np.ndarray:
+        """(trials, K) reading errors, mm: every contributor drawn independently (JCGM 101)."""
+        D = np.asarray(distance_mm, dtype=float)
+        shape = (trials, D.size)
+        err = np.zeros(shape)
+        for c in self._terms("reading") + self._terms("pose"):
+            err += _sample(rng, c.standard(), c.distribution, shape)
+        psi = np.zeros(shape)
+        for c in self._terms("beam_direction"):
+            psi += _sample(rng, c.standard(), c.distribution, shape)
+        return err - D * psi ** 2 / 2
+
+
+def _sample(rng, std, distribution, shape):
+    if distribution == "uniform":  # rectangular with the same standard deviation
+        a = std * np.sqrt(3.0)
+        return rng.uniform(-a, a, shape)
+    return std * rng.standard_normal(shape)
+
+
+def identifier_at_result(result_path, data):
+    """The :class:`Identifier` of a result's model and grids on a campaign, and the result's x.
+
+    Raises InputError when the campaign and the result do not match (reflector count).
+    """
+    from .identification import IdentificationOptions, Identifier
+    from .result import load_result
+
+    model, P, d0, raw = load_result(result_path, outside="clamp")
+    opts = IdentificationOptions(model=raw["model"], nominal_L1_mm=model.L1_mm, nominal_L2_mm=model.L2_mm)
+    if model.is_errormap:
+        opts.grid1_deg, opts.grid2_deg = model.map1.grid_deg, model.map2.grid_deg
+    ident = Identifier(data, opts)
+    if len(P) != ident.n_t or len(d0) != ident.n_t:
+        raise InputError(f"{os.fspath(result_path)}: {len(P)} reflectors, but the campaign {data.source} has "
+                         f"{ident.n_t}")
+    return ident, np.concatenate([model.parameter_vector(), P.ravel(), d0])
+
+
+def _distances(ident, x):
+    """Reflector distance of every reading at x, mm."""
+    r, _, _ = ident.residual_rows(x[None])
+    n = ident.n_robot + 2 * ident.n_t
+    return r[0] + x[n:][ident.data.reflector] + ident.data.displacement_mm
+
+
+def _solution_map(ident, x):
+    """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
+    r, J = ident.residuals(x)
+    H = (J.T @ J).toarray() + ident.quadratic_costs()[0]
+    M, N, s = ident.reduced_hessian(H)
+    Ns = N / s[:, None]
+    return Ns @ np.linalg.solve(M, Ns.T), J
+
+
+def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
+    """Covariance (n, n) of the parameters by linear propagation (JCGM 100; 000 §5 Remark).
+
+    x = argmin ½‖r(x) − d‖² within the constraints gives dx/dd = B Jᵀ, so
+    cov = B Jᵀ diag(u_k²) J B with u_k from the budget at each reading's distance.
+    """
+    B, J = _solution_map(ident, x)
+    u2 = errors.std(_distances(ident, x)) ** 2
+    JtUJ = (J.T @ sp.diags(u2) @ J).toarray()
+    return B @ JtUJ @ B
+
+
+@dataclass
+class MonteCarlo:
+    """Monte Carlo samples (trials, n) of the parameters and how they were made."""
+
+    samples: np.ndarray
+    seed: int
+    converged: bool = True
+    batches: int = 0
+    notes: list = field(default_factory=list)
+
+
+# Worker processes inherit the problem through fork: the Identifier holds Drake objects that do not pickle.
+_WORK = {}
+
+
+def _mc_batch(index: int):
+    w = _WORK
+    rng = np.random.default_rng(w["seeds"][index])
+    E = w["errors"].draw(rng, w["distance"], w["sizes"][index])
+    return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
+
+
+def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
+    """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
+
+    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B.
+    """
+    X = np.tile(x, (len(D), 1))
+    for _ in range(max_iter):
+        r, _, vals = ident.residual_rows(X, D)
+        G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
+        step = G @ B
+        X -= step
+        if np.max(np.abs(step)) < 1e-13 * max(1.0, np.max(np.abs(x))):
+            break
+    return X
+
+
+def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int = 0, workers: Optional[int] = None,
+                adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = 100_000,
+                progress: Optional[Callable[[int, int], None]] = None) -> MonteCarlo:
+    """JCGM 101 Monte Carlo of the identification (000 §5; 001 §4.4).
+
+    Readings are the model's own at x plus errors drawn from the budget, so
+    the trials scatter around x. ``trials`` fixed, or with ``adaptive`` batches
+    until every standard uncertainty is stable to ``tolerance_digits``
+    significant digits (JCGM 101 §7.9). Batches of :data:`BATCH` trials have
+    their own seeds (from ``seed``): results do not depend on ``workers``.
+    """
+    if trials < 2:
+        raise InputError(f"trials must be >= 2, got {trials}")
+    B, J = _solution_map(ident, x)
+    distance = _distances(ident, x)
+    r0, cols, _ = ident.residual_rows(x[None])
+    Q, q = ident.quadratic_costs()
+    k, m = cols.shape
+    scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
+    _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=ident.data.displacement_mm + r0[0],
+                 q=q, Q=Q, scatter=scatter)
+    workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)
+    seeds = np.random.SeedSequence(seed)
+    out, batches, done = [], 0, 0
+    history = []
+    with _pool(workers) as pool:
+        while True:
+            n = trials if not adaptive else BATCH * max(workers, 1)
+            sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
+            _WORK.update(seeds=seeds.spawn(len(sizes)), sizes=sizes)
+            results = pool.map(_mc_batch, range(len(sizes))) if pool else map(_mc_batch, range(len(sizes)))
+            for part in results:
+                out.append(part)
+                done += len(part)
+                if progress:
+                    progress(done, trials if not adaptive else max_trials)
+            batches += len(sizes)
+            if not adaptive:
+                break
+            history.append(np.std(np.vstack(out[-len(sizes):]), axis=0, ddof=1))
+            if len(history) >= 2 and _stable(history, tolerance_digits) or done >= max_trials:
+                break
+    samples = np.vstack(out)
+    _WORK.clear()
+    notes = [] if not adaptive else [f"adaptive (JCGM 101 §7.9): {done} trials in {len(history)} rounds"]
+    return MonteCarlo(samples, seed, not adaptive or done < max_trials, batches, notes)
+
+
+def _pool(workers):
+    import multiprocessing as mp
+    import contextlib
+
+    if workers <= 1:
+        return contextlib.nullcontext(None)
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+
+
+def _stable(history, digits) -> bool:
+    """JCGM 101 §7.9.4 on the standard uncertainties: 2·s(u) of the round values ≤ δ = ½·10^l."""
+    H = np.array(history)
+    u = H.mean(axis=0)
+    s = H.std(axis=0, ddof=1) / np.sqrt(len(H))
+    l = np.floor(np.log10(np.maximum(u, 1e-300))) - (digits - 1)
+    return bool(np.all(2 * s <= 0.5 * 10.0 ** l))
+
+
+def prediction_std(ident, cov, x, commands) -> np.ndarray:
+    """Standard uncertainty (N, 2) mm of predicted x, y at commanded poses (linear, k = 1).
+
+    The robot block of the parameter covariance through the kinematic
+    Jacobian: in the result's gauge frame (000 Eq. 3, 7).
+    """
+    n = ident.n_robot
+    model = ident.robot0.with_parameters(x[:n])
+    _, jx, jy = model.positions_and_jacobian(commands)
+    C = cov[:n, :n]
+    return np.sqrt(np.maximum(np.column_stack([np.einsum("ij,jk,ik->i", jx.toarray(), C, jx.toarray()),
+                                               np.einsum("ij,jk,ik->i", jy.toarray(), C, jy.toarray())]), 0))
+
+
+def uncertainty_dict(ident, x, std, method: str, budget: Budget, k: float = 2.0, samples=None,
+                     coverage: float = 0.95, extra=None) -> dict:
+    """The ``uncertainty`` object of formats.md: result keys and shapes, standard uncertainties (k = 1).
+
+    Adds ``expanded`` (the same layout times ``k``) and, for Monte Carlo, the
+    probabilistically symmetric ``coverage_interval`` of probability ``coverage``.
+    """
+    from .result import _values
+
+    def layout(v):
+        model, P, d0 = ident.split(v)
+        out = _values(model, P, d0)
+        for axis in ("J1", "J2"):
+            if "error_map" in out:
+                out["error_map"][axis].pop("grid_deg")
+        return out
+
+    out = {"format": "olti-uncertainty/1", "method": method, "k": 1}
+    out.update(layout(std))
+    out["expanded"] = dict(k=k, **layout(k * std))
+    if samples is not None:
+        lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
+        out["coverage_interval"] = {"p": coverage, "low": layout(lo), "high": layout(hi)}
+    out["budget"] = budget.name
+    out["parameters"] = {"names": list(ident.names), "std": std.tolist()}
+    out.update(extra or {})
+    return out
