@@ -203,6 +203,250 @@ def cmd_predict(args) -> int:
     return 0
 
 
+def cmd_uncertainty(args) -> int:
+    """Uncertainty of an identified result from its campaign and a budget (000 §5; 001 §4.4).
+
+    linear: JCGM 100 propagation (std = sqrt(diag(cov))); mc: JCGM 101 Monte
+    Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
+    (k = 1, plus ``expanded`` with --k); mm and degrees.
+    """
+    import json
+    import types
+
+    import numpy as np
+
+    from .budget import load_budget, paper000_budget
+    from .campaign_io import load_campaign
+    from .figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
+    from .uncertainty import (ReadingErrors, _distances, identifier_at_result, linear_covariance, monte_carlo,
+                              uncertainty_dict)
+
+    outputs = [p for p in (args.out, args.map, args.maps) if p]
+    _refuse_overwrite(outputs, [args.result, args.campaign, args.budget])
+    if len({os.path.realpath(p) for p in outputs}) < len(outputs):
+        raise ValueError("--out, --map and --maps must name different files")
+    if args.trials < 2:
+        raise ValueError(f"--trials must be >= 2, got {args.trials}")
+    if not (np.isfinite(args.k) and args.k > 0):
+        raise ValueError(f"--k must be > 0, got {args.k:g}")
+    if not 0 < args.coverage < 1:
+        raise ValueError(f"--coverage must be a probability in (0, 1), got {args.coverage:g}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    data = load_campaign(args.campaign)
+    ident, x = identifier_at_result(args.result, data)
+    model = ident.split(x)[0]
+    if (args.map or args.maps) and not model.is_errormap:
+        raise ValueError(f"{args.result}: --map and --maps need an error-map result (model 'errormap')")
+
+    t0 = time.perf_counter()
+    errors = ReadingErrors(budget)
+    u_reading = errors.std(_distances(ident, x))
+    cov = samples = None
+    extra = {}
+    if args.method == "linear":
+        cov = linear_covariance(ident, x, errors)
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        detail = "linear propagation through the identification Jacobian (JCGM 100), budget reading errors"
+    else:
+        tty = sys.stderr.isatty()
+
+        def report(done, total):
+            sys.stderr.write(f"\r  Monte Carlo: {done} trials" + (" (adaptive, at most " if args.adaptive else " of ")
+                             + f"{total}{')' if args.adaptive else ''}")
+            sys.stderr.flush()
+
+        mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
+                         adaptive=args.adaptive, progress=report if tty else None)
+        if tty:
+            sys.stderr.write("\n")
+        samples = mc.samples
+        std = samples.std(axis=0, ddof=1)
+        detail = "Monte Carlo (JCGM 101): budget errors drawn for every reading, problem (10) re-solved per trial"
+        extra.update(trials=int(len(samples)), seed=args.seed, adaptive=bool(args.adaptive),
+                     converged=bool(mc.converged), notes=list(mc.notes))
+    pmap = prediction_uncertainty_map(ident, x, cov, samples) if model.is_errormap else None
+    elapsed = time.perf_counter() - t0
+    extra.update(method_detail=detail, budget_file=args.budget or "built-in paper 000 Table 2",
+                 result=args.result, campaign=args.campaign, elapsed_s=round(elapsed, 3),
+                 reading_std_median_mm=float(np.median(u_reading)), reading_std_max_mm=float(np.max(u_reading)))
+    if pmap is not None:
+        U = args.k * pmap["u_mm"]
+        extra["prediction_expanded_mm"] = {
+            "k": args.k, "max": float(np.nanmax(U)), "mean": float(np.nanmean(U)),
+            "points": int(np.isfinite(U[0]).sum()),
+            "what": "k * sqrt(u_x^2 + u_y^2) of predicted positions on an XY grid inside the map range, "
+                    "approach directions +1 and -1 (001 Fig. 14)"}
+    unc = uncertainty_dict(ident, x, std, args.method, budget, k=args.k, samples=samples,
+                           coverage=args.coverage, extra=extra)
+    with open(args.out, "w", encoding="utf-8") as f:
+        json.dump(unc, f, indent=1)
+        f.write("\n")
+
+    u = dict(zip(ident.names, std))
+    print(f"uncertainty ({args.method}) of {args.result} ({'errormap' if model.is_errormap else 'dh'}, "
+          f"{len(ident.names)} parameters) on {len(data)} readings of {args.campaign}; budget {budget.name!r}"
+          + (f"; {len(samples)} trials, seed {args.seed}" if samples is not None else "")
+          + f"; {elapsed:.2f} s")
+    print(f"  reading standard uncertainty (k = 1): median {1e3 * np.median(u_reading):.2f} um, "
+          f"max {1e3 * np.max(u_reading):.2f} um")
+    print(f"  L1: u = {1e3 * u['L1_mm']:.2f} um, L2: u = {1e3 * u['L2_mm']:.2f} um (k = 1); "
+          f"U (k = {args.k:g}): {1e3 * args.k * u['L1_mm']:.2f} um, {1e3 * args.k * u['L2_mm']:.2f} um")
+    if model.is_errormap:
+        ranges = []
+        for axis in ("J1", "J2"):
+            s = np.array([v for n, v in u.items() if n.startswith(axis + "_")])
+            ranges.append(f"{axis} map nodes u = {1e3 * s.min():.3f}..{1e3 * s.max():.3f} mdeg")
+        print("  " + ", ".join(ranges) + " (k = 1)")
+    else:
+        print(f"  theta20: u = {1e3 * u['theta20_deg']:.3f} mdeg (k = 1)")
+    n = ident.n_robot
+    sP, sd = std[n:n + 2 * ident.n_t], std[n + 2 * ident.n_t:]
+    print(f"  reflectors: u = {1e3 * sP.min():.2f}..{1e3 * sP.max():.2f} um, dead paths: u = "
+          f"{1e3 * sd.min():.2f}..{1e3 * sd.max():.2f} um (k = 1)")
+    if pmap is not None:
+        p = extra["prediction_expanded_mm"]
+        print(f"  predicted positions over the workspace map ({p['points']} points x 2 approach directions): "
+              f"U (k = {args.k:g}) max {1e3 * p['max']:.2f} um, mean {1e3 * p['mean']:.2f} um")
+    print(f"wrote {args.out}")
+    label = "Monte Carlo" if samples is not None else "linear"
+    if args.map:
+        plot_prediction_uncertainty_map(pmap, args.map, args.k, f"{label}, budget {budget.name}")
+        print(f"wrote {args.map}")
+    if args.maps:
+        identified = types.SimpleNamespace(model=model, names=list(ident.names), std=std)
+        plot_identified_maps(identified, None, args.maps, std=std, method=label)
+        print(f"wrote {args.maps}")
+    return 0
+
+
+def cmd_design(args) -> int:
+    """Reflector placement by the linear uncertainty method (000 §3.2.2 Remark 2, §5).
+
+    The result's model is the truth; the plan's campaign is synthesized for the
+    current layout (the result's reflectors) and for every candidate layout;
+    the cost is the worst or mean predicted-position u = sqrt(u_x² + u_y²)
+    (k = 1) over the workspace. Prints both costs and the improvement; writes
+    DESIGN.json (mm).
+    """
+    import json
+
+    import numpy as np
+
+    from .budget import load_budget, paper000_budget
+    from .design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
+                         workspace_commands)
+    from .identification import UnidentifiableError
+    from .plan import bidirectional_grid, load_plan
+    from .result import load_result
+
+    _refuse_overwrite([args.out], [args.result, args.plan, args.regions, args.budget])
+    for name in ("step_mm", "workspace_step_mm"):
+        v = getattr(args, name)
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0 mm, got {v:g}")
+    for name in ("min_separation_mm", "clearance_mm", "base_radius_mm"):
+        v = getattr(args, name)
+        if not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 0 mm, got {v:g}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    if args.starts < 1 or args.max_sweeps < 1:
+        raise ValueError(f"--starts and --max-sweeps must be >= 1, got {args.starts} and {args.max_sweeps}")
+    model, P, _, _ = load_result(args.result, outside="clamp")
+    plan = load_plan(args.plan) if args.plan else bidirectional_grid()
+    plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
+    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    regions = load_regions(args.regions)
+    n = len(P) if args.reflectors is None else args.reflectors
+    if n < 3:
+        raise ValueError(f"--reflectors must be >= 3 (000 §3.2.2 Remark 1), got {n}"
+                         + ("" if args.reflectors is not None else f" (the result {args.result} has {len(P)})"))
+    cmd = measured_commands(plan)
+    if model.is_errormap:
+        ws = workspace_commands(model, args.workspace_step_mm)
+    else:  # a D-H model has no map range: the plan's angle ranges
+        ws = workspace_commands((cmd.theta1_deg, cmd.theta2_deg), args.workspace_step_mm, model.L1_mm, model.L2_mm)
+    candidates = candidate_grid(regions, args.step_mm)
+
+    def costs(u):
+        return {"max_u_mm": float(u.max()), "mean_u_mm": float(u.mean()), "max_U_k2_mm": float(2 * u.max()),
+                "mean_U_k2_mm": float(2 * u.mean())}
+
+    t0 = time.perf_counter()
+    current = {"reflectors_mm": P.tolist()}
+    try:
+        current.update(costs(LayoutEvaluator(model, plan, len(P), ws).position_std(P, budget)))
+    except UnidentifiableError as e:
+        current["not_identifiable"] = " ".join(str(e).split())
+    tty = sys.stderr.isatty()
+
+    def report(start, sweep, cost):
+        sys.stderr.write(f"\r  designing: start {start + 1}/{args.starts}, sweep {sweep + 1}, "
+                         f"{args.criterion} u = {1e3 * cost:.2f} um   ")
+        sys.stderr.flush()
+
+    ev = LayoutEvaluator(model, plan, n, ws)
+    res = design_layout(model, plan, candidates, n, budget, ws, args.criterion, seed=args.seed, starts=args.starts,
+                        max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
+                        clearance_mm=args.clearance_mm, base_radius_mm=args.base_radius_mm, evaluator=ev,
+                        progress=report if tty else None)
+    if tty:
+        sys.stderr.write("\n")
+    designed = {"reflectors_mm": res.reflectors_mm.tolist()}
+    designed.update(costs(ev.position_std(res.reflectors_mm, budget)))
+    elapsed = time.perf_counter() - t0
+    key = f"{args.criterion}_u_mm"
+    improvement = current[key] / designed[key] if key in current else None
+
+    print(f"reflector layout design (000 §3.2.2 Remark 2) by linear propagation (JCGM 100), budget {budget.name!r}")
+    print(f"  truth: {args.result} ({'errormap' if model.is_errormap else 'dh'}); plan: {plan_name}, "
+          f"{len(cmd)} measured poses per reflector")
+    print(f"  cost: predicted-position u = sqrt(u_x^2 + u_y^2) over {len(ws) // 4} workspace points x 4 approach "
+          f"directions ({args.workspace_step_mm:g} mm grid inside the "
+          f"{'map range' if model.is_errormap else 'plan angle ranges'})")
+    print(f"  candidates: {len(res.candidates_mm)} on a {args.step_mm:g} mm grid in {len(regions)} region(s) of "
+          f"{args.regions}; {int(res.feasible.sum())} feasible ({res.rejected['clearance']} within "
+          f"{args.clearance_mm:g} mm of the arm, {res.rejected['base']} with a beam within {args.base_radius_mm:g} mm "
+          f"of the J1 axis); separation >= {args.min_separation_mm:g} mm")
+    print(f"  {'layout':22s}{'max u':>10s}{'mean u':>10s}{'max U(k=2)':>12s}   (um)")
+    for label, c in (("current (result)", current), (f"designed ({n} refl.)", designed)):
+        if "max_u_mm" in c:
+            print(f"  {label:22s}{1e3 * c['max_u_mm']:10.2f}{1e3 * c['mean_u_mm']:10.2f}"
+                  f"{1e3 * c['max_U_k2_mm']:12.2f}")
+        else:
+            print(f"  {label:22s}  not identifiable: {c['not_identifiable']}")
+    if improvement is not None:
+        print(f"  improvement ({args.criterion} u, current / designed): {improvement:.2f}x")
+    for name, c in (("current", current), ("designed", designed)):
+        print(f"  {name} positions (mm): " + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in c["reflectors_mm"]))
+    print(f"  coordinate exchange: {args.starts} start(s), seed {args.seed}, {res.evaluations} layouts evaluated, "
+          f"{elapsed:.1f} s")
+    out = {"format": "olti-design/1", "criterion": args.criterion, "k": 1,
+           "method": "linear propagation (JCGM 100) of the identification (000 §5 Remark); coordinate exchange "
+                     "over candidate positions from seeded random starts",
+           "budget": budget.name, "budget_file": args.budget or "built-in paper 000 Table 2",
+           "result": args.result, "plan": plan_name, "regions": args.regions,
+           "reflectors_mm": designed["reflectors_mm"], "current": current, "designed": designed,
+           "improvement": improvement, "evaluations": res.evaluations, "seed": args.seed, "starts": args.starts,
+           "max_sweeps": args.max_sweeps, "cost_history_mm": res.history,
+           "candidates": {"step_mm": args.step_mm, "count": int(len(res.candidates_mm)),
+                          "feasible": int(res.feasible.sum()), "rejected": res.rejected},
+           "rules": {"min_separation_mm": args.min_separation_mm, "clearance_mm": args.clearance_mm,
+                     "base_radius_mm": args.base_radius_mm},
+           "workspace": {"step_mm": args.workspace_step_mm, "commands": len(ws),
+                         "directions": "(dir1, dir2) = (+1, +1), (+1, -1), (-1, +1), (-1, -1)"},
+           "elapsed_s": round(elapsed, 3)}
+    with open(args.out, "w", encoding="utf-8") as f:
+        json.dump(out, f, indent=1)
+        f.write("\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
@@ -256,6 +500,67 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse (default) or hold the end values")
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("uncertainty", help="standard uncertainties of an identified result from a budget "
+                                           "(linear or Monte Carlo)",
+                       description="Propagate an uncertainty budget (default: 000 Table 2) through the "
+                                   "identification of RESULT.json on CAMPAIGN.csv: linear (JCGM 100) or Monte "
+                                   "Carlo (JCGM 101, 000 §5). Writes the formats.md 'uncertainty' object: "
+                                   "standard uncertainties (k = 1) with the result's keys and shapes, plus "
+                                   "'expanded' (k = --k); mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify")
+    p.add_argument("campaign", help="the campaign CSV the result was identified from")
+    p.add_argument("--method", choices=("mc", "linear"), required=True,
+                   help="mc: Monte Carlo (JCGM 101); linear: Jacobian propagation (JCGM 100)")
+    p.add_argument("--budget", help="budget YAML (e.g. data/budget_paper001.yaml; default: 000 Table 2)")
+    p.add_argument("--trials", type=int, default=1000, help="Monte Carlo trials (default 1000; "
+                                                            "ignored with --adaptive)")
+    p.add_argument("--k", type=float, default=2.0, help="coverage factor of 'expanded' (default 2)")
+    p.add_argument("--coverage", type=float, default=0.95,
+                   help="probability of the Monte Carlo coverage intervals (default 0.95)")
+    p.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="Monte Carlo worker processes (default: up to 2 cores; results do not depend on it)")
+    p.add_argument("--adaptive", action="store_true",
+                   help="Monte Carlo until every standard uncertainty is stable to 2 significant digits "
+                        "(JCGM 101 §7.9)")
+    p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
+    p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
+    p.add_argument("--out", required=True, help="uncertainty JSON to write")
+    p.set_defaults(func=cmd_uncertainty)
+
+    p = sub.add_parser("design", help="design reflector positions that minimize the predicted-position "
+                                      "uncertainty (linear method)",
+                       description="Reflector (station) placement for a campaign (000 §3.2.2 Remark 2): the "
+                                   "result's model is the truth, the plan is run against candidate layouts, and "
+                                   "the predicted-position uncertainty over the workspace (linear propagation, "
+                                   "JCGM 100, of the budget) is minimized by coordinate exchange over candidates "
+                                   "on a grid inside the regions. Prints the current and the designed layout's "
+                                   "costs; writes DESIGN.json. mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify (its model is the truth, its reflectors the "
+                                  "current layout)")
+    p.add_argument("--plan", help="plan CSV or YAML (default: the paper 000 plan, Eq. 11-12)")
+    p.add_argument("--regions", required=True, help="regions YAML: rectangles {x_mm: [lo, hi], y_mm: [lo, hi]} "
+                                                    "(e.g. data/regions_paper000.yaml)")
+    p.add_argument("--reflectors", type=int, default=None,
+                   help="number of reflectors to place (default: as many as the result has)")
+    p.add_argument("--criterion", choices=("max", "mean"), default="max",
+                   help="minimize the worst (default) or the mean predicted-position u over the workspace")
+    p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
+    p.add_argument("--step-mm", type=float, default=50.0, help="candidate grid step in the regions (default 50)")
+    p.add_argument("--workspace-step-mm", type=float, default=50.0,
+                   help="step of the workspace XY grid the cost is evaluated on (default 50)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--starts", type=int, default=3, help="random starts (default 3)")
+    p.add_argument("--max-sweeps", type=int, default=5, help="exchange sweeps per start at most (default 5)")
+    p.add_argument("--min-separation-mm", type=float, default=100.0,
+                   help="minimum distance between reflectors (default 100)")
+    p.add_argument("--clearance-mm", type=float, default=50.0,
+                   help="minimum distance of a reflector from every end-effector position (default 50)")
+    p.add_argument("--base-radius-mm", type=float, default=40.0,
+                   help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
+    p.add_argument("--out", required=True, help="design JSON to write")
+    p.set_defaults(func=cmd_design)
     return parser
 
 

@@ -90,7 +90,7 @@ def _gauge_node(grid_deg) -> float:
     return float(np.clip(0.0, grid_deg[0], grid_deg[-1]))
 
 
-def plot_identified_maps(ident, truth, path):
+def plot_identified_maps(ident, truth, path, std=None, method=None):
     """Identified Δθ_map(θ*, ±1) of J1 and J2 with k = 1 error bars, as 000 Fig. 6.
 
     ``ident``: an error-map :class:`~olti_drake.identification.Identification`
@@ -99,10 +99,15 @@ def plot_identified_maps(ident, truth, path):
     curves, or None. The J1 truth is shifted by the gauge constant -- its mean
     of (+1, -1) at θ1* = 0 -- because the identification fixes that level to 0
     (a rotation about J1 is unobservable); J2 needs no shift.
+
+    ``std``: standard uncertainties (k = 1, deg; layout of ``ident.names``)
+    for the error bars instead of ``ident.std`` -- e.g. from ``olti
+    uncertainty`` with a budget (000 §5) -- and ``method`` names them in the legend.
     """
     plt = _pyplot()
     robot = getattr(truth, "robot", truth)  # a Setup carries its TrueRobot
-    std = dict(zip(ident.names, ident.std))
+    std = dict(zip(ident.names, ident.std if std is None else std))
+    bar = "error bar u (k = 1)" + (f", {method}" if method else "")
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for ax, axis, m, label in ((axes[0], "J1", ident.model.map1, "a"), (axes[1], "J2", ident.model.map2, "b")):
         g = m.grid_deg
@@ -116,7 +121,7 @@ def plot_identified_maps(ident, truth, path):
             u = np.array([std[f"{axis}_{block}_deg[{i}]"] for i in range(m.n_nodes)])
             values = m.forward_deg if d > 0 else m.reverse_deg
             ax.errorbar(g, 1e3 * values, yerr=1e3 * u, fmt="o", color=color, ms=4, capsize=3,
-                        label=f"identified, {name}, error bar u (k = 1)")
+                        label=f"identified, {name}, {bar}")
             if robot is not None:
                 dense = np.linspace(g[0], g[-1], 400)
                 ax.plot(dense, 1e3 * (robot.deviation(axis)(dense, d) - shift), color=color, lw=1, alpha=0.6,
@@ -206,3 +211,110 @@ def plot_error_vectors(xy_cmd_mm, pass_dir, path_id, measured_mm, errormap_mm, d
         ax.set_ylabel("Y, mm")
     fig.suptitle("Positioning error on paths not used in the identification (000 Fig. 11)")
     return _save(fig, plt, path)
+
+
+# -- uncertainty of the identification (000 §5, Fig. 6 error bars; 001 §4.4, Fig. 14) ------------------
+_APPROACHES = ((1.0, "approach +1 (both axes positive)"), (-1.0, "approach -1 (both axes negative)"))
+
+
+def _sample_position_std(model, cmd, X, max_values: int = 4_000_000) -> np.ndarray:
+    """Sample standard deviation (ddof = 1) of x, y (N, 2) mm over the robot parameter samples X (T, P).
+
+    Positions of every sample by :meth:`ScaraModel.positions_batch`, in chunks
+    of commands so that at most ``max_values`` positions are held at once.
+    """
+    from .kinematics import JointCommands
+
+    out = np.empty((len(cmd), 2))
+    chunk = max(1, max_values // (2 * len(X)))
+    for i in range(0, len(cmd), chunk):
+        s = slice(i, i + chunk)
+        sub = JointCommands(cmd.theta1_deg[s], cmd.theta2_deg[s], cmd.dir1[s], cmd.dir2[s])
+        out[s] = model.positions_batch(sub, X).std(axis=0, ddof=1)
+    return out
+
+
+def prediction_uncertainty_map(ident, x, cov=None, samples=None, step_mm=None) -> dict:
+    """Standard uncertainty (k = 1) of predicted positions over the workspace (001 §4.4, Fig. 14).
+
+    ``ident``: the :class:`~olti_drake.identification.Identifier` of an
+    error-map result, ``x`` its parameter vector. Either ``cov`` (n, n), the
+    linear covariance (JCGM 100; through
+    :func:`~olti_drake.uncertainty.prediction_std`), or ``samples`` (T, n), the
+    Monte Carlo parameter samples (JCGM 101; the positions of every sample).
+    At every point of :func:`~olti_drake.kinematics.workspace_grid` and for both approach
+    directions (dir1 = dir2 = +1, then -1): u = sqrt(u_x² + u_y²) mm, the
+    standard uncertainty of the 2-norm of the predicted-position error, as
+    001 Fig. 14 plots (times k). In the result's gauge frame (rotation about
+    J1 fixed as the result's ``gauge`` says).
+
+    Returns dict: ``x_mm`` (nx,), ``y_mm`` (ny,), ``u_mm`` (2, ny, nx) with
+    NaN outside the map range (index 0: approach +1, 1: approach -1),
+    ``directions`` (+1, -1), ``reflectors_mm`` (Nt, 2).
+    """
+    from .kinematics import JointCommands
+    from .uncertainty import prediction_std
+
+    if (cov is None) == (samples is None):
+        raise ValueError("prediction_uncertainty_map needs exactly one of cov and samples")
+    model, P, _ = ident.split(np.asarray(x, dtype=float))
+    if not model.is_errormap:
+        raise ValueError("the prediction-uncertainty map needs an error-map result (model 'errormap')")
+    from .kinematics import workspace_grid
+
+    L = model.L1_mm + model.L2_mm
+    axis, inside, t1, t2 = workspace_grid(model.L1_mm, model.L2_mm, model.map1.grid_deg, model.map2.grid_deg,
+                                          L / 40 if step_mm is None else step_mm)
+    xs, ys = axis, axis
+    u = np.full((2,) + inside.shape, np.nan)
+    for i, (d, _) in enumerate(_APPROACHES):
+        cmd = JointCommands(t1, t2, np.full(t1.size, d), np.full(t1.size, d))
+        if not len(cmd):
+            continue
+        s = (prediction_std(ident, cov, x, cmd) if cov is not None else
+             _sample_position_std(ident.robot0, cmd, np.asarray(samples)[:, :ident.n_robot]))
+        u[i][inside] = np.hypot(s[:, 0], s[:, 1])
+    return {"x_mm": xs, "y_mm": ys, "u_mm": u, "directions": tuple(d for d, _ in _APPROACHES),
+            "reflectors_mm": np.asarray(P)}
+
+
+def plot_prediction_uncertainty_map(pmap: dict, path, k: float = 2.0, method: str = ""):
+    """The expanded uncertainty U(k) of predicted positions over the workspace, in the manner of 001 Fig. 14.
+
+    ``pmap``: :func:`prediction_uncertainty_map`'s dict (mm). Colour: U =
+    k · sqrt(u_x² + u_y²) in µm, one panel per approach direction on a shared
+    colour scale; reflectors (▲ P1, P2, ...) and the J1 axis (■) marked.
+    """
+    plt = _pyplot()
+    U = 1e3 * k * pmap["u_mm"]
+    finite = np.isfinite(U)
+    vmin, vmax = (float(np.min(U[finite])), float(np.max(U[finite]))) if finite.any() else (0.0, 1.0)
+    xs, ys, P = pmap["x_mm"], pmap["y_mm"], pmap["reflectors_mm"]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.9), sharex=True, sharey=True, layout="constrained")
+    for i, (ax, (_, name)) in enumerate(zip(axes, _APPROACHES)):
+        mesh = ax.pcolormesh(xs, ys, np.ma.masked_invalid(U[i]), shading="nearest", cmap="jet",
+                             vmin=vmin, vmax=vmax)
+        ax.plot(P[:, 0], P[:, 1], "^", color="k", mfc="white", ms=9, label="reflectors")
+        for j, q in enumerate(P):
+            ax.annotate(f"P{j + 1}", q, textcoords="offset points", xytext=(7, 5), fontsize=9)
+        ax.plot([0], [0], "s", color="gray", ms=7, label="J1 axis")
+        stats = (f"max {np.nanmax(U[i]):.1f} µm, mean {np.nanmean(U[i]):.1f} µm" if np.isfinite(U[i]).any()
+                 else "no point inside the map range")
+        ax.set_title(f"{name}\nU (k = {k:g}): {stats}", fontsize=10)
+        ax.set_xlabel("X, mm")
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("Y, mm")
+    axes[0].legend(fontsize=8, loc="upper left")
+    lo = min(np.min(xs), np.min(P[:, 0]) if len(P) else 0.0) - 30
+    hi = max(np.max(xs), np.max(P[:, 0]) if len(P) else 0.0) + 30
+    axes[0].set_xlim(lo, hi)
+    axes[0].set_ylim(min(np.min(ys), np.min(P[:, 1]) if len(P) else 0.0) - 30,
+                     max(np.max(ys), np.max(P[:, 1]) if len(P) else 0.0) + 30)
+    fig.colorbar(mesh, ax=list(axes), shrink=0.9,
+                 label=f"U (k = {k:g}) of the predicted position, k·sqrt(u_x² + u_y²), µm")
+    fig.suptitle("Uncertainty of predicted positions inside the identified map range (001 Fig. 14 style)"
+                 + (f" -- {method}" if method else ""), fontsize=11)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

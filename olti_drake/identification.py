@@ -314,7 +314,8 @@ class Identifier:
         touches, then rank and conditioning within the constraints.
         """
         x = self.x0 if x is None else x
-        _, J = self.residuals(x)
+        r, J = self.residuals(x)
+        self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
         H = _normal_matrix(J, np.ones(J.shape[0])) + self._prior_hessian()  # priors determine what they constrain
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
         if untouched:
@@ -373,7 +374,8 @@ class Identifier:
 
     def _solve_lm(self):
         x = self.x0.copy()
-        r, J = self.residuals(x)
+        checked = getattr(self, "_checked", None)
+        r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x) else self.residuals(x)
         lam, steps = 1e-6, 0
         for _ in range(self.options.max_iterations):
             w = self._weights(r)

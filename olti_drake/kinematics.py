@@ -100,6 +100,34 @@ def inverse_kinematics(x_mm, y_mm, L1_mm, L2_mm, elbow: int = 1):
     return t1 / DEG, t2 / DEG
 
 
+def workspace_grid(L1_mm, L2_mm, theta1_range_deg, theta2_range_deg, step_mm: float):
+    """The XY grid points (step mm) the arm reaches with commands inside the given angle ranges.
+
+    Inverse of Eq. (3) of 000 with either elbow (elbow +1 preferred where both
+    fit). Returns (axis_mm (n,), inside (n, n) bool indexed [iy, ix],
+    theta1_deg, theta2_deg of the inside points in row-major order).
+    """
+    if not (np.isfinite(step_mm) and step_mm > 0):
+        raise ValueError(f"workspace step_mm must be finite and > 0, got {step_mm!r}")
+    (a1, b1), (a2, b2) = (sorted((float(np.min(r)), float(np.max(r)))) for r in (theta1_range_deg, theta2_range_deg))
+    reach = L1_mm + L2_mm
+    n = int(np.floor(reach / step_mm))
+    axis = step_mm * np.arange(-n, n + 1)
+    X, Y = np.meshgrid(axis, axis)
+    r = np.hypot(X, Y)
+    ok = (r >= abs(L1_mm - L2_mm)) & (r <= reach)
+    t1, t2 = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
+    tol = 1e-9
+    for elbow in (-1, 1):  # +1 last: it wins where both elbows fit
+        s1, s2 = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
+        s1[ok], s2[ok] = inverse_kinematics(X[ok], Y[ok], L1_mm, L2_mm, elbow=elbow)
+        with np.errstate(invalid="ignore"):
+            fit = (s1 >= a1 - tol) & (s1 <= b1 + tol) & (s2 >= a2 - tol) & (s2 <= b2 + tol)
+        t1[fit], t2[fit] = np.clip(s1[fit], a1, b1), np.clip(s2[fit], a2, b2)
+    inside = np.isfinite(t1)
+    return axis, inside, t1[inside], t2[inside]
+
+
 @dataclass(frozen=True)
 class ScaraModel:
     """Robot part of the D-H model (Eq. 4) or of the error-map model (Eq. 6) of 000.

@@ -32,6 +32,8 @@ from .csvio import InputError
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
 BATCH = 250
+#: Batches per round of the adaptive procedure: fixed, so adaptive results do not depend on the workers.
+ROUND_BATCHES = 4
 
 
 @dataclass
@@ -135,10 +137,11 @@ class MonteCarlo:
 _WORK = {}
 
 
-def _mc_batch(index: int):
+def _mc_batch(seed, size: int):
+    # seed and size travel with the task: forked workers outlive a round, _WORK keeps only what is fixed.
     w = _WORK
-    rng = np.random.default_rng(w["seeds"][index])
-    E = w["errors"].draw(rng, w["distance"], w["sizes"][index])
+    rng = np.random.default_rng(seed)
+    E = w["errors"].draw(rng, w["distance"], size)
     return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
 
 
@@ -164,10 +167,11 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     """JCGM 101 Monte Carlo of the identification (000 §5; 001 §4.4).
 
     Readings are the model's own at x plus errors drawn from the budget, so
-    the trials scatter around x. ``trials`` fixed, or with ``adaptive`` batches
-    until every standard uncertainty is stable to ``tolerance_digits``
-    significant digits (JCGM 101 §7.9). Batches of :data:`BATCH` trials have
-    their own seeds (from ``seed``): results do not depend on ``workers``.
+    the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
+    of :data:`ROUND_BATCHES` batches until every standard uncertainty is stable
+    to ``tolerance_digits`` significant digits (JCGM 101 §7.9). Batches of
+    :data:`BATCH` trials have their own seeds (from ``seed``): results do not
+    depend on ``workers``.
     """
     if trials < 2:
         raise InputError(f"trials must be >= 2, got {trials}")
@@ -185,10 +189,10 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     history = []
     with _pool(workers) as pool:
         while True:
-            n = trials if not adaptive else BATCH * max(workers, 1)
+            n = trials if not adaptive else BATCH * ROUND_BATCHES
             sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
-            _WORK.update(seeds=seeds.spawn(len(sizes)), sizes=sizes)
-            results = pool.map(_mc_batch, range(len(sizes))) if pool else map(_mc_batch, range(len(sizes)))
+            children = seeds.spawn(len(sizes))
+            results = pool.map(_mc_batch, children, sizes) if pool else map(_mc_batch, children, sizes)
             for part in results:
                 out.append(part)
                 done += len(part)
@@ -234,8 +238,8 @@ def prediction_std(ident, cov, x, commands) -> np.ndarray:
     model = ident.robot0.with_parameters(x[:n])
     _, jx, jy = model.positions_and_jacobian(commands)
     C = cov[:n, :n]
-    return np.sqrt(np.maximum(np.column_stack([np.einsum("ij,jk,ik->i", jx.toarray(), C, jx.toarray()),
-                                               np.einsum("ij,jk,ik->i", jy.toarray(), C, jy.toarray())]), 0))
+    var = [np.sum((j @ C) * j, axis=1) for j in (jx.toarray(), jy.toarray())]  # diag(J C Jᵀ)
+    return np.sqrt(np.maximum(np.column_stack(var), 0))
 
 
 def uncertainty_dict(ident, x, std, method: str, budget: Budget, k: float = 2.0, samples=None,

@@ -1,0 +1,299 @@
+"""Uncertainty of the identification (000 §5; JCGM 100 linear, JCGM 101 Monte Carlo) and `olti uncertainty`.
+
+The key check is against the thing the uncertainty claims to describe: the spread of the estimates
+over many *independent* simulated campaigns of the paper-000 experiment (same robot, same plan,
+new reading noise each time). With M campaigns the sample standard deviation has a relative standard
+error of about 1/sqrt(2(M - 1)) (normal data); per parameter we allow 3.5 of those.
+Units: mm and degrees.
+"""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from olti_drake.budget import Budget, load_budget
+from olti_drake.campaign import prepare, simulate_vectorized, write_campaign
+from olti_drake.identification import IdentificationOptions, Identifier, identify
+from olti_drake.scenario import Scenario
+from olti_drake.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, _distances, linear_covariance,
+                                    monte_carlo, prediction_std, uncertainty_dict)
+from olti_drake.validation import campaign_data, random_commands
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: Independent campaigns and Monte Carlo trials of the key test.
+M_CAMPAIGNS, MC_TRIALS = 300, 1000
+#: Standard errors allowed (two-sided) per parameter.
+Z = 3.5
+SEED = 20240601
+
+
+def _rel_se(n: int) -> float:
+    """Relative standard error of a sample standard deviation of n normal values."""
+    return 1.0 / np.sqrt(2.0 * (n - 1))
+
+
+def _agree(ratio, rel_se) -> np.ndarray:
+    """Per-parameter: does ratio = s_a / s_b agree with 1 within Z relative standard errors?"""
+    return np.abs(np.asarray(ratio) - 1.0) <= Z * rel_se
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return prepare(Scenario())  # the paper-000 experiment, budget 000 Table 2
+
+
+@pytest.fixture(scope="module")
+def campaigns(setup):
+    """Estimates (M, n) of M independent campaigns (same setup and truth, new noise), error-map model."""
+    X = []
+    for i in range(M_CAMPAIGNS):
+        data = campaign_data(simulate_vectorized(setup, np.random.default_rng([SEED, i])))
+        X.append(identify(data, IdentificationOptions(model="errormap")).x)
+    return np.array(X)
+
+
+@pytest.fixture(scope="module")
+def first(setup):
+    """The first campaign's Identifier, its solution x and the simulator's budget as reading errors."""
+    data = campaign_data(simulate_vectorized(setup, np.random.default_rng([SEED, 0])))
+    ident = Identifier(data, IdentificationOptions(model="errormap"))
+    return ident, ident.solve().x, ReadingErrors(setup.budget)
+
+
+@pytest.fixture(scope="module")
+def small(setup):
+    """A random quarter of a campaign's readings: the same kind of problem, 4x cheaper trials (MC mechanics)."""
+    data = campaign_data(simulate_vectorized(setup, np.random.default_rng([SEED, 2])))
+    keep = np.sort(np.random.default_rng([SEED, 3]).permutation(len(data))[:len(data) // 4])
+    ident = Identifier(data.subset(keep), IdentificationOptions(model="errormap"))
+    return ident, ident.solve().x, ReadingErrors(setup.budget)
+
+
+@pytest.fixture(scope="module")
+def linear_std(first):
+    ident, x, errors = first
+    return np.sqrt(np.diag(linear_covariance(ident, x, errors)))
+
+
+@pytest.fixture(scope="module")
+def mc(first):
+    ident, x, errors = first
+    return monte_carlo(ident, x, errors, trials=MC_TRIALS, seed=7, workers=1)
+
+
+def _doubled(budget: Budget) -> Budget:
+    return dataclasses.replace(budget, contributors=[dataclasses.replace(c, value=2 * c.value)
+                                                     for c in budget.contributors])
+
+
+def test_uncertainty_predicts_the_spread_of_independent_campaigns(setup, campaigns, first, linear_std, mc):
+    ident, x, errors = first
+    names = ident.names
+    empirical = campaigns.std(axis=0, ddof=1)
+    se_lin = _rel_se(M_CAMPAIGNS)  # the linear value is exact for its model: only the campaigns scatter
+    se_mc = np.hypot(_rel_se(M_CAMPAIGNS), _rel_se(MC_TRIALS))
+    r_lin = empirical / linear_std
+    r_mc = empirical / mc.samples.std(axis=0, ddof=1)
+    print(f"\nindependent campaigns (M = {M_CAMPAIGNS}) / linear: {r_lin.min():.3f}..{r_lin.max():.3f}, "
+          f"/ MC ({MC_TRIALS} trials): {r_mc.min():.3f}..{r_mc.max():.3f} "
+          f"(allowed {Z} x {se_lin:.3f} / {se_mc:.3f})")
+    # Every parameter: L1, L2, every J1 and J2 node (J1 gauge-fixed identically in every campaign), P, d0.
+    groups = {"L": ("L1_mm", "L2_mm"), "J1": ("J1_",), "J2": ("J2_",), "P": ("P",), "d0": ("d0_",)}
+    for group, prefixes in groups.items():
+        sel = np.array([n.startswith(prefixes) for n in names])
+        assert sel.any(), group
+        for ratio, se, label in ((r_lin, se_lin, "linear"), (r_mc, se_mc, "MC")):
+            bad = sel & ~_agree(ratio, se)
+            assert not bad.any(), f"{label}: {[(n, round(r, 3)) for n, r, b in zip(names, ratio, bad) if b]}"
+
+    # The simulator adds the reading and pose terms as noise but not u31/u32 (beam_direction_noise is off:
+    # the beam direction errors are modelled physically); the budget keeps them for the cosine error,
+    # D u_psi^2 / sqrt(2) < 1 µm against the ~16 µm reading uncertainty -- a negligible part of the variance.
+    assert not setup.scenario.interferometer.beam_direction_noise
+    D = _distances(ident, x)
+    u_all = errors.std(D)
+    u_simulated = np.hypot(setup.budget.combined("reading"), setup.budget.combined("pose"))
+    assert np.max(np.sqrt(u_all**2 - u_simulated**2)) < 1e-3
+    assert np.max(u_all / u_simulated) < 1.005  # vs the Z x 1/sqrt(2(M - 1)) = 14 % allowed above
+
+    # The check can fail: a budget with doubled values predicts twice the spread, and the campaigns say no.
+    doubled = np.sqrt(np.diag(linear_covariance(ident, x, ReadingErrors(_doubled(setup.budget)))))
+    r2 = empirical / doubled
+    assert np.all(np.abs(r2 - 0.5) <= Z * se_lin * 0.5 + 1e-3), (r2.min(), r2.max())
+    assert not _agree(r2, se_lin).any()
+
+
+def test_mc_agrees_with_linear_on_the_paper_problem(first, linear_std, mc):
+    ident, _, _ = first
+    ratio = mc.samples.std(axis=0, ddof=1) / linear_std
+    worst = int(np.argmax(np.abs(np.log(ratio))))
+    print(f"\nMC ({MC_TRIALS} trials) / linear: worst {ratio[worst]:.3f} at {ident.names[worst]}, "
+          f"range {ratio.min():.3f}..{ratio.max():.3f}")
+    assert mc.samples.shape == (MC_TRIALS, len(ident.names))
+    assert np.all(np.abs(ratio - 1) < 0.10), ratio
+
+
+def test_mc_is_reproducible_and_independent_of_workers(small):
+    ident, x, errors = small
+    a = monte_carlo(ident, x, errors, trials=2 * BATCH + 17, seed=3, workers=1)
+    b = monte_carlo(ident, x, errors, trials=2 * BATCH + 17, seed=3, workers=1)
+    c = monte_carlo(ident, x, errors, trials=2 * BATCH + 17, seed=3, workers=2)
+    d = monte_carlo(ident, x, errors, trials=2 * BATCH + 17, seed=4, workers=1)
+    assert a.samples.shape == (2 * BATCH + 17, len(x))
+    assert np.array_equal(a.samples, b.samples)
+    assert np.array_equal(a.samples, c.samples)
+    assert not np.array_equal(a.samples, d.samples)
+    assert len(np.unique(a.samples[:, 0])) == len(a.samples)  # no batch repeats another's errors
+
+
+def test_adaptive_stops_reports_and_does_not_depend_on_workers(small):
+    ident, x, errors = small
+    runs = [monte_carlo(ident, x, errors, seed=5, workers=w, adaptive=True, tolerance_digits=1) for w in (1, 2)]
+    a = runs[0]
+    n = len(a.samples)
+    assert a.converged and n >= 2 * BATCH * ROUND_BATCHES and n % (BATCH * ROUND_BATCHES) == 0
+    assert any(f"{n} trials" in note for note in a.notes), a.notes
+    assert len(np.unique(a.samples[:, 0])) == n  # later rounds draw new errors
+    assert np.array_equal(a.samples, runs[1].samples)
+
+
+def _flat(layout, names):
+    """The formats.md layout (result keys and shapes) back to a vector in the order of ``names``."""
+    v = [layout["L1_mm"], layout["L2_mm"]]
+    for axis in ("J1", "J2"):
+        v += layout["error_map"][axis]["forward_deg"] + layout["error_map"][axis]["reverse_deg"]
+    v += list(np.ravel(layout["reflectors_mm"])) + list(layout["dead_paths_mm"])
+    assert len(v) == len(names)
+    return np.array(v, dtype=float)
+
+
+def test_coverage_interval_contains_estimate_and_expanded_is_k_times_std(setup, first, mc):
+    ident, x, _ = first
+    std = mc.samples.std(axis=0, ddof=1)
+    u = uncertainty_dict(ident, x, std, "mc", setup.budget, k=2.5, samples=mc.samples, coverage=0.95,
+                         extra={"trials": len(mc.samples)})
+    assert u["k"] == 1 and u["expanded"]["k"] == 2.5 and u["trials"] == MC_TRIALS
+    np.testing.assert_allclose(_flat(u, ident.names), std, rtol=1e-12)
+    np.testing.assert_allclose(_flat(u["expanded"], ident.names), 2.5 * std, rtol=1e-12)
+    lo, hi = (_flat(u["coverage_interval"][s], ident.names) for s in ("low", "high"))
+    assert u["coverage_interval"]["p"] == 0.95
+    assert np.all(lo < x) and np.all(x < hi)
+    # A 95 % interval of a near-normal output spans about ±1.96 u.
+    np.testing.assert_allclose((hi - lo) / (2 * 1.96 * std), 1.0, atol=0.15)
+
+
+def test_prediction_std_matches_the_mc_spread_of_positions(first, mc):
+    ident, x, errors = first
+    model = ident.split(x)[0]
+    cs = random_commands(300, [SEED, 9], tuple(model.map1.grid_deg[[0, -1]]), tuple(model.map2.grid_deg[[0, -1]]))
+    cov = linear_covariance(ident, x, errors)
+    linear = prediction_std(ident, cov, x, cs.commands)
+    spread = ident.robot0.positions_batch(cs.commands, mc.samples[:, :ident.n_robot]).std(axis=0, ddof=1)
+    ratio = spread / linear
+    print(f"\npredicted-position spread (MC) / prediction_std: {ratio.min():.3f}..{ratio.max():.3f}")
+    assert np.all(np.abs(ratio - 1) < 0.10), (ratio.min(), ratio.max())
+
+
+# -- the command -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def files(setup, tmp_path_factory):
+    """A campaign.csv and its error-map result.json in a fresh directory."""
+    from olti_drake.campaign_io import load_campaign
+    from olti_drake.result import write_result
+
+    d = tmp_path_factory.mktemp("unc")
+    csv, _ = write_campaign(simulate_vectorized(setup, np.random.default_rng([SEED, 1])), str(d))
+    result = str(d / "result.json")
+    write_result(identify(load_campaign(csv), IdentificationOptions(model="errormap")), result)
+    return d, csv, result
+
+
+def _olti(*args):
+    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *args], capture_output=True, text=True, cwd=ROOT)
+
+
+def _same_layout(a, b, path=""):
+    """Same keys and shapes (recursively) in a and b."""
+    assert set(a) == set(b), (path, sorted(a), sorted(b))
+    for k in a:
+        if isinstance(a[k], dict):
+            _same_layout(a[k], b[k], f"{path}.{k}")
+        else:
+            assert np.shape(a[k]) == np.shape(b[k]), f"{path}.{k}"
+
+
+def _values_layout(result: dict) -> dict:
+    """The result's values in the uncertainty layout (formats.md: map values without the grid)."""
+    out = {k: result[k] for k in ("L1_mm", "L2_mm", "reflectors_mm", "dead_paths_mm")}
+    out["error_map"] = {a: {k: v for k, v in m.items() if k != "grid_deg"} for a, m in result["error_map"].items()}
+    return out
+
+
+@pytest.mark.parametrize("method", ["linear", "mc"])
+def test_cli_writes_uncertainty_json(files, method, capsys):
+    from olti_drake.cli import main
+    from olti_drake.campaign_io import load_campaign
+    from olti_drake.uncertainty import identifier_at_result
+
+    d, csv, result = files
+    out = d / f"unc_{method}.json"
+    extra = ["--trials", "300", "--seed", "11", "--workers", "1"] if method == "mc" else []
+    assert main(["uncertainty", result, csv, "--method", method, "--k", "2",
+                                     "--out", str(out)] + extra) == 0
+    text = capsys.readouterr().out
+    assert "L1: u =" in text and "J2 map nodes u =" in text and "U (k = 2) max" in text and str(out) in text
+    u = json.loads(out.read_text())
+    r = json.loads(open(result).read())
+    assert u["k"] == 1 and u["method"] == method and u["budget"] == "paper 000 Table 2"
+    values = _values_layout(r)
+    _same_layout(values, {k: u[k] for k in values})
+    _same_layout(values, {k: u["expanded"][k] for k in values})
+    assert u["expanded"]["k"] == 2.0
+    assert 0.0158 < u["reading_std_median_mm"] <= u["reading_std_max_mm"] < 0.0159  # 000 Table 2: ~16 µm
+    assert u["elapsed_s"] >= 0 and u["prediction_expanded_mm"]["max"] > u["prediction_expanded_mm"]["mean"] > 0
+    ident, x = identifier_at_result(result, load_campaign(csv))
+    errors = ReadingErrors(load_budget(os.path.join(ROOT, "data", "budget_paper000.yaml")))
+    if method == "linear":
+        expect = np.sqrt(np.diag(linear_covariance(ident, x, errors)))
+    else:
+        assert u["trials"] == 300 and u["seed"] == 11 and "coverage_interval" in u
+        expect = monte_carlo(ident, x, errors, trials=300, seed=11, workers=1).samples.std(axis=0, ddof=1)
+    np.testing.assert_allclose(u["parameters"]["std"], expect, rtol=1e-9)
+    np.testing.assert_allclose(_flat(u, ident.names), expect, rtol=1e-9)
+
+
+def test_cli_map_figures(files, capsys):
+    from olti_drake.cli import main
+
+    d, csv, result = files
+    png, maps = d / "map.png", d / "maps.png"
+    assert main(["uncertainty", result, csv, "--method", "linear", "--out", str(d / "u.json"),
+                 "--map", str(png), "--maps", str(maps), "--budget",
+                 os.path.join(ROOT, "data", "budget_paper001.yaml")]) == 0
+    for p in (png, maps):
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 20_000
+    assert json.loads((d / "u.json").read_text())["budget"] == "paper 001 Table 4"
+
+
+def test_cli_bad_input_is_one_line_exit_2(files, tmp_path):
+    d, csv, result = files
+    missing = str(tmp_path / "no_budget.yaml")
+    r = _olti("uncertainty", result, csv, "--method", "linear", "--budget", missing, "--out", str(tmp_path / "u.json"))
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1
+    assert missing in r.stderr and not (tmp_path / "u.json").exists()
+
+    from olti_drake.cli import main
+    before = open(csv, "rb").read()
+    assert main(["uncertainty", result, csv, "--method", "linear", "--out", csv]) == 2  # never overwrite an input
+    assert open(csv, "rb").read() == before
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("contributors:\n- {symbol: u1, value: 1.0, unit: um, acts_on: reading, distribution: gauss}\n")
+    assert main(["uncertainty", result, csv, "--method", "mc", "--budget", str(bad), "--out",
+                 str(tmp_path / "u.json")]) == 2
+    assert main(["uncertainty", result, csv, "--method", "mc", "--trials", "1", "--out",
+                 str(tmp_path / "u.json")]) == 2
