@@ -64,6 +64,9 @@ from olti_drake.identification import IdentificationOptions, Identifier, identif
 from olti_drake.kinematics import JointCommands
 from olti_drake.scenario import Scenario
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
+from timing import best_of, cpu_busy  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
 REPEATS = 5
@@ -229,14 +232,6 @@ def scipy_solve(ident: Identifier, tr_solver="lsmr", time_limit_s=None, **tol):
 
 
 # -- timing helpers ----------------------------------------------------------------------------
-def best_of(fn, repeats=REPEATS):
-    """(best wall time in s, last result) of ``repeats`` calls of ``fn()``."""
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def best_of_limited(fn, repeats):
@@ -356,19 +351,6 @@ def print_split(total, split, calls, indent="  "):
         print(f"{indent}solver Drake chose: {calls['solvers']}")
 
 
-def cpu_busy(seconds=0.5):
-    """Fraction of all CPUs busy over ``seconds`` (Linux /proc/stat; None elsewhere) -- others' load."""
-    def sample():
-        with open("/proc/stat") as f:
-            v = [float(x) for x in f.readline().split()[1:]]
-        return sum(v), v[3] + v[4]  # total, idle + iowait
-    try:
-        t0, i0 = sample()
-        time.sleep(seconds)
-        t1, i1 = sample()
-    except (OSError, ValueError, IndexError):
-        return None
-    return 1.0 - (i1 - i0) / max(t1 - t0, 1e-9)
 
 
 def rel(a, b):
@@ -388,11 +370,11 @@ def paper_scale(data):
     for model in ("errormap", "dh"):
         ident = Identifier(data, IdentificationOptions(model=model))
         # scipy needs the same start: build it inside its timing (ours builds it inside identify too).
-        sci = {tr: best_of(lambda: scipy_solve(Identifier(data, IdentificationOptions(model=model)), tr))
+        sci = {tr: best_of(lambda: scipy_solve(Identifier(data, IdentificationOptions(model=model)), tr), REPEATS)
                for tr in ("lsmr", "exact")}
         fastest = min(sci, key=lambda tr: sci[tr][0])
         t_ref = sci[fastest][0]
-        ours = {s: best_of(lambda: identify(data, IdentificationOptions(model=model, solver=s))) for s in ("lm", "nlp")}
+        ours = {s: best_of(lambda: identify(data, IdentificationOptions(model=model, solver=s)), REPEATS) for s in ("lm", "nlp")}
         std = ours["lm"][1].std
         n = len(ident.names)
         for s, (t, res) in ours.items():

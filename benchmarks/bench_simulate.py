@@ -29,6 +29,9 @@ import numpy as np
 from olti_drake.campaign import STREAM_LASER, build_campaign_diagram, prepare, run_campaign, simulate_vectorized
 from olti_drake.scenario import Scenario
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
+from timing import best_of  # noqa: E402
+
 #: The issue's target for ``olti simulate`` of the paper campaign, start-up included (s).
 TARGET_S = 5.0
 REPEATS = 3
@@ -61,21 +64,13 @@ def time_cli(repeats: int = REPEATS) -> list:
     return times
 
 
-def best_of(fn, repeats: int = REPEATS):
-    """(best wall time in s, last result) of ``repeats`` calls of ``fn()``."""
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def main() -> int:
     cli = time_cli()
-    t_prep, setup = best_of(lambda: prepare(Scenario()))
-    t_build, _ = best_of(lambda: build_campaign_diagram(setup))
-    t_diag, campaign = best_of(lambda: run_campaign(setup))
+    t_prep, setup = best_of(lambda: prepare(Scenario()), REPEATS)
+    t_build, _ = best_of(lambda: build_campaign_diagram(setup), REPEATS)
+    t_diag, campaign = best_of(lambda: run_campaign(setup), REPEATS)
     t_base, base = best_of(lambda: numpy_baseline(setup), repeats=BASELINE_REPEATS)
     n = campaign.n_readings
     if len(base["valid"]) != n:

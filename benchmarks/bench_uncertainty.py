@@ -38,6 +38,9 @@ from olti_drake.identification import Identifier
 from olti_drake.plan import bidirectional_grid, load_plan
 from olti_drake.uncertainty import ReadingErrors, linear_covariance, monte_carlo
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
+from timing import best_of, cpu_busy  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
 PAPER_BUDGET = os.path.join(ROOT, "data", "budget_paper000.yaml")
@@ -52,29 +55,8 @@ COST_REPEATS = 20
 CANDIDATE_STEP_MM = 100.0
 
 
-def best_of(fn, repeats):
-    """(best wall time in s, last result) of ``repeats`` calls of ``fn()``."""
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
-def cpu_busy(seconds=0.5):
-    """Fraction of all CPUs busy over ``seconds`` (Linux /proc/stat; None elsewhere) -- others' load."""
-    def sample():
-        with open("/proc/stat") as f:
-            v = [float(x) for x in f.readline().split()[1:]]
-        return sum(v), v[3] + v[4]
-    try:
-        t0, i0 = sample()
-        time.sleep(seconds)
-        t1, i1 = sample()
-    except (OSError, ValueError, IndexError):
-        return None
-    return 1.0 - (i1 - i0) / max(t1 - t0, 1e-9)
 
 
 def row(label, ms, note=""):

@@ -29,6 +29,7 @@ import scipy.sparse as sp
 
 from .budget import Budget
 from .csvio import InputError
+from .threads import single_thread_blas
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
 BATCH = 250
@@ -142,7 +143,8 @@ def _mc_batch(seed, size: int):
     w = _WORK
     rng = np.random.default_rng(seed)
     E = w["errors"].draw(rng, w["distance"], size)
-    return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
+    with single_thread_blas():  # the workers already fill the cores
+        return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
 
 
 def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
