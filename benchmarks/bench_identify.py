@@ -466,7 +466,7 @@ def main() -> int:
     data = load_campaign(PAPER_CAMPAIGN)
     identify(data)  # warm-up: pydrake imports and first-call costs
     identify(data, IdentificationOptions(solver="nlp"))
-    print(f"scipy: least_squares(method='trf', x_scale='jac', jac=Identifier.residuals' J, default tolerances "
+    print("scipy: least_squares(method='trf', x_scale='jac', jac=Identifier.residuals' J, default tolerances "
           f"1e-8); tr_solver 'lsmr' on the sparse J or 'exact' on J densified")
     ok_speed, ok_cost1 = paper_scale(data)
     paper_split(data)

@@ -9,58 +9,33 @@ residuals and analytic Jacobians of :mod:`olti_drake.kinematics`.
 
 :attr:`Identifier.prog` holds one named decision variable per parameter
 (``L1_mm``, ``J2_reverse_deg[3]``, ``P0_x_mm``, ``d0_0_mm``, ...) and the gauge
-constraint. Add your own constraints and costs to it before :meth:`Identifier.solve`.
-Two solvers:
-
-* ``lm`` (default): Levenberg-Marquardt; every step is a MathematicalProgram in
-  the step δ -- the Gauss-Newton quadratic model plus the program's linear
-  constraints and linear/quadratic costs shifted to δ -- solved by the solver
-  Drake chooses (EqConstrainedQP for equality constraints only). Working in δ
-  keeps full precision however large the parameters are.
-* ``nlp``: the whole program with the least-squares cost (analytic gradient)
-  handed to Drake's NLP solver (SNOPT/IPOPT); also takes nonlinear user
-  constraints.
+constraint. Add your own constraints and costs to it before
+:meth:`Identifier.solve`. The solvers (LM steps as Drake programs, or a Drake
+NLP solver), the identifiability check and the uncertainty are the shared
+machinery of :mod:`olti_drake.leastsquares`.
 
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
-import contextlib
 from dataclasses import dataclass, field
 from typing import List, Optional
 
 import numpy as np
-import scipy.sparse as sp
 
 from .campaign_io import CampaignData
 from .csvio import InputError
 from .errormap import ErrorMap
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
-from .threads import single_thread_blas
-
-#: Relative eigenvalue below which a parameter combination counts as unidentifiable.
-RANK_TOLERANCE = 1e-12
-#: Up to this many unknowns the dense algebra runs on one BLAS thread.
-SMALL_PROBLEM = 300
-
-
-class UnidentifiableError(InputError):
-    """The campaign cannot determine the named parameters (listed in :attr:`names`)."""
-
-    def __init__(self, message: str, names=()):
-        super().__init__(message)
-        self.names = list(names)
+from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
 
 
 @dataclass
-class IdentificationOptions:
-    """How to identify (units mm, deg).
+class IdentificationOptions(SolverOptions):
+    """What to identify (units mm, deg), plus the solver options of :class:`SolverOptions`.
 
     ``grid1_deg``/``grid2_deg``: map nodes (default: distinct commanded angles).
     ``reflectors_mm``: initial reflector positions (e.g. from the Eq. (2)
     search); ``fix_reflectors`` makes them known (then N_t = 2 suffices).
-    ``loss``: ``l2`` or ``huber`` (IRLS, threshold ``huber_k`` robust sigmas).
-    ``regularize``: instead of stopping on unidentifiable parameters, add a
-    weak prior pulling them to their initial value (and say so).
     """
 
     model: str = "errormap"
@@ -70,12 +45,6 @@ class IdentificationOptions:
     nominal_L2_mm: float = PAPER_L2_MM
     reflectors_mm: Optional[np.ndarray] = None
     fix_reflectors: bool = False
-    loss: str = "l2"
-    huber_k: float = 3.0
-    outlier_threshold: float = 4.0
-    regularize: bool = False
-    solver: str = "lm"
-    max_iterations: int = 100
 
 
 @dataclass
@@ -156,7 +125,7 @@ def _reflector_fit(p, d, P0=None):
     return P, d0
 
 
-class Identifier:
+class Identifier(LeastSquaresProgram):
     """The identification problem of 000 §3 for one campaign and model.
 
     Build it, optionally add constraints/costs to :attr:`prog` (its decision
@@ -164,29 +133,36 @@ class Identifier:
     :meth:`solve`.
     """
 
-    def __init__(self, data: CampaignData, options: IdentificationOptions = None):
-        from pydrake.solvers import MathematicalProgram
-        from pydrake.symbolic import Variable
+    rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
+    untouched_hint = "set a coarser map grid"
 
-        self.data, self.options = data, options or IdentificationOptions()
-        o = self.options
+    def __init__(self, data: CampaignData, options: IdentificationOptions = None):
+        self.data = data
+        o = options or IdentificationOptions()
         if o.model not in ("dh", "errormap"):
             raise InputError(f"model must be 'dh' or 'errormap', got {o.model!r}")
+        self.options = o
         self._check_reflectors()
         self.robot0 = self._robot_start()
         self.n_t = data.n_reflectors
         self.n_robot = len(self.robot0.parameter_names())
-        self.names = (self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
-                      + [f"d0_{j}_mm" for j in range(self.n_t)])
-        self.prog = MathematicalProgram()
-        self.variables = np.array([Variable(n) for n in self.names])
-        self.prog.AddDecisionVariables(self.variables)
+        self._declare(self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
+                      + [f"d0_{j}_mm" for j in range(self.n_t)], o)
         self.x0 = self._initial_guess()
         self.gauge = self._add_gauge()
         if o.fix_reflectors:
             idx = slice(self.n_robot, self.n_robot + 2 * self.n_t)
             self.prog.AddBoundingBoxConstraint(self.x0[idx], self.x0[idx], self.variables[idx])
-        self.notes: List[str] = []
+
+    def solve(self) -> "Identification":
+        """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
+        f = self.fit()
+        model, P, d0 = self.split(f.x)
+        return Identification(model, P, d0, f.names, f.x, f.std, f.covariance, f.residuals, f.iterations,
+                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals))
+
+    def reading_label(self, k: int) -> dict:
+        return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
 
     # -- model -------------------------------------------------------------------------------
     def _check_reflectors(self):
@@ -283,275 +259,8 @@ class Identifier:
                 f"X lies along the arm at theta1* = {at:g} deg, mean of both approach directions")
 
     # -- linear algebra shared by the solvers and the uncertainty ----------------------------
-    def _equality_rows(self):
-        """(A, b) of every linear equality in the program (gauge, fixed values), over all variables."""
-        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint
-
-        rows, rhs = [], []
-        for b in self.prog.GetAllConstraints():
-            e = b.evaluator()
-            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
-                continue
-            A = e.GetDenseA()
-            eq = e.lower_bound() == e.upper_bound()
-            idx = self.prog.FindDecisionVariableIndices(b.variables())
-            full = np.zeros((int(eq.sum()), len(self.names)))
-            full[:, idx] = A[eq]
-            rows.append(full)
-            rhs.append(e.lower_bound()[eq])
-        if not rows:
-            return np.zeros((0, len(self.names))), np.zeros(0)
-        return np.vstack(rows), np.concatenate(rhs)
-
-    def reduced_hessian(self, H):
-        """Column-scaled H restricted to the null space of the equality constraints."""
-        scale = np.sqrt(np.diag(H))
-        A, _ = self._equality_rows()
-        s = np.where(scale > 0, scale, 1.0)
-        N = _null_space(A / s) if A.size else np.eye(len(s))
-        return N.T @ (H / np.outer(s, s)) @ N, N, s
-
-    def check_identifiability(self, x=None) -> float:
-        """Raise :class:`UnidentifiableError` naming what the readings cannot determine; return cond.
-
-        Checks the Jacobian at ``x`` (default the start): parameters no reading
-        touches, then rank and conditioning within the constraints.
-        """
-        x = self.x0 if x is None else x
-        r, J = self.residuals(x)
-        self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
-        H = _normal_matrix(J, np.ones(J.shape[0])) + self._prior_hessian()  # priors determine what they constrain
-        untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
-        if untouched:
-            raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
-                                      f"{'it' if len(untouched) == 1 else 'them'} (set a coarser map grid)",
-                                      untouched)
-        M, N, s = self.reduced_hessian(H)
-        lam, vec = np.linalg.eigh(M)
-        weak = lam < RANK_TOLERANCE * lam[-1]
-        if weak.any():
-            v = (N @ vec[:, np.flatnonzero(weak)]) / s[:, None]
-            mag = np.max(np.abs(v * s[:, None]), axis=1)
-            names = [self.names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
-            raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
-                                      f"reading unchanged (rank deficient by {int(weak.sum())}; check the "
-                                      f"reflector layout, e.g. collinear reflectors, or fix a parameter)", names)
-        return float(np.sqrt(lam[-1] / lam[0]))
-
-    def _regularize(self, error: UnidentifiableError):
-        """Weak prior on the named parameters (1e-6 of a typical reading's weight)."""
-        names = error.names
-        idx = [self.names.index(n) for n in names]
-        w = 1e-6 * len(self.data)
-        self.prog.AddQuadraticCost(w * np.eye(len(idx)), -w * self.x0[idx], self.variables[idx], is_convex=True)
-        self.notes.append(f"regularized (weak prior to the start value): {_listing(names)}")
-
-    # -- solve -------------------------------------------------------------------------------
-    def solve(self) -> Identification:
-        """Check identifiability, solve (LM or NLP), estimate uncertainty, flag outliers."""
-        o = self.options
-        if o.solver not in ("lm", "nlp"):
-            raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
-        if o.loss not in ("l2", "huber"):
-            raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
-        # Small dense algebra: BLAS threads cost more than they give (measured 5.7 -> 4.4 ms at paper scale).
-        with single_thread_blas() if len(self.names) <= SMALL_PROBLEM else contextlib.nullcontext():
-            return self._solve()
-
-    def _solve(self) -> Identification:
-        o = self.options
-        for _ in range(len(self.names)):
-            try:
-                self.check_identifiability()
-                break
-            except UnidentifiableError as e:
-                if not o.regularize:
-                    raise
-                self._regularize(e)
-        self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
-        x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
-        return self._result(x, iterations, weights)
-
-    def _weights(self, r):
-        if self.options.loss == "l2":
-            return np.ones_like(r)
-        sigma = _robust_sigma(r)
-        a = np.abs(r) / (self.options.huber_k * sigma)
-        return np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-300))
-
-    def _user_cost(self, x) -> float:
-        return float(sum(self.prog.EvalBinding(b, x)[0] for b in self.prog.GetAllCosts()))
-
-    def _solve_lm(self):
-        x = self.x0.copy()
-        checked = getattr(self, "_checked", None)
-        r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x) else self.residuals(x)
-        lam, steps = 1e-6, 0
-        for _ in range(self.options.max_iterations):
-            w = self._weights(r)
-            H = _normal_matrix(J, w)
-            g = J.T @ (w * r)
-            cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
-            while True:
-                delta = self._step(x, H + lam * np.diag(np.diag(H)), g)
-                x_new = x + delta
-                r_new, J_new = self.residuals(x_new)
-                cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
-                # What the quadratic model promised: below rounding level, we are at the minimum.
-                predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
-                if cost_new <= cost or predicted <= 1e-12 * cost or lam > 1e12:
-                    break
-                lam *= 8.0
-            if cost_new > cost:
-                break
-            x, r, J, steps = x_new, r_new, J_new, steps + 1
-            lam = max(lam / 4.0, 1e-9)
-            if cost - cost_new <= 1e-12 * cost:
-                break
-        self._final = (x, r, J)
-        return x, steps, self._weights(r)
-
-    def _step(self, x, Hd, g):
-        """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ."""
-        from pydrake.solvers import MathematicalProgram, Solve
-
-        step = MathematicalProgram()
-        d = step.NewContinuousVariables(len(x), "delta")
-        step.AddQuadraticCost(Hd, g, d, is_convex=True)
-        _shift_bindings(self.prog, step, d, x)
-        result = Solve(step)
-        if not result.is_success():
-            # EqConstrainedQP can refuse a nearly singular KKT system at the optimum: retry interior-point.
-            from pydrake.solvers import ClarabelSolver
-            result = ClarabelSolver().Solve(step)
-        if not result.is_success():
-            raise InputError(f"the constraints added to the program cannot be satisfied "
-                             f"({result.get_solver_id().name()}: {result.get_solution_result()})")
-        return result.GetSolution(d)
-
-    def _solve_nlp(self):
-        from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
-        from pydrake.solvers import Solve
-
-        prog = self.prog.Clone()
-        weights = np.ones(len(self.data))
-
-        def cost(z):
-            v = ExtractValue(z).ravel() if z.dtype == object else z
-            r, J = self.residuals(v)
-            f = 0.5 * np.sum(weights * r * r)
-            if z.dtype != object:
-                return f
-            return AutoDiffXd(f, (J.T @ (weights * r)) @ ExtractGradient(z))
-
-        prog.AddCost(cost, self.variables)
-        x = self.x0.copy()
-        rounds = 3 if self.options.loss == "huber" else 1
-        for _ in range(rounds):  # IRLS: re-weight, re-solve
-            prog.SetInitialGuess(self.variables, x)
-            result = Solve(prog)
-            if not result.is_success():
-                raise InputError(f"NLP solver {result.get_solver_id().name()} failed: {result.get_solution_result()}")
-            x = result.GetSolution(self.variables)
-            weights[:] = self._weights(self.residuals(x)[0])
-        self._solver_used = f"nlp: {result.get_solver_id().name()}"
-        return x, rounds, weights
-
-    def quadratic_costs(self):
-        """(Q, b) of the program's quadratic costs ½xᵀQx + bᵀx (priors, regularization), all variables."""
-        from pydrake.solvers import QuadraticCost
-
-        Q, q = np.zeros((len(self.names), len(self.names))), np.zeros(len(self.names))
-        for b in self.prog.GetAllCosts():
-            if isinstance(b.evaluator(), QuadraticCost):
-                idx = self.prog.FindDecisionVariableIndices(b.variables())
-                Q[np.ix_(idx, idx)] += b.evaluator().Q()
-                q[idx] += b.evaluator().b()
-        return Q, q
-
-    def _prior_hessian(self) -> np.ndarray:
-        return self.quadratic_costs()[0]
-
-    def _result(self, x, iterations, weights) -> Identification:
-        final = getattr(self, "_final", None)
-        r, J = final[1:] if final is not None and final[0] is x else self.residuals(x)
-        H = _normal_matrix(J, weights)
-        M_data, N, s = self.reduced_hessian(H)
-        lam = np.linalg.eigvalsh(M_data)
-        cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
-        # Priors (user costs, regularization) inform the estimate: include them in the covariance.
-        prior = self._prior_hessian()
-        M = M_data if not prior.any() else None
-        if M is None:
-            M, N, s = self.reduced_hessian(H + prior)
-        dof = max(len(r) - N.shape[1], 1)
-        sigma2 = np.sum(weights * r * r) / dof
-        cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
-        model, P, d0 = self.split(x)
-        z = r / _robust_sigma(r)
-        out = [{"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k]),
-                "residual_mm": float(r[k]), "normalized": float(z[k])}
-               for k in np.argsort(-np.abs(z)) if abs(z[k]) > self.options.outlier_threshold]
-        return Identification(model, P, d0, list(self.names), x, np.sqrt(np.maximum(np.diag(cov), 0)), cov, r,
-                              iterations, cond, self.gauge,
-                              f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes), len(r))
-
-
 def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
     """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
     return Identifier(data, options).solve()
 
-
-# -- helpers -------------------------------------------------------------------------------------
-def _shift_bindings(src, dst, d, x):
-    """Copy src's linear constraints and linear/quadratic costs to dst in the step δ = e − x."""
-    from pydrake.solvers import LinearConstraint, BoundingBoxConstraint, LinearCost, QuadraticCost
-
-    for b in src.GetAllConstraints():
-        e = b.evaluator()
-        idx = src.FindDecisionVariableIndices(b.variables())
-        if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
-            raise InputError(f"constraint {type(e).__name__} is not linear: use the 'nlp' solver")
-        A = e.GetDenseA()
-        shift = A @ x[idx]
-        lo, hi = e.lower_bound() - shift, e.upper_bound() - shift
-        eq = e.lower_bound() == e.upper_bound()
-        # Equalities stay equalities, so Drake can pick its exact EqConstrainedQP solver.
-        if eq.any():
-            dst.AddLinearEqualityConstraint(A[eq], lo[eq], d[idx])
-        if (~eq).any():
-            dst.AddLinearConstraint(A[~eq], lo[~eq], hi[~eq], d[idx])
-    for b in src.GetAllCosts():
-        e = b.evaluator()
-        idx = src.FindDecisionVariableIndices(b.variables())
-        if isinstance(e, QuadraticCost):
-            dst.AddQuadraticCost(e.Q(), e.Q() @ x[idx] + e.b(), d[idx], is_convex=True)
-        elif isinstance(e, LinearCost):
-            dst.AddLinearCost(e.a(), 0.0, d[idx])
-        else:
-            raise InputError(f"cost {type(e).__name__} is not linear or quadratic: use the 'nlp' solver")
-
-
-def _normal_matrix(J, w) -> np.ndarray:
-    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there)."""
-    if J.shape[1] <= SMALL_PROBLEM:
-        Jd = J.toarray()
-        return Jd.T @ (w[:, None] * Jd)
-    return (J.T @ sp.diags(w) @ J).toarray()
-
-
-def _null_space(A, rtol=1e-12):
-    u, s, vt = np.linalg.svd(A)
-    rank = int(np.sum(s > rtol * max(s.max(), 1e-300)))
-    return vt[rank:].T
-
-
-def _robust_sigma(r) -> float:
-    """1.4826 × median absolute deviation: the residual scale, blind to a few gross outliers."""
-    s = 1.4826 * np.median(np.abs(r - np.median(r)))
-    return float(s) if s > 0 else float(np.sqrt(np.mean(r * r)) + 1e-300)
-
-
-def _listing(names, most=8) -> str:
-    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
 
