@@ -467,7 +467,7 @@ def main() -> int:
     identify(data)  # warm-up: pydrake imports and first-call costs
     identify(data, IdentificationOptions(solver="nlp"))
     print("scipy: least_squares(method='trf', x_scale='jac', jac=Identifier.residuals' J, default tolerances "
-          f"1e-8); tr_solver 'lsmr' on the sparse J or 'exact' on J densified")
+          "1e-8); tr_solver 'lsmr' on the sparse J or 'exact' on J densified")
     ok_speed, ok_cost1 = paper_scale(data)
     paper_split(data)
     ok_time, ok_cost2, t_big = scaling()
