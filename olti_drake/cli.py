@@ -181,6 +181,60 @@ def cmd_identify(args) -> int:
     return 0
 
 
+def cmd_multilaterate(args) -> int:
+    import json
+
+    import numpy as np
+
+    from .multilateration import MultilaterationOptions, load_machine_campaign, multilaterate
+
+    _refuse_overwrite([args.out], [args.campaign])
+    options = MultilaterationOptions(
+        stations_mm=_pairs(args.stations_mm, "--stations-mm", 2) if args.stations_mm else None, gauge=args.gauge,
+        loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
+        solver=args.solver)
+    data = load_machine_campaign(args.campaign)
+    if args.budget == "residuals":
+        budget = None
+    else:
+        from .budget import load_budget
+        from .machine import paper001_budget
+
+        budget = paper001_budget() if args.budget is None else load_budget(args.budget)
+    res = multilaterate(data, options, budget)
+    with open(args.out, "w", encoding="utf-8") as f:
+        json.dump(res.to_dict(), f, indent=1)
+        f.write("\n")
+    dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
+    U = 2e3 * np.hypot(*res.targets_std_mm.T)
+    print(f"multilateration (001 Eq. 2-6): {len(data)} readings, {data.n_targets} targets, {data.n_stations} "
+          f"stations, {len(res.fit.names)} parameters, solver {res.fit.solver}")
+    print(f"  target deviation from command: max {dev.max():.2f} um, mean {dev.mean():.2f} um; "
+          f"U (k = 2) of the 2-norm: max {U.max():.2f} um")
+    for j, (P, L0) in enumerate(zip(res.stations_mm, res.dead_paths_mm)):
+        print(f"  station {j}: ({P[0]:.4f}, {P[1]:.4f}) mm, dead path {L0:.4f} mm")
+    print(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
+          f"condition number {res.fit.condition_number:.3g}")
+    print(f"  gauge: {res.gauge}")
+    if res.fit.outliers:
+        print(f"  {len(res.fit.outliers)} suspect reading(s): "
+              + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _add_solver_options(p):
+    """The solver options every identification verb shares (leastsquares.SolverOptions)."""
+    p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
+    p.add_argument("--huber-k", type=float, default=3.0, help="Huber threshold in robust sigmas (default 3)")
+    p.add_argument("--outlier-threshold", type=float, default=4.0,
+                   help="report readings whose normalized residual exceeds this (default 4)")
+    p.add_argument("--regularize", action="store_true",
+                   help="regularize unidentifiable parameters (and say so) instead of stopping")
+    p.add_argument("--solver", choices=("lm", "nlp"), default="lm",
+                   help="lm: Levenberg-Marquardt steps as Drake programs (default); nlp: Drake NLP solver")
+
+
 def cmd_predict(args) -> int:
     from .campaign_io import load_commands
     from .csvio import write_table
@@ -218,7 +272,7 @@ def cmd_uncertainty(args) -> int:
     from .budget import load_budget, paper000_budget
     from .campaign_io import load_campaign
     from .figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
-    from .uncertainty import (ReadingErrors, _distances, identifier_at_result, linear_covariance, monte_carlo,
+    from .uncertainty import (ReadingErrors, identifier_at_result, linear_covariance, monte_carlo,
                               uncertainty_dict)
 
     outputs = [p for p in (args.out, args.map, args.maps) if p]
@@ -244,7 +298,7 @@ def cmd_uncertainty(args) -> int:
 
     t0 = time.perf_counter()
     errors = ReadingErrors(budget)
-    u_reading = errors.std(_distances(ident, x))
+    u_reading = errors.std(ident.beam_lengths(x))
     cov = samples = None
     extra = {}
     if args.method == "linear":
@@ -481,14 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nominal-mm", help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
     p.add_argument("--reflectors-mm", help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
-    p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
-    p.add_argument("--huber-k", type=float, default=3.0, help="Huber threshold in robust sigmas (default 3)")
-    p.add_argument("--outlier-threshold", type=float, default=4.0,
-                   help="report readings whose normalized residual exceeds this (default 4)")
-    p.add_argument("--regularize", action="store_true",
-                   help="regularize unidentifiable parameters (and say so) instead of stopping")
-    p.add_argument("--solver", choices=("lm", "nlp"), default="lm",
-                   help="lm: Levenberg-Marquardt steps as Drake programs (default); nlp: Drake NLP solver")
+    _add_solver_options(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
@@ -500,6 +547,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse (default) or hold the end values")
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("multilaterate", help="paper-001 self-calibrating multilateration of a machine-tool campaign",
+                       description="Identify target positions, station positions and dead paths from a machine-tool "
+                                   "campaign (001 Eq. 2-6, 2D) with the frame fixed by an explicit gauge; write "
+                                   "RESULT.json (formats.md). mm.")
+    p.add_argument("campaign", help="machine-tool campaign CSV (formats.md)")
+    p.add_argument("--out", required=True, help="result JSON to write")
+    p.add_argument("--stations-mm", help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; "
+                                         "default: from the data)")
+    p.add_argument("--gauge", choices=("best-fit", "first-two"), default="best-fit",
+                   help="best-fit: no mean translation/rotation of the targets from their commands (default); "
+                        "first-two: target 0 at its command, target 1 on its command direction")
+    p.add_argument("--budget", help="budget YAML for the standard uncertainties (default: 001 Table 4); "
+                                    "'residuals' propagates the residual variance instead")
+    _add_solver_options(p)
+    p.set_defaults(func=cmd_multilaterate)
 
     p = sub.add_parser("uncertainty", help="standard uncertainties of an identified result from a budget "
                                            "(linear or Monte Carlo)",
@@ -565,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
-_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm")
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
 
 
 def _join_signed_values(argv):

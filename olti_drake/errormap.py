@@ -212,14 +212,16 @@ class Harmonic:
 
 @dataclass
 class HarmonicDeviation:
-    """A continuous deviation truth for simulation, deg in / deg out.
+    """A continuous deviation truth for simulation: command in, deviation out, same unit.
 
     Δθ(θ*, dir) = offset + slope·θ* + Σ a_i sin(2π θ*/T_i + φ_i) + dir·(b/2 + b'·θ*/2)
 
-    with offset and amplitudes in mdeg, slope in mdeg/deg, backlash b in mdeg
-    (forward minus reverse deviation) and its trend b' in mdeg/deg. Gear pitch
-    error gives the harmonics, elastic deformation the backlash (000 §4.2
-    Remark 2).
+    For a rotary axis (deg): offset and amplitudes in mdeg, slope in mdeg/deg,
+    backlash b in mdeg (forward minus reverse deviation) and its trend b' in
+    mdeg/deg; gear pitch error gives the harmonics, elastic deformation the
+    backlash (000 §4.2 Remark 2). The same type serves a linear axis in mm:
+    the "mdeg" fields are then thousandths of a mm, µm (periods in mm), so one
+    deviation abstraction covers rotary and linear axes (001 §3).
     """
 
     offset_mdeg: float = 0.0

@@ -27,6 +27,7 @@ from .csvio import InputError
 from .errormap import ErrorMap
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
+from .multilateration import station_fit
 
 
 @dataclass
@@ -100,31 +101,6 @@ def parse_grid(text: str, name: str) -> np.ndarray:
     return g
 
 
-def _reflector_fit(p, d, P0=None):
-    """(P, d0) of one reflector from positions p (K, 2) and readings d (K,), mm.
-
-    Without a start: the linearized multilateration ‖p‖² − 2p·P + ‖P‖² =
-    (d + d0)² is linear in (P, d0, ‖P‖² − d0²); then Gauss-Newton on Eq. (5).
-    """
-    if P0 is None:
-        A = np.column_stack([-2 * p, -2 * d, np.ones(len(d))])
-        sol, *_ = np.linalg.lstsq(A, d ** 2 - np.sum(p ** 2, axis=1), rcond=None)
-        P, d0 = sol[:2], sol[2]
-    else:
-        P = np.asarray(P0, dtype=float)
-        d0 = np.mean(np.hypot(*(p - P).T) - d)
-    for _ in range(20):
-        diff = p - P
-        dist = np.hypot(*diff.T)
-        r = dist - d0 - d
-        J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
-        step = np.linalg.lstsq(J, -r, rcond=None)[0]
-        P, d0 = P + step[:2], d0 + step[2]
-        if np.max(np.abs(step)) < 1e-12:
-            break
-    return P, d0
-
-
 class Identifier(LeastSquaresProgram):
     """The identification problem of 000 §3 for one campaign and model.
 
@@ -163,6 +139,11 @@ class Identifier(LeastSquaresProgram):
 
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """Reflector distance ‖p̂(k) − P_j‖ of every reading at x, mm (the budget's cosine error scales with it)."""
+        r, _, _ = self.residual_rows(np.asarray(x)[None])
+        return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
     # -- model -------------------------------------------------------------------------------
     def _check_reflectors(self):
@@ -238,7 +219,7 @@ class Identifier(LeastSquaresProgram):
         P0 = None if o.reflectors_mm is None else np.asarray(o.reflectors_mm, dtype=float).reshape(-1, 2)
         if P0 is not None and len(P0) != self.n_t:
             raise InputError(f"reflectors_mm gives {len(P0)} positions but the campaign has {self.n_t} reflectors")
-        fits = [_reflector_fit(p[self.data.reflector == j], self.data.displacement_mm[self.data.reflector == j],
+        fits = [station_fit(p[self.data.reflector == j], self.data.displacement_mm[self.data.reflector == j],
                                None if P0 is None else P0[j]) for j in range(self.n_t)]
         P = np.array([f[0] for f in fits]) if P0 is None or not o.fix_reflectors else P0
         d0 = np.array([f[1] for f in fits])

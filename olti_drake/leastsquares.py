@@ -109,6 +109,10 @@ class LeastSquaresProgram:
         """What identifies reading k to the user (e.g. its file line)."""
         return {"row": int(k)}
 
+    def beam_lengths(self, x) -> np.ndarray:
+        """Length of the laser beam of every reading at x, mm (for the budget's cosine error)."""
+        raise NotImplementedError
+
     def _equality_rows(self):
         """(A, b) of every linear equality in the program (gauge, fixed values), over all variables."""
         from pydrake.solvers import BoundingBoxConstraint, LinearConstraint

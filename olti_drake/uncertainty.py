@@ -95,13 +95,6 @@ def identifier_at_result(result_path, data):
     return ident, np.concatenate([model.parameter_vector(), P.ravel(), d0])
 
 
-def _distances(ident, x):
-    """Reflector distance of every reading at x, mm."""
-    r, _, _ = ident.residual_rows(x[None])
-    n = ident.n_robot + 2 * ident.n_t
-    return r[0] + x[n:][ident.data.reflector] + ident.data.displacement_mm
-
-
 def _solution_map(ident, x):
     """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
     r, J = ident.residuals(x)
@@ -112,13 +105,16 @@ def _solution_map(ident, x):
 
 
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
-    """Covariance (n, n) of the parameters by linear propagation (JCGM 100; 000 §5 Remark).
+    """Covariance (n, n) of the parameters by linear propagation (JCGM 100; 000 §5 Remark, 001 §4.4).
+
+    ``ident``: any :class:`~olti_drake.leastsquares.LeastSquaresProgram`
+    (SCARA identification or multilateration).
 
     x = argmin ½‖r(x) − d‖² within the constraints gives dx/dd = B Jᵀ, so
     cov = B Jᵀ diag(u_k²) J B with u_k from the budget at each reading's distance.
     """
     B, J = _solution_map(ident, x)
-    u2 = errors.std(_distances(ident, x)) ** 2
+    u2 = errors.std(ident.beam_lengths(x)) ** 2
     JtUJ = (J.T @ sp.diags(u2) @ J).toarray()
     return B @ JtUJ @ B
 
@@ -178,7 +174,7 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     if trials < 2:
         raise InputError(f"trials must be >= 2, got {trials}")
     B, J = _solution_map(ident, x)
-    distance = _distances(ident, x)
+    distance = ident.beam_lengths(x)
     r0, cols, _ = ident.residual_rows(x[None])
     Q, q = ident.quadratic_costs()
     k, m = cols.shape

@@ -20,7 +20,7 @@ from olti_drake.budget import Budget, load_budget
 from olti_drake.campaign import prepare, simulate_vectorized, write_campaign
 from olti_drake.identification import IdentificationOptions, Identifier, identify
 from olti_drake.scenario import Scenario
-from olti_drake.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, _distances, linear_covariance,
+from olti_drake.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.validation import campaign_data, random_commands
 
@@ -115,7 +115,7 @@ def test_uncertainty_predicts_the_spread_of_independent_campaigns(setup, campaig
     # the beam direction errors are modelled physically); the budget keeps them for the cosine error,
     # D u_psi^2 / sqrt(2) < 1 µm against the ~16 µm reading uncertainty -- a negligible part of the variance.
     assert not setup.scenario.interferometer.beam_direction_noise
-    D = _distances(ident, x)
+    D = ident.beam_lengths(x)
     u_all = errors.std(D)
     u_simulated = np.hypot(setup.budget.combined("reading"), setup.budget.combined("pose"))
     assert np.max(np.sqrt(u_all**2 - u_simulated**2)) < 1e-3
