@@ -16,7 +16,7 @@ Units: mm (µm in the error fields, as "thousandths of the command unit" of
 
 import os
 from dataclasses import dataclass, field
-from typing import List, Union
+from typing import Union
 
 import numpy as np
 
@@ -100,7 +100,7 @@ class MachineScenario:
     error: VolumetricError = field(default_factory=VolumetricError)
     size_mm: float = 100.0
     step_mm: float = 20.0
-    stations_mm: List[list] = field(default_factory=lambda: [[-120.0, -80.0], [220.0, -60.0], [50.0, 240.0]])
+    stations_mm: list[list[float]] = field(default_factory=lambda: [[-120.0, -80.0], [220.0, -60.0], [50.0, 240.0]])
     station_estimate_sigma_um: float = 5.75
     zero_angle_sigma_urad: float = 2.8
     interferometer: InterferometerOptions = field(default_factory=InterferometerOptions)
