@@ -318,3 +318,149 @@ def plot_prediction_uncertainty_map(pmap: dict, path, k: float = 2.0, method: st
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+# -- the machine-tool case of 001 (Figs. 6-7, 10, 13, 14) ---------------------------------------------
+def _perimeter_order(points_mm) -> np.ndarray:
+    """Indices that walk points around their centroid (to draw a closed target loop)."""
+    p = np.asarray(points_mm, dtype=float)
+    rel = p - p.mean(axis=0)
+    order = np.argsort(np.arctan2(rel[:, 1], rel[:, 0]))
+    return np.append(order, order[0])
+
+
+def _station_names(n: int):
+    return [f"Pos {chr(ord('A') + j)}" for j in range(n)]
+
+
+def plot_machine_targets(commands_mm, stations_mm, estimates_mm, path, station_estimates_mm=None,
+                         scale_mm=None, truth_mm=None, magnification: float = 2000.0, scale_um: float = 5.0):
+    """Command and estimated target positions with the stations, as 001 Fig. 10.
+
+    a) the layout: command positions, the stations Pos A, B, ... (true axis ▲, §2.2 estimate +).
+    b) the targets: errors from the commands magnified ``magnification`` times (2,000 in 001) -- the
+    multilateration estimate, the 2D digital scale (``scale_mm``) and the simulated truth (``truth_mm``),
+    all (N, 2) mm in the best-fit gauge; a bar of ``scale_um`` µm gives the scale.
+    """
+    plt = _pyplot()
+    c, S = np.asarray(commands_mm, dtype=float), np.asarray(stations_mm, dtype=float)
+    fig, axes = plt.subplots(1, 2, figsize=(14, 6.6), gridspec_kw={"width_ratios": [1, 1.15]})
+    ax = axes[0]
+    loop = _perimeter_order(c)
+    ax.plot(c[loop, 0], c[loop, 1], "k.-", lw=0.6, ms=6, label="command target positions")
+    ax.plot(S[:, 0], S[:, 1], "^", color="tab:green", ms=11, label="stations (true table axis)")
+    if station_estimates_mm is not None:
+        E = np.asarray(station_estimates_mm, dtype=float)
+        ax.plot(E[:, 0], E[:, 1], "+", color="k", ms=14, mew=1.5, label="initial estimates (001 §2.2)")
+    for name, q in zip(_station_names(len(S)), S):
+        ax.annotate(name, q, textcoords="offset points", xytext=(9, 6), fontsize=11)
+    ax.set(xlabel="X, mm", ylabel="Y, mm", title="a) Command target positions and tracking interferometer positions")
+    ax.set_aspect("equal")
+    ax.margins(0.12)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=9, loc="upper left")
+
+    ax = axes[1]
+    ax.plot(c[loop, 0], c[loop, 1], "k.:", lw=0.6, ms=6, label="command target positions")
+    series = [(estimates_mm, "o-", "tab:red", "estimated by the 'open-loop' tracking interferometer")]
+    if scale_mm is not None:
+        series.append((scale_mm, "s--", "tab:blue", "measured by the 2D digital scale"))
+    if truth_mm is not None:
+        series.append((truth_mm, "-", "0.55", "simulation truth"))
+    for pts, style, color, label in series:
+        tip = c + magnification * (np.asarray(pts, dtype=float) - c)
+        ax.plot(tip[loop, 0], tip[loop, 1], style, color=color, ms=5, mfc="none", lw=1.2, label=label)
+    x0, y0 = c[:, 0].min(), c[:, 1].min() - 0.22 * np.ptp(c[:, 1])
+    bar = magnification * 1e-3 * scale_um
+    ax.plot([x0, x0 + bar], [y0, y0], "k-", lw=3)
+    ax.annotate(f"{scale_um:g} µm (errors ×{magnification:g})", (x0 + bar, y0), textcoords="offset points",
+                xytext=(6, -4), fontsize=9)
+    ax.set(xlabel="X, mm", ylabel="Y, mm", title=f"b) Target positions, errors from the commands ×{magnification:g}")
+    ax.set_aspect("equal")
+    ax.margins(0.1)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2)
+    fig.suptitle("Target positions estimated by multilateration vs the 2D digital scale (001 Fig. 10)")
+    return _save(fig, plt, path)
+
+
+def plot_linear_errors(panels, path):
+    """Linear positioning errors along lines, multilateration vs a linear laser interferometer (001 Fig. 13).
+
+    ``panels``: dicts with ``title``, ``xlabel``, ``ylabel``; ``position_mm``, ``estimate_um`` and
+    ``expanded_um`` (U, k = 2: the error bars) of the multilateration; ``laser_position_mm``,
+    ``laser_um`` (and optional ``laser_bound_um``, 001 Table 1) of the interferometer; optional
+    ``truth_um``. Errors in µm, offsets already removed by the caller.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.8), squeeze=False)
+    for ax, p in zip(axes[0], panels):
+        ax.errorbar(p["position_mm"], p["estimate_um"], yerr=p["expanded_um"], fmt="o", color="tab:red", ms=6,
+                    capsize=4, label="'open-loop' tracking interferometer, U (k = 2)")
+        ax.errorbar(p["laser_position_mm"], p["laser_um"], yerr=p.get("laser_bound_um"), fmt="x-",
+                    color="tab:blue", ms=8, capsize=3, label="linear laser interferometer (Table 1 ±)")
+        if p.get("truth_um") is not None:  # a wide light band under the others: the laser lies on it
+            ax.plot(p["position_mm"], p["truth_um"], "-", color="0.5", lw=6, alpha=0.3, zorder=0,
+                    label="simulation truth (on the estimate's line)")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set(xlabel=p["xlabel"], ylabel=p["ylabel"], title=p["title"])
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Linear positioning errors: multilateration vs laser interferometer, offsets removed (001 Fig. 13)")
+    return _save(fig, plt, path)
+
+
+def plot_target_uncertainty(commands_mm, expanded_um, path, k: float = 2.0, method: str = ""):
+    """Expanded uncertainty U(k) of each estimated target position, colour-coded at it (001 Fig. 14).
+
+    ``expanded_um`` (N,): k·sqrt(u_x² + u_y²), µm, of the targets at ``commands_mm`` (N, 2) mm.
+    """
+    plt = _pyplot()
+    c, U = np.asarray(commands_mm, dtype=float), np.asarray(expanded_um, dtype=float)
+    fig, ax = plt.subplots(figsize=(7.6, 6.4))
+    sc = ax.scatter(c[:, 0], c[:, 1], c=U, s=520, marker="s", cmap="jet", edgecolors="k")
+    for q, v in zip(c, U):
+        ax.annotate(f"{v:.1f}", q, ha="center", va="center", fontsize=8, color="w", fontweight="bold")
+    ax.set(xlabel="X, mm", ylabel="Y, mm",
+           title=f"U (k = {k:g}) of the estimated target positions: max {U.max():.1f} µm, mean {U.mean():.1f} µm"
+           + (f"\n{method}" if method else ""))
+    ax.set_aspect("equal")
+    ax.margins(0.12)
+    ax.grid(True, alpha=0.3)
+    fig.colorbar(sc, ax=ax, label=f"U (k = {k:g}) = k·sqrt(u_x² + u_y²), µm")
+    fig.suptitle("Uncertainty of the estimated target positions (001 Fig. 14)")
+    return _save(fig, plt, path)
+
+
+def plot_station_estimation(centres, zeros, path):
+    """The initial estimation of 001 §2.2, one line per station.
+
+    a), b) Fig. 6: displacement vs table angle while centring the target (``centres``:
+    CentreEstimate list) -- the first sweep, then the last (what is left: radial error motion and
+    noise). c) Fig. 7: displacement vs Y across the beam while aligning the zero angle (``zeros``:
+    ZeroAngleEstimate list), first and last sweep. Readings µm with their mean removed.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for j, (name, ce, ze) in enumerate(zip(_station_names(len(centres)), centres, zeros)):
+        col = colors[j % len(colors)]
+        (a0, d0), (a1, d1) = ce.sweeps[0], ce.sweeps[-1]
+        axes[0].plot(a0, d0, "-", color=col, lw=1.2, label=f"{name}: target put near the axis")
+        axes[1].plot(a1, d1, "-", color=col, lw=1.2,
+                     label=f"{name}: after {ce.iterations - 1} moves (error {np.hypot(*ce.error_um):.1f} µm)")
+        (y0, e0), (y1, e1) = ze.sweeps[0], ze.sweeps[-1]
+        axes[2].plot(y0 - y0.mean(), e0, "--", color=col, lw=1, label=f"{name}: first setting")
+        axes[2].plot(y1 - y1.mean(), e1, "-", color=col, lw=1.5,
+                     label=f"{name}: final ({1e6 * ze.error_rad:+.0f} µrad off, u {1e6 * ze.std_rad:.0f} µrad)")
+    axes[0].set(xlabel="table angle, deg", ylabel="displacement − mean, µm",
+                title="a) Centring (001 Fig. 6): first sweep")
+    axes[1].set(xlabel="table angle, deg", ylabel="displacement − mean, µm",
+                title="b) Centring: last sweep (radial error motion, noise)")
+    axes[2].set(xlabel="Y across the beam, mm", ylabel="displacement − mean, µm",
+                title="c) Zero angle (001 Fig. 7): beam normal to the Y line")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle("Initial estimation of the station positions and zero angles (001 §2.2)")
+    return _save(fig, plt, path)

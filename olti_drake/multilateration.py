@@ -213,20 +213,37 @@ class Multilateration(LeastSquaresProgram):
                                       f"a 2D position needs at least 2 (and redundancy more)",
                                       [f"p{lonely[0]}_x_mm", f"p{lonely[0]}_y_mm"])
 
-    def residuals(self, x):
-        """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
+    def residual_rows(self, X, displacement_mm=None):
+        """Eq. (3) of 001 for T parameter vectors at once, Jacobian row-compressed (for the Monte Carlo).
+
+        Args:
+            X: (T, n) parameter vectors (layout of :attr:`names`), mm.
+            displacement_mm: readings ΔL_ij (K,) or per trial (T, K), mm; default the campaign's.
+
+        Returns:
+            r (T, K) = ‖p_i − P_j‖ − L0_j − ΔL_ij, mm; cols (K, 5) parameter indices shared by all
+            trials (p_i x, y; P_j x, y; L0_j); vals (T, K, 5) the matching dr/dx entries (u, −u, −1),
+            u the unit vector from P_j to p_i.
+        """
+        X = np.atleast_2d(X)
         d = self.data
         n_i, n_j = d.n_targets, d.n_stations
-        p = x[:2 * n_i].reshape(-1, 2)[d.target]
-        P = x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2)[d.station]
+        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]
+        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)[:, d.station]
         diff = p - P
-        dist = np.hypot(diff[:, 0], diff[:, 1])
-        u = diff / dist[:, None]
-        r = dist - x[2 * n_i + 2 * n_j:][d.station] - d.displacement_mm
+        dist = np.hypot(diff[..., 0], diff[..., 1])
+        u = diff / dist[..., None]
+        readings = d.displacement_mm if displacement_mm is None else displacement_mm
+        r = dist - X[:, 2 * n_i + 2 * n_j:][:, d.station] - readings
         i2, j2 = 2 * d.target, 2 * n_i + 2 * d.station
         cols = np.column_stack([i2, i2 + 1, j2, j2 + 1, 2 * n_i + 2 * n_j + d.station])
-        vals = np.column_stack([u, -u, -np.ones(len(r))])
-        return r, rows_to_csr(cols, vals, len(self.names))
+        vals = np.concatenate([u, -u, -np.ones(r.shape + (1,))], axis=-1)
+        return r, cols, vals
+
+    def residuals(self, x):
+        """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
+        r, cols, vals = self.residual_rows(np.asarray(x)[None])
+        return r[0], rows_to_csr(cols, vals[0], len(self.names))
 
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "station": int(self.data.station[k]),

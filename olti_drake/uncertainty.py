@@ -162,7 +162,13 @@ def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
 def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int = 0, workers: Optional[int] = None,
                 adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = 100_000,
                 progress: Optional[Callable[[int, int], None]] = None) -> MonteCarlo:
-    """JCGM 101 Monte Carlo of the identification (000 §5; 001 §4.4).
+    """JCGM 101 Monte Carlo of a least-squares estimate (000 §5; 001 §4.4).
+
+    ``ident``: any :class:`~olti_drake.leastsquares.LeastSquaresProgram` with
+    batched residuals ``residual_rows(X (T, n), readings (K,) or (T, K)) ->
+    (r (T, K), cols (K, m), vals (T, K, m))`` -- the SCARA
+    :class:`~olti_drake.identification.Identifier` or the
+    :class:`~olti_drake.multilateration.Multilateration` of 001.
 
     Readings are the model's own at x plus errors drawn from the budget, so
     the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
@@ -175,11 +181,12 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
         raise InputError(f"trials must be >= 2, got {trials}")
     B, J = _solution_map(ident, x)
     distance = ident.beam_lengths(x)
-    r0, cols, _ = ident.residual_rows(x[None])
+    # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
+    model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
     Q, q = ident.quadratic_costs()
     k, m = cols.shape
     scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
-    _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=ident.data.displacement_mm + r0[0],
+    _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
                  q=q, Q=Q, scatter=scatter)
     workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)
     seeds = np.random.SeedSequence(seed)
