@@ -257,6 +257,97 @@ def cmd_predict(args) -> int:
     return 0
 
 
+def _result_format(path) -> str:
+    """The ``format`` of a result JSON ('' when unreadable: the loader then says why)."""
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return str(json.load(f).get("format", ""))
+    except (OSError, ValueError, AttributeError):
+        return ""
+
+
+def _propagate(ident, x, errors, args):
+    """(std, cov or None, samples or None, extra dict) by the method of ``args`` (linear or mc)."""
+    import numpy as np
+
+    from .uncertainty import linear_covariance, monte_carlo
+
+    if args.method == "linear":
+        cov = linear_covariance(ident, x, errors)
+        return (np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, None,
+                {"method_detail": "linear propagation through the identification Jacobian (JCGM 100), "
+                                  "budget reading errors"})
+    tty = sys.stderr.isatty()
+
+    def report(done, total):
+        sys.stderr.write(f"\r  Monte Carlo: {done} trials" + (" (adaptive, at most " if args.adaptive else " of ")
+                         + f"{total}{')' if args.adaptive else ''}")
+        sys.stderr.flush()
+
+    mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
+                     adaptive=args.adaptive, progress=report if tty else None)
+    if tty:
+        sys.stderr.write("\n")
+    return (mc.samples.std(axis=0, ddof=1), None, mc.samples,
+            {"method_detail": "Monte Carlo (JCGM 101): budget errors drawn for every reading, the problem "
+                              "re-solved per trial", "trials": int(len(mc.samples)), "seed": args.seed,
+             "adaptive": bool(args.adaptive), "converged": bool(mc.converged), "notes": list(mc.notes)})
+
+
+def _uncertainty_multilateration(args, t0) -> int:
+    """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
+    import json
+
+    import numpy as np
+
+    from .budget import load_budget
+    from .figures import plot_target_uncertainty
+    from .machine import paper001_budget
+    from .multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
+    from .uncertainty import ReadingErrors
+
+    res = load_result(args.result)
+    budget = load_budget(args.budget) if args.budget else paper001_budget()
+    data = load_machine_campaign(args.campaign)
+    ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
+    x = np.concatenate([np.ravel(res["targets_mm"]), np.ravel(res["stations_mm"]), res["dead_paths_mm"]])
+    if len(x) != len(ident.names):
+        raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
+    std, _, samples, extra = _propagate(ident, x, ReadingErrors(budget), args)
+    n_i, n_j = data.n_targets, data.n_stations
+
+    def layout(v):
+        return {"targets_mm": v[:2 * n_i].reshape(-1, 2).tolist(),
+                "stations_mm": v[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2).tolist(),
+                "dead_paths_mm": v[2 * n_i + 2 * n_j:].tolist()}
+
+    out = {"format": "olti-uncertainty/1", "method": args.method, "k": 1, **layout(std),
+           "expanded": {"k": args.k, **layout(args.k * std)}, "budget": budget.name, "gauge": res["gauge"]}
+    if samples is not None:
+        lo, hi = np.percentile(samples, [50 * (1 - args.coverage), 50 * (1 + args.coverage)], axis=0)
+        out["coverage_interval"] = {"p": args.coverage, "low": layout(lo), "high": layout(hi)}
+    U = 1e3 * args.k * np.hypot(*std[:2 * n_i].reshape(-1, 2).T)
+    out.update(extra, elapsed_s=round(time.perf_counter() - t0, 3),
+               target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
+                                   "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
+    with open(args.out, "w", encoding="utf-8") as f:
+        json.dump(out, f, indent=1)
+        f.write("\n")
+    print(f"uncertainty ({args.method}) of the multilateration {args.result} on {len(data)} readings; budget "
+          f"{budget.name!r}" + (f"; {len(samples)} trials, seed {args.seed}" if samples is not None else ""))
+    print(f"  targets: U (k = {args.k:g}) of the 2-norm max {U.max():.2f} um, mean {U.mean():.2f} um")
+    print(f"wrote {args.out}")
+    if args.map:
+        plot_target_uncertainty(data.commands_mm, U, args.map, args.k,
+                                f"{'Monte Carlo' if samples is not None else 'linear'}, budget {budget.name}")
+        print(f"wrote {args.map}")
+    if args.maps:
+        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
+    return 0
+
+
 def cmd_uncertainty(args) -> int:
     """Uncertainty of an identified result from its campaign and a budget (000 §5; 001 §4.4).
 
@@ -272,8 +363,7 @@ def cmd_uncertainty(args) -> int:
     from .budget import load_budget, paper000_budget
     from .campaign_io import load_campaign
     from .figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
-    from .uncertainty import (ReadingErrors, identifier_at_result, linear_covariance, monte_carlo,
-                              uncertainty_dict)
+    from .uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
 
     outputs = [p for p in (args.out, args.map, args.maps) if p]
     _refuse_overwrite(outputs, [args.result, args.campaign, args.budget])
@@ -289,6 +379,8 @@ def cmd_uncertainty(args) -> int:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if _result_format(args.result) == "olti-multilateration/1":
+        return _uncertainty_multilateration(args, time.perf_counter())
     budget = load_budget(args.budget) if args.budget else paper000_budget()
     data = load_campaign(args.campaign)
     ident, x = identifier_at_result(args.result, data)
@@ -299,32 +391,10 @@ def cmd_uncertainty(args) -> int:
     t0 = time.perf_counter()
     errors = ReadingErrors(budget)
     u_reading = errors.std(ident.beam_lengths(x))
-    cov = samples = None
-    extra = {}
-    if args.method == "linear":
-        cov = linear_covariance(ident, x, errors)
-        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        detail = "linear propagation through the identification Jacobian (JCGM 100), budget reading errors"
-    else:
-        tty = sys.stderr.isatty()
-
-        def report(done, total):
-            sys.stderr.write(f"\r  Monte Carlo: {done} trials" + (" (adaptive, at most " if args.adaptive else " of ")
-                             + f"{total}{')' if args.adaptive else ''}")
-            sys.stderr.flush()
-
-        mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
-                         adaptive=args.adaptive, progress=report if tty else None)
-        if tty:
-            sys.stderr.write("\n")
-        samples = mc.samples
-        std = samples.std(axis=0, ddof=1)
-        detail = "Monte Carlo (JCGM 101): budget errors drawn for every reading, problem (10) re-solved per trial"
-        extra.update(trials=int(len(samples)), seed=args.seed, adaptive=bool(args.adaptive),
-                     converged=bool(mc.converged), notes=list(mc.notes))
+    std, cov, samples, extra = _propagate(ident, x, errors, args)
     pmap = prediction_uncertainty_map(ident, x, cov, samples) if model.is_errormap else None
     elapsed = time.perf_counter() - t0
-    extra.update(method_detail=detail, budget_file=args.budget or "built-in paper 000 Table 2",
+    extra.update(budget_file=args.budget or "built-in paper 000 Table 2",
                  result=args.result, campaign=args.campaign, elapsed_s=round(elapsed, 3),
                  reading_std_median_mm=float(np.median(u_reading)), reading_std_max_mm=float(np.max(u_reading)))
     if pmap is not None:

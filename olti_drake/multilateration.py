@@ -147,6 +147,7 @@ class MultilaterationResult:
     fit: object
     gauge: str
     commands_mm: np.ndarray = field(default=None)
+    gauge_kind: str = "best-fit"
 
     @property
     def residual_rms_mm(self) -> float:
@@ -158,7 +159,7 @@ class MultilaterationResult:
         n_i, n_j = len(self.targets_mm), len(self.stations_mm)
         std = f.std
         return {"format": FORMAT, "targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
-                "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge": self.gauge,
+                "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge": self.gauge, "gauge_kind": self.gauge_kind,
                 "residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
                 "commands_mm": self.commands_mm.tolist(),
                 "uncertainty": {"k": 1, "targets_mm": self.targets_std_mm.tolist(),
@@ -312,7 +313,28 @@ class Multilateration(LeastSquaresProgram):
         n_i, n_j = self.data.n_targets, self.data.n_stations
         return MultilaterationResult(f.x[:2 * n_i].reshape(-1, 2), f.x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2),
                                      f.x[2 * n_i + 2 * n_j:], f.std[:2 * n_i].reshape(-1, 2), f, self.gauge,
-                                     self.data.commands_mm)
+                                     self.data.commands_mm, self.options.gauge)
+
+
+def load_result(path) -> dict:
+    """Read a machine-tool result.json (formats.md); errors name the file and the missing key."""
+    import json
+
+    name = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as e:
+        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InputError(f"{name}: 'format' must be {FORMAT!r}")
+    for key in ("targets_mm", "stations_mm", "dead_paths_mm", "gauge"):
+        if key not in data:
+            raise InputError(f"{name}: missing key '{key}'")
+    data.setdefault("gauge_kind", "first-two" if "target 0" in data["gauge"] else "best-fit")
+    return data
 
 
 def align_to_commands(points_mm, commands_mm, *others_mm):

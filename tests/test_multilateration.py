@@ -125,3 +125,23 @@ def test_cli_writes_the_formats_result(tmp_path):
     assert len(out["targets_mm"]) == len(square_targets()) and len(out["stations_mm"]) == 3
     assert len(out["uncertainty"]["targets_mm"]) == len(out["targets_mm"]) and out["gauge"]
     assert "U (k = 2)" in r.stdout
+
+
+def test_uncertainty_verb_on_a_multilateration_result(tmp_path):
+    cols, _ = simulate_machine_campaign(MachineScenario())
+    write_machine_campaign(cols, tmp_path / "c.csv")
+    run = [sys.executable, "-m", "olti_drake.cli"]
+    assert subprocess.run(run + ["multilaterate", str(tmp_path / "c.csv"), "--out", str(tmp_path / "r.json")],
+                          capture_output=True, cwd=ROOT).returncode == 0
+    out = {}
+    for method in ("linear", "mc"):
+        r = subprocess.run(run + ["uncertainty", str(tmp_path / "r.json"), str(tmp_path / "c.csv"), "--method",
+                                  method, "--trials", "1000", "--map", str(tmp_path / f"{method}.png"),
+                                  "--out", str(tmp_path / f"{method}.json")], capture_output=True, text=True, cwd=ROOT)
+        assert r.returncode == 0, r.stderr
+        out[method] = json.loads((tmp_path / f"{method}.json").read_text())
+        assert (tmp_path / f"{method}.png").stat().st_size > 5000
+    lin, mc = (np.array(out[m]["targets_mm"]) for m in ("linear", "mc"))
+    assert lin.shape == (len(square_targets()), 2)
+    assert mc / lin == pytest.approx(1.0, abs=0.12)  # 1000 trials: ~2 % scatter of a std, plus nonlinearity
+    assert out["mc"]["expanded"]["k"] == 2 and "coverage_interval" in out["mc"]
