@@ -93,14 +93,13 @@ def report_stations(scenario, centres, zeros):
 def campaign_and_fit(scenario, centres, zeros, budget):
     """Simulate the campaign and multilaterate from the estimated stations: (program, result, truth).
 
-    The campaign simulator draws its own aiming errors; they get the standard uncertainties the
-    procedures stated (only the cosine error depends on them, 001 §4.3).
+    The tables aim (Eq. 1 of 001) with what the §2.2 procedures found: their station estimates,
+    and zero angles off by the alignment error plus the tilt of the Y reference line they aligned to.
     """
-    scenario = dataclasses.replace(
-        scenario, station_estimate_sigma_um=float(np.sqrt(np.mean([ce.std_um ** 2 for ce in centres]))),
-        zero_angle_sigma_urad=float(1e6 * np.sqrt(np.mean([ze.std_rad ** 2 for ze in zeros]))))
-    cols, truth = simulate_machine_campaign(scenario, budget)
     estimates = np.array([ce.estimate_mm for ce in centres])
+    scenario = dataclasses.replace(scenario, stations_estimate_mm=estimates.tolist(),
+                                   zero_angles_urad=[1e6 * (ze.error_rad + ze.reference_tilt_rad) for ze in zeros])
+    cols, truth = simulate_machine_campaign(scenario, budget)
     ident = Multilateration(machine_campaign(cols), MultilaterationOptions(stations_mm=estimates))
     res = ident.solve(budget)
     _, stations = align_to_commands(truth["targets_mm"], res.commands_mm, truth["stations_mm"])

@@ -21,7 +21,7 @@ from typing import Union
 import numpy as np
 
 from .csvio import write_table
-from .errormap import Harmonic, HarmonicDeviation, NoDeviation
+from .errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
 from .interferometer import InterferometerOptions, simulate_readings
 
 Deviation = Union[HarmonicDeviation, NoDeviation]
@@ -103,36 +103,99 @@ class MachineScenario:
     stations_mm: list[list[float]] = field(default_factory=lambda: [[-120.0, -80.0], [220.0, -60.0], [50.0, 240.0]])
     station_estimate_sigma_um: float = 5.75
     zero_angle_sigma_urad: float = 2.8
+    stations_estimate_mm: list[list[float]] = field(default_factory=list)
+    zero_angles_urad: list[float] = field(default_factory=list)
     interferometer: InterferometerOptions = field(default_factory=InterferometerOptions)
     seed: int = 0
+
+
+@dataclass
+class MachineRun:
+    """A machine campaign as executed: the (station, target) rows in order, and what the steering knows.
+
+    Shared by the numpy twin and the Drake diagram, so both steer and zero
+    their counters identically. mm, rad; directions ±1 per axis.
+    """
+
+    commands_mm: np.ndarray
+    stations_mm: np.ndarray
+    stations_estimate_mm: np.ndarray
+    zero_angle_errors_rad: np.ndarray
+    sequence: dict
+    actual_mm: np.ndarray
+    dead_paths_mm: np.ndarray
+
+    @property
+    def targets_mm(self) -> np.ndarray:
+        """Actual position of every target at its first reading, (N_i, 2) mm."""
+        first = [np.flatnonzero(self.sequence["target"] == i)[0] for i in range(len(self.commands_mm))]
+        return self.actual_mm[first]
+
+
+def machine_sequence(commands_mm, n_stations: int) -> dict:
+    """Every (station, target) row in execution order: targets in order, once per station.
+
+    Directions run over the whole campaign (station j's run starts where
+    j − 1's ended), by the rule of formats.md. Returns dict of (K,) arrays:
+    station, target (int), x_cmd_mm, y_cmd_mm, dir_x, dir_y.
+    """
+    cmd = np.asarray(commands_mm, dtype=float).reshape(-1, 2)
+    i = np.tile(np.arange(len(cmd)), n_stations)
+    d = approach_directions(cmd[i])
+    return {"station": np.repeat(np.arange(n_stations), len(cmd)), "target": i, "x_cmd_mm": cmd[i, 0],
+            "y_cmd_mm": cmd[i, 1], "dir_x": d[:, 0], "dir_y": d[:, 1]}
+
+
+def machine_run(scenario: MachineScenario, rng: np.random.Generator) -> MachineRun:
+    """Sequence, actual positions (bidirectional error applied), steering estimates and counter zeros.
+
+    The station estimates and zero-angle errors are the scenario's own when
+    given (e.g. from :mod:`olti_drake.station_estimation`), else drawn from
+    ``rng`` (first P̂ − P, N_j × 2, then the zero angles, N_j). The counter of
+    station j is zeroed at its first reading: L0_j is that distance (001 Eq. 3).
+    """
+    s = scenario
+    if not (np.isfinite(s.size_mm) and np.isfinite(s.step_mm) and s.size_mm > 0 and s.step_mm > 0):
+        raise ValueError(f"size_mm and step_mm must be finite and > 0, got {s.size_mm!r}, {s.step_mm!r}")
+    P = np.asarray(s.stations_mm, dtype=float).reshape(-1, 2)
+    if not len(P) or not np.all(np.isfinite(P)):
+        raise ValueError(f"stations_mm must be a non-empty list of finite [x, y] pairs, got {s.stations_mm!r}")
+    P_est = (np.asarray(s.stations_estimate_mm, dtype=float).reshape(-1, 2) if s.stations_estimate_mm else
+             P + 1e-3 * s.station_estimate_sigma_um * rng.standard_normal(P.shape))
+    delta = 1e-6 * (np.asarray(s.zero_angles_urad, dtype=float) if s.zero_angles_urad else
+                    s.zero_angle_sigma_urad * rng.standard_normal(len(P)))
+    if P_est.shape != P.shape or delta.shape != (len(P),):
+        raise ValueError("stations_estimate_mm and zero_angles_urad must give one value per station")
+    cmd = square_targets(s.size_mm, s.step_mm)
+    seq = machine_sequence(cmd, len(P))
+    actual = s.error.actual(cmd[seq["target"]], seq["dir_x"], seq["dir_y"])
+    first = np.array([np.flatnonzero(seq["station"] == j)[0] for j in range(len(P))])
+    return MachineRun(cmd, P, P_est, delta, seq, actual, np.hypot(*(actual[first] - P).T))
 
 
 def simulate_machine_campaign(scenario: MachineScenario, budget=None):
     """Readings of every target from every station (001 §2, §3.2): (columns dict, truth dict).
 
-    Columns follow formats.md (station, target, x_cmd_mm, y_cmd_mm,
-    displacement_mm, valid); the counter of station j is zeroed at its first
-    target, so its dead path L0_j is that distance.
+    The numpy twin of the Drake diagram (:mod:`olti_drake.machine_station`):
+    the same :func:`machine_run`, the rotary table aiming by Eq. (1) of 001
+    from the estimated station, the interferometer model of
+    :func:`~olti_drake.interferometer.simulate_readings`. Columns follow
+    formats.md (station, target, x_cmd_mm, y_cmd_mm, displacement_mm, valid).
     """
     rng = np.random.default_rng(scenario.seed)
-    budget = budget or paper001_budget()
-    cmd = square_targets(scenario.size_mm, scenario.step_mm)
-    actual = scenario.error.actual(cmd)
-    P = np.asarray(scenario.stations_mm, dtype=float)
-    P_est = P + 1e-3 * scenario.station_estimate_sigma_um * rng.standard_normal(P.shape)
-    n_i, n_j = len(cmd), len(P)
-    i, j = np.tile(np.arange(n_i), n_j), np.repeat(np.arange(n_j), n_i)
-    # Eq. (1) of 001: aim from the estimated station at the command position; zero-angle error per station.
-    aim = np.degrees(np.arctan2(cmd[i, 1] - P_est[j, 1], cmd[i, 0] - P_est[j, 0]))
-    aim += np.degrees(1e-6 * scenario.zero_angle_sigma_urad * rng.standard_normal(n_j))[j]
-    L0 = np.hypot(*(actual[0] - P).T)
-    reading, valid, miss = simulate_readings(P[j], aim, actual[i], L0[j], scenario.interferometer, budget, rng)
+    run = machine_run(scenario, rng)
+    seq, P, Pe = run.sequence, run.stations_mm, run.stations_estimate_mm
+    i, j = seq["target"], seq["station"]
+    cmd = run.commands_mm
+    aim = np.degrees(np.arctan2(cmd[i, 1] - Pe[j, 1], cmd[i, 0] - Pe[j, 0]) + run.zero_angle_errors_rad[j])
+    reading, valid, _ = simulate_readings(P[j], aim, run.actual_mm, run.dead_paths_mm[j], scenario.interferometer,
+                                          budget or paper001_budget(), rng)
     cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
             "displacement_mm": np.where(valid, reading, np.nan), "valid": valid.astype(int)}
-    truth = {"format": "olti-multilateration/1", "targets_mm": actual.tolist(), "stations_mm": P.tolist(),
-             "dead_paths_mm": L0.tolist(), "commands_mm": cmd.tolist(),
+    truth = {"format": "olti-multilateration/1", "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
+             "dead_paths_mm": run.dead_paths_mm.tolist(), "commands_mm": cmd.tolist(),
              "gauge": "simulation truth: the machine's command frame", "residual_rms_mm": 0.0,
-             "n_readings": int(valid.sum()), "stations_estimate_mm": P_est.tolist(), "seed": scenario.seed}
+             "n_readings": int(valid.sum()), "stations_estimate_mm": Pe.tolist(), "seed": scenario.seed}
     return cols, truth
 
 

@@ -48,7 +48,7 @@ from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multipl
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from .errormap import approach_directions
-from .machine import MachineScenario, VolumetricError, paper001_budget, square_targets
+from .machine import MachineScenario, VolumetricError, machine_run, paper001_budget
 from .systems import LaserInterferometer
 
 MODELS_DIR = Path(__file__).parent / "models"
@@ -400,20 +400,6 @@ class MachineRecorder(LeafSystem):
 # Campaign
 # --------------------------------------------------------------------------------------------
 
-def machine_sequence(commands_mm, n_stations: int) -> dict:
-    """Every (station, target) row as the diagram executes it: targets in order, once per station.
-
-    Directions run over the whole campaign (station j's run starts where
-    j − 1's ended), by the rule :class:`VolumetricErrorAxes` applies.
-    Returns dict of (K,) arrays: station, target (int), x_cmd_mm, y_cmd_mm, dir_x, dir_y.
-    """
-    cmd = np.asarray(commands_mm, dtype=float).reshape(-1, 2)
-    i = np.tile(np.arange(len(cmd)), n_stations)
-    d = approach_directions(cmd[i])
-    return {"station": np.repeat(np.arange(n_stations), len(cmd)), "target": i, "x_cmd_mm": cmd[i, 0],
-            "y_cmd_mm": cmd[i, 1], "dir_x": d[:, 0], "dir_y": d[:, 1]}
-
-
 @dataclass
 class MachineSetup:
     """What the campaign diagram needs, all from the scenario (mm, rad).
@@ -438,34 +424,17 @@ class MachineSetup:
 
 
 def prepare_machine(scenario: MachineScenario, budget=None, period_s: float = PERIOD_S) -> MachineSetup:
-    """Draw the steering's estimates and fix the counter zeros, as the numpy twin does.
-
-    The station estimates and the zero-angle errors are the twin's own draws:
-    ``np.random.default_rng(seed)``, first P̂ = P + σ_P·N(0, 1) (N_j × 2, in
-    that order), then δ = σ_δ·N(0, 1) (N_j) -- so the diagram steers exactly
-    as :func:`~olti_drake.machine.simulate_machine_campaign` (whose truth
-    reports P̂ as ``stations_estimate_mm``). The instrument noise has its own
-    seeded streams (see :class:`~olti_drake.systems.LaserInterferometer`).
+    """The campaign as the numpy twin runs it (:func:`~olti_drake.machine.machine_run`, seeded by the
+    scenario): the same sequence, steering estimates and counter zeros, so the diagram steers exactly as
+    :func:`~olti_drake.machine.simulate_machine_campaign`. The instrument noise has its own seeded streams
+    (see :class:`~olti_drake.systems.LaserInterferometer`).
     """
-    s = scenario
-    if not (np.isfinite(s.size_mm) and np.isfinite(s.step_mm) and s.size_mm > 0 and s.step_mm > 0):
-        raise ValueError(f"size_mm and step_mm must be finite and > 0, got {s.size_mm!r}, {s.step_mm!r}")
     if not (np.isfinite(period_s) and period_s > 0):
         raise ValueError(f"period_s must be finite and > 0, got {period_s!r}")
-    P = np.asarray(s.stations_mm, dtype=float).reshape(-1, 2)
-    if not len(P) or not np.all(np.isfinite(P)):
-        raise ValueError(f"stations_mm must be a non-empty list of finite [x, y] pairs, got {s.stations_mm!r}")
-    rng = np.random.default_rng(s.seed)
-    P_est = P + 1e-3 * s.station_estimate_sigma_um * rng.standard_normal(P.shape)
-    delta = 1e-6 * s.zero_angle_sigma_urad * rng.standard_normal(len(P))
-    cmd = square_targets(s.size_mm, s.step_mm)
-    seq = machine_sequence(cmd, len(P))
-    actual = s.error.actual(cmd[seq["target"]], seq["dir_x"], seq["dir_y"])
-    first_of_station = np.array([np.flatnonzero(seq["station"] == j)[0] for j in range(len(P))])
-    first_of_target = np.array([np.flatnonzero(seq["target"] == i)[0] for i in range(len(cmd))])
-    L0 = np.hypot(*(actual[first_of_station] - P).T)
-    return MachineSetup(s, budget or paper001_budget(), cmd, P, P_est, delta, seq, actual[first_of_target], L0,
-                        period_s)
+    run = machine_run(scenario, np.random.default_rng(scenario.seed))
+    return MachineSetup(scenario, budget or paper001_budget(), run.commands_mm, run.stations_mm,
+                        run.stations_estimate_mm, run.zero_angle_errors_rad, run.sequence, run.targets_mm,
+                        run.dead_paths_mm, period_s)
 
 
 def _stream_seed(seed: int, *stream: int) -> int:

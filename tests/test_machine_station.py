@@ -11,10 +11,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from olti_drake.interferometer import InterferometerOptions
-from olti_drake.machine import MachineScenario, VolumetricError, simulate_machine_campaign, square_targets
+from olti_drake.machine import (MachineScenario, VolumetricError, machine_sequence, simulate_machine_campaign,
+                                square_targets)
 from olti_drake.machine_station import (VolumetricErrorAxes, build_machine_diagram, machine_columns,
-                                        machine_sequence, make_machine_station, prepare_machine,
-                                        run_machine_campaign)
+                                        make_machine_station, prepare_machine, run_machine_campaign)
 from olti_drake.multilateration import MultilaterationOptions, align_to_commands, machine_campaign, multilaterate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
