@@ -49,7 +49,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from .errormap import approach_directions
 from .machine import MachineScenario, VolumetricError, machine_run, paper001_budget
-from .systems import LaserInterferometer
+from .systems import LaserInterferometer, RowSequencer
 
 MODELS_DIR = Path(__file__).parent / "models"
 MACHINE_SDF_PATH = MODELS_DIR / "xy_machine.sdf"
@@ -309,40 +309,18 @@ class TableSteering(LeafSystem):
         output.SetFromVector(aim if self._aim_all else np.where(np.arange(len(aim)) == j, aim, 0.0))
 
 
-class MachineSequencer(LeafSystem):
+class MachineSequencer(RowSequencer):
     """Walks the targets once per station, one (station j, target i) row per period.
 
-    The clock of :class:`~olti_drake.systems.PlanSequencer` (whose ports are
-    the SCARA's joint angles): the row advances every ``period_s``.
     Outputs ``target_command`` (3, m), ``station`` (1), ``target`` (1).
     """
 
     def __init__(self, commands_mm, n_stations: int, period_s: float, z_mm: float = 0.0):
-        super().__init__()
         cmd = np.asarray(commands_mm, dtype=float).reshape(-1, 2)
         k = len(cmd)
-        self._cmd = np.tile(np.column_stack([cmd, np.full(k, z_mm)]) * MM, (n_stations, 1))
-        self._station = np.repeat(np.arange(n_stations, dtype=float), k)
-        self._target = np.tile(np.arange(k, dtype=float), n_stations)
-        self.period_s = period_s
-        self.n_steps = k * n_stations
-        self.DeclareDiscreteState(1)
-        self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s, self._advance)
-        for name, table in (("target_command", self._cmd), ("station", self._station), ("target", self._target)):
-            size = table.shape[1] if table.ndim == 2 else 1
-            self.DeclareVectorOutputPort(name, size, lambda c, o, t=table: o.SetFromVector(
-                np.atleast_1d(t[self._index(c)])))
-
-    def _index(self, context) -> int:
-        return int(context.get_discrete_state_vector()[0])
-
-    def _advance(self, context, discrete_state):
-        discrete_state.set_value([min(self._index(context) + 1, self.n_steps - 1)])
-
-    @property
-    def duration_s(self) -> float:
-        """Simulated time that covers every row and its reading."""
-        return self.n_steps * self.period_s
+        super().__init__({"target_command": np.tile(np.column_stack([cmd, np.full(k, z_mm)]) * MM, (n_stations, 1)),
+                          "station": np.repeat(np.arange(n_stations, dtype=float), k),
+                          "target": np.tile(np.arange(k, dtype=float), n_stations)}, period_s)
 
 
 class StationSelector(LeafSystem):

@@ -159,27 +159,21 @@ class LaserInterferometer(LeafSystem):
         value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
 
 
-class PlanSequencer(LeafSystem):
-    """Walks the measurement plan once per reflector position, one row per period.
+class RowSequencer(LeafSystem):
+    """One row of every output table per period: the clock of a campaign (move every ``period_s``).
 
-    Outputs ``arm_command`` (2, rad), ``reflector`` (1), ``measure`` (1, 0/1)
-    and ``row`` (1, the plan row within the current reflector's run).
+    ``tables``: output port name -> (K,) or (K, n) array, one row per step;
+    the row index advances every period and holds at the last row.
     """
 
-    def __init__(self, theta1_deg, theta2_deg, measure, n_reflectors: int, period_s: float):
+    def __init__(self, tables: dict, period_s: float):
         super().__init__()
-        k = len(theta1_deg)
-        self._cmd = np.radians(np.column_stack([np.tile(theta1_deg, n_reflectors),
-                                                np.tile(theta2_deg, n_reflectors)]))
-        self._measure = np.tile(np.asarray(measure, dtype=float), n_reflectors)
-        self._reflector = np.repeat(np.arange(n_reflectors, dtype=float), k)
-        self._row = np.tile(np.arange(k, dtype=float), n_reflectors)
         self.period_s = period_s
-        self.n_steps = k * n_reflectors
+        self.n_steps = len(next(iter(tables.values())))
         self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s, self._advance)
-        for name, table in (("arm_command", self._cmd), ("reflector", self._reflector),
-                            ("measure", self._measure), ("row", self._row)):
+        for name, table in tables.items():
+            table = np.asarray(table, dtype=float)
             size = table.shape[1] if table.ndim == 2 else 1
             self.DeclareVectorOutputPort(name, size, lambda c, o, t=table: o.SetFromVector(
                 np.atleast_1d(t[self._index(c)])))
@@ -194,6 +188,23 @@ class PlanSequencer(LeafSystem):
     def duration_s(self) -> float:
         """Simulated time that covers every row and its reading."""
         return self.n_steps * self.period_s
+
+
+class PlanSequencer(RowSequencer):
+    """Walks the measurement plan once per reflector position, one row per period.
+
+    Outputs ``arm_command`` (2, rad), ``reflector`` (1), ``measure`` (1, 0/1)
+    and ``row`` (1, the plan row within the current reflector's run).
+    """
+
+    def __init__(self, theta1_deg, theta2_deg, measure, n_reflectors: int, period_s: float):
+        k = len(theta1_deg)
+        super().__init__({
+            "arm_command": np.radians(np.column_stack([np.tile(theta1_deg, n_reflectors),
+                                                       np.tile(theta2_deg, n_reflectors)])),
+            "reflector": np.repeat(np.arange(n_reflectors, dtype=float), k),
+            "measure": np.tile(np.asarray(measure, dtype=float), n_reflectors),
+            "row": np.tile(np.arange(k, dtype=float), n_reflectors)}, period_s)
 
 
 class CampaignRecorder(LeafSystem):
