@@ -131,7 +131,7 @@ def make_station(builder, setup: Setup, name: str = "station"):
         [r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
     laser = inner.AddNamedSystem("laser_interferometer", LaserInterferometer(
         plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
-        s.interferometer, setup.budget, seed=_stream_seed(s.seed, STREAM_LASER), period_s=s.period_s))
+        s.interferometer, setup.budget, seed=stream_seed(s.seed, STREAM_LASER), period_s=s.period_s))
     inner.Connect(joints.GetOutputPort("position"), plant.position_input)
     inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
     inner.ExportInput(joints.GetInputPort("command"), "joint_command")
@@ -146,8 +146,9 @@ def make_station(builder, setup: Setup, name: str = "station"):
     return station
 
 
-def _stream_seed(seed: int, stream: int) -> int:
-    return int(np.random.SeedSequence([seed, stream]).generate_state(1)[0])
+def stream_seed(seed: int, *stream: int) -> int:
+    """An independent, reproducible seed for one random stream of a scenario seeded ``seed``."""
+    return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
 
 
 def build_campaign_diagram(setup: Setup):

@@ -94,6 +94,23 @@ def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> No
                          f"{table[column][bad[0]]:g} is not one of {', '.join(f'{a:g}' for a in allowed)}")
 
 
+def read_json(path, fmt: str) -> dict:
+    """A JSON object whose ``format`` must be ``fmt``; one-line errors name the file (and line)."""
+    import json
+
+    name = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as e:
+        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
+    if not isinstance(data, dict) or data.get("format") != fmt:
+        raise InputError(f"{name}: 'format' must be {fmt!r}")
+    return data
+
+
 def write_table(path, columns: Dict[str, Sequence], formats: Dict[str, str],
                 comments: Sequence[str] = ()) -> None:
     """Write a CSV with ``# comment`` lines, a header and one row per entry.

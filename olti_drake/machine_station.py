@@ -49,6 +49,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from .errormap import approach_directions
 from .machine import MachineScenario, VolumetricError, machine_run, paper001_budget
+from .campaign import stream_seed
 from .systems import LaserInterferometer, RowSequencer
 
 MODELS_DIR = Path(__file__).parent / "models"
@@ -415,10 +416,6 @@ def prepare_machine(scenario: MachineScenario, budget=None, period_s: float = PE
                         run.dead_paths_mm, period_s)
 
 
-def _stream_seed(seed: int, *stream: int) -> int:
-    return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
-
-
 def make_machine_station(builder, setup: MachineSetup, name: str = "station"):
     """Add the simulated station (a Diagram: machine, tables, interferometers) to ``builder``.
 
@@ -438,7 +435,7 @@ def make_machine_station(builder, setup: MachineSetup, name: str = "station"):
     for j in range(mp.n_stations):
         laser = inner.AddNamedSystem(f"laser_interferometer_{j}", LaserInterferometer(
             mp.laser_frame_ids[j], mp.lasers_in_body[j], [mp.target_frame_id], [setup.dead_paths_mm[j]],
-            s.interferometer, setup.budget, seed=_stream_seed(s.seed, STREAM_LASER, j), period_s=setup.period_s))
+            s.interferometer, setup.budget, seed=stream_seed(s.seed, STREAM_LASER, j), period_s=setup.period_s))
         inner.Connect(mp.query_output, laser.GetInputPort("geometry_query"))
         inner.Connect(target_index.get_output_port(), laser.GetInputPort("reflector"))
         for port in StationSelector.PORTS:

@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_values, read_table
+from .csvio import InputError, check_finite, check_values, read_json, read_table
 from .kinematics import rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
@@ -318,18 +318,8 @@ class Multilateration(LeastSquaresProgram):
 
 def load_result(path) -> dict:
     """Read a machine-tool result.json (formats.md); errors name the file and the missing key."""
-    import json
-
     name = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise InputError(f"{name}: 'format' must be {FORMAT!r}")
+    data = read_json(path, FORMAT)
     for key in ("targets_mm", "stations_mm", "dead_paths_mm", "gauge"):
         if key not in data:
             raise InputError(f"{name}: missing key '{key}'")

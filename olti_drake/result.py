@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from .csvio import InputError
+from .csvio import InputError, read_json
 from .errormap import ErrorMap
 from .kinematics import ScaraModel
 
@@ -67,15 +67,7 @@ def load_result(path, outside: str = "error"):
     Errors name the file and the missing or bad key.
     """
     name = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise InputError(f"{name}: 'format' must be {FORMAT!r}")
+    data = read_json(path, FORMAT)
     kind = data.get("model")
     need = ["L1_mm", "L2_mm"] + (["theta20_deg"] if kind == "dh" else ["error_map"])
     if kind not in ("dh", "errormap"):
