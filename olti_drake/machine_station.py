@@ -47,10 +47,9 @@ from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from .errormap import approach_directions
 from .machine import MachineScenario, VolumetricError, machine_run, paper001_budget
 from .campaign import stream_seed
-from .systems import LaserInterferometer, RowSequencer
+from .systems import ApproachErrorSystem, LaserInterferometer, RowSequencer
 
 MODELS_DIR = Path(__file__).parent / "models"
 MACHINE_SDF_PATH = MODELS_DIR / "xy_machine.sdf"
@@ -233,47 +232,23 @@ def add_machine_plant(builder, stations_mm, cover_mm=None, name="plant") -> Mach
 # Systems
 # --------------------------------------------------------------------------------------------
 
-class VolumetricErrorAxes(LeafSystem):
+class VolumetricErrorAxes(ApproachErrorSystem):
     """Commanded -> actual machine axis positions through the volumetric error (001 §3).
 
-    Input ``command`` (3): x*, y*, z* (m). State: the last command (mm) and
-    the approach direction of every axis, updated every simulator step by the
-    spec's rule (:func:`~olti_drake.errormap.approach_directions`; an axis
-    that did not move keeps its direction) -- the design of
-    :class:`~olti_drake.systems.ErrorMapJoint`.
-    Outputs ``position`` (3, m): (x, y) = :meth:`VolumetricError.actual` of
-    (x*, y*) approached in (dir_x, dir_y), z = z* (no Z errors in the 2D
-    model); ``direction`` (3): ±1. Outputs combine the stored state with the
-    *current* input, so they are right at the instant a command changes.
+    The role :class:`~olti_drake.systems.ErrorMapJoint` has for the SCARA,
+    with the same direction tracking (:class:`~olti_drake.systems.ApproachErrorSystem`).
+    Input ``command`` (3): x*, y*, z* (m); outputs ``position`` (3, m):
+    (x, y) = :meth:`VolumetricError.actual` of (x*, y*) approached in
+    (dir_x, dir_y), z = z* (no Z errors in the 2D model); ``direction`` (3): ±1.
     """
 
     def __init__(self, error: VolumetricError, initial_direction: float = 1.0):
-        super().__init__()
+        super().__init__([False] * len(AXIS_NAMES), initial_direction)
         self._error = error
-        n = len(AXIS_NAMES)
-        self._n = n
-        self.DeclareVectorInputPort("command", n)
-        self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
-        self.DeclarePerStepDiscreteUpdateEvent(self._remember)
-        self.DeclareVectorOutputPort("position", n, self._calc_position)
-        self.DeclareVectorOutputPort("direction", n, self._calc_direction)
 
-    def _command_and_direction(self, context):
-        cmd = np.asarray(self.get_input_port(0).Eval(context), dtype=float) * M_TO_MM
-        s = context.get_discrete_state_vector().value()
-        return cmd, approach_directions(cmd[None], s[:self._n], s[self._n:])[0]
-
-    def _remember(self, context, discrete_state):
-        cmd, direction = self._command_and_direction(context)
-        discrete_state.set_value(np.concatenate([cmd, direction]))
-
-    def _calc_direction(self, context, output: BasicVector):
-        output.SetFromVector(self._command_and_direction(context)[1])
-
-    def _calc_position(self, context, output: BasicVector):
-        cmd, direction = self._command_and_direction(context)
-        xy = self._error.actual(cmd[None, :2], direction[0], direction[1])[0]
-        output.SetFromVector(np.append(xy, cmd[2]) * MM)
+    def actual(self, command, direction) -> np.ndarray:
+        xy = self._error.actual(command[None, :2], direction[0], direction[1])[0]
+        return np.append(xy, command[2])
 
 
 class TableSteering(LeafSystem):

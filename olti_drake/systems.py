@@ -34,31 +34,31 @@ def _deg_mm(values, revolute):
     return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
 
 
-class ErrorMapJoint(LeafSystem):
-    """Commanded -> actual joint positions through the error map (000 Eq. 7).
+class ApproachErrorSystem(LeafSystem):
+    """Commanded -> actual positions through an error model that depends on the approach direction.
 
-    Input ``command`` (n): commanded joint positions θ* (rad; m for prismatic).
-    State: the last command and the approach direction of every axis, updated
-    every simulator step by the spec's rule (an axis that did not move keeps
-    its direction).
-    Outputs ``position`` (n): θ = θ* + Δθ(θ*, dir); ``direction`` (n): ±1.
-
-    Outputs combine the stored state with the *current* input, so they are
-    right at the instant a command changes, whatever the event ordering.
+    Input ``command`` (n): commanded positions (rad for revolute axes, m
+    otherwise). State: the last command and the approach direction of every
+    axis, updated every simulator step by the spec's rule (an axis that did
+    not move keeps its direction). Outputs ``position`` (n): the actual
+    positions; ``direction`` (n): ±1. Outputs combine the stored state with
+    the *current* input, so they are right at the instant a command changes,
+    whatever the event ordering. Subclasses give :meth:`actual` in deg/mm.
     """
 
-    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
-                 initial_direction: float = 1.0):
+    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
         super().__init__()
-        n = len(deviations)
-        self._dev = list(deviations)
         self._revolute = np.asarray(revolute, dtype=bool)
-        self._n = n
+        n = self._n = len(self._revolute)
         self.DeclareVectorInputPort("command", n)
         self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
         self.DeclarePerStepDiscreteUpdateEvent(self._remember)
         self.DeclareVectorOutputPort("position", n, self._calc_position)
         self.DeclareVectorOutputPort("direction", n, self._calc_direction)
+
+    def actual(self, command, direction) -> np.ndarray:
+        """Actual positions (n,) deg/mm of ``command`` (n,) deg/mm approached in ``direction`` (n,)."""
+        raise NotImplementedError
 
     def _command_and_direction(self, context):
         cmd = _deg_mm(self.get_input_port(0).Eval(context), self._revolute)
@@ -73,12 +73,29 @@ class ErrorMapJoint(LeafSystem):
         output.SetFromVector(self._command_and_direction(context)[1])
 
     def _calc_position(self, context, output: BasicVector):
-        cmd, direction = self._command_and_direction(context)
-        actual = cmd.copy()
+        actual = self.actual(*self._command_and_direction(context))
+        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+
+
+class ErrorMapJoint(ApproachErrorSystem):
+    """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+
+    One deviation per axis (an :class:`~olti_drake.errormap.ErrorMap`, a
+    continuous truth, or None for a perfect axis); ports as
+    :class:`ApproachErrorSystem`.
+    """
+
+    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
+                 initial_direction: float = 1.0):
+        super().__init__(revolute, initial_direction)
+        self._dev = list(deviations)
+
+    def actual(self, command, direction) -> np.ndarray:
+        out = command.copy()
         for i, dev in enumerate(self._dev):
             if dev is not None:
-                actual[i] += dev(cmd[i:i + 1], direction[i:i + 1])[0]
-        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+                out[i] += dev(command[i:i + 1], direction[i:i + 1])[0]
+        return out
 
 
 class BeamSteering(LeafSystem):
