@@ -122,6 +122,10 @@ class TransportTimeout(ProtocolError):
     """No valid reply after all attempts."""
 
 
+class LinkLost(ProtocolError):
+    """The serial line failed (device unplugged, pty closed): no retry can help."""
+
+
 # ----------------------------------------------------------------------------- frames
 
 def crc16(data: bytes) -> int:
@@ -516,8 +520,11 @@ class Transport:
             if attempt:
                 self.counts["retry"] += 1
                 _log.info("retry %d of %s (%s)", attempt, request, why[-1])
-            self.stream.write(data)
-            reply = self._await(request, timeout_s)
+            try:
+                self.stream.write(data)
+                reply = self._await(request, timeout_s)
+            except OSError as e:  # pyserial's SerialException is an OSError too
+                raise LinkLost(f"serial link lost during {request}: {e}") from None
             if reply is None:
                 why.append("timeout")
                 continue

@@ -20,7 +20,7 @@ from olti_drake.campaign import campaign_commands, prepare, simulate_vectorized
 from olti_drake.emulator import (ALARM_CODE, DEFAULT_ENCODER_RESOLUTION, STREAM_NOISE, Emulator, Faults, _Device)
 from olti_drake.errormap import approach_directions
 from olti_drake.interferometer import InterferometerOptions
-from olti_drake.protocol import (Frame, FrameParser, NakError, Responder, Transport, decode_alarms, decode_pong,
+from olti_drake.protocol import (Frame, LinkLost, FrameParser, NakError, Responder, Transport, decode_alarms, decode_pong,
                                  decode_position, decode_reading, encode, expect_ack, fmt_deg, movj_fields)
 from olti_drake.scenario import ExactEstimate, Scenario
 from olti_drake.steering import beam_command_deg
@@ -318,7 +318,7 @@ def test_disconnect_gives_the_host_a_clear_exception():
         counter.request("READ")  # the 3rd request is still answered
         assert emu.disconnected.wait(5.0)
         for t in (robot, counter):
-            with pytest.raises(serial.SerialException):
+            with pytest.raises(LinkLost, match="serial link lost during .*PING"):
                 for _ in range(3):  # the write, or the read after it, fails: never a quiet timeout
                     t.request("PING")
 
