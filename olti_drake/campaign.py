@@ -117,7 +117,18 @@ def make_station(builder, setup: Setup, name: str = "station"):
     ``reflector`` (1); outputs: ``displacement`` (1, m), ``valid`` (1),
     ``miss`` (1, m), ``direction`` (4, ±1), ``position`` (4, actual joint
     positions), ``query_object`` (SceneGraph, for visualization).
+
+    ``setup.scenario.station`` chooses the station: ``Simulated`` (this
+    Diagram), ``Emulated`` or ``Hardware`` (:mod:`olti_drake.hardware`: same
+    ports but ``query_object``; ``close()`` releases its ports and emulator).
     """
+    from .scenario import Emulated, Hardware
+    if isinstance(setup.scenario.station, Emulated):
+        from .hardware import make_emulated_station
+        return make_emulated_station(builder, setup, name)
+    if isinstance(setup.scenario.station, Hardware):
+        from .hardware import console_prompt, make_real_station
+        return make_real_station(builder, setup, console_prompt, name)
     from pydrake.systems.framework import DiagramBuilder
 
     from .plant import add_scara_plant
@@ -208,12 +219,17 @@ def run_campaign(setup: Setup, progress=None) -> Campaign:
     from pydrake.systems.analysis import Simulator
 
     diagram, rec, seq = build_campaign_diagram(setup)
-    simulator = Simulator(diagram)
-    chunks = 50 if progress else 1
-    for k in range(1, chunks + 1):
-        simulator.AdvanceTo(seq.duration_s * k / chunks)
-        if progress:
-            progress(k / chunks)
+    try:
+        simulator = Simulator(diagram)
+        chunks = 50 if progress else 1
+        for k in range(1, chunks + 1):
+            simulator.AdvanceTo(seq.duration_s * k / chunks)
+            if progress:
+                progress(k / chunks)
+    finally:
+        close = getattr(diagram.station, "close", None)  # an emulated or hardware station's ports
+        if close is not None:
+            close()
     return Campaign.from_recorder(setup, rec)
 
 

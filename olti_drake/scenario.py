@@ -118,6 +118,41 @@ class PlanFile:
     path: str = ""
 
 
+@dataclass
+class Simulated:
+    """The station is simulated in the Drake diagram (the default)."""
+
+
+@dataclass
+class Emulated:
+    """The station is the in-process device emulator (docs/emulator.md), driven over its pseudo-terminals.
+
+    ``speed``: ``fast`` or ``realistic``; the fault fields are those of
+    :class:`olti_drake.emulator.Faults` (probabilities per frame); ``timeout_s``
+    and ``retries`` are the host transport's (docs/protocol.md).
+    """
+
+    speed: str = "fast"
+    drop: float = 0.0
+    garble: float = 0.0
+    nak_crc: float = 0.0
+    beam_loss: float = 0.0
+    latch_beam_loss: bool = False
+    timeout_s: float = 1.0
+    retries: int = 2
+
+
+@dataclass
+class Hardware:
+    """The real robot controller and interferometer counter on two serial ports (docs/protocol.md)."""
+
+    robot_port: str = ""
+    counter_port: str = ""
+    baud: int = 115200
+    timeout_s: float = 1.0
+    retries: int = 2
+
+
 def _paper_reflectors() -> list[list[float]]:
     # Nearly collinear, outside the reach (like 000 Fig. 5; the paper gives no numbers).
     return [[650.0, -450.0], [700.0, -50.0], [650.0, 350.0]]
@@ -141,6 +176,7 @@ class Scenario:
     plan: Union[BidirectionalGrid, PlanFile] = field(default_factory=BidirectionalGrid)
     seed: int = 0
     period_s: float = 1.0
+    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
 
     def resolve(self, path: str) -> str:
         """A path from the scenario, relative to the scenario file's directory."""
@@ -184,7 +220,28 @@ class Scenario:
             raise InputError(f"{where}: seed must be >= 0, got {self.seed}")
         if isinstance(self.plan, PlanFile) and not self.plan.path:
             raise InputError(f"{where}: plan.path is empty")
+        _check_station(f"{where}: station", self.station)
         return self
+
+
+def _check_station(name, st):
+    if isinstance(st, Emulated):
+        if st.speed not in ("fast", "realistic"):
+            raise InputError(f"{name}.speed must be fast or realistic, got {st.speed!r}")
+        for key in ("drop", "garble", "nak_crc", "beam_loss"):
+            p = getattr(st, key)
+            if not (np.isfinite(p) and 0.0 <= p <= 1.0):
+                raise InputError(f"{name}.{key} must be a probability 0..1, got {p!r}")
+    if isinstance(st, Hardware):
+        for key in ("robot_port", "counter_port"):
+            if not getattr(st, key):
+                raise InputError(f"{name}.{key} is empty")
+        if st.baud <= 0:
+            raise InputError(f"{name}.baud must be > 0, got {st.baud!r}")
+    if isinstance(st, (Emulated, Hardware)):
+        _positive(f"{name}.timeout_s", st.timeout_s)
+        if st.retries < 0:
+            raise InputError(f"{name}.retries must be >= 0, got {st.retries!r}")
 
 
 def _finite(name, v):

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from olti_drake import protocol as P
@@ -279,7 +279,8 @@ FRAME_ALPHABET = b"$*,\r\n0123456789ACDEFIKLMNOPRSZ.-"
 noise = st.one_of(st.binary(max_size=300), st.lists(st.sampled_from(FRAME_ALPHABET), max_size=300).map(bytes))
 valid_frames = st.builds(lambda seq, sample: encode(seq, sample[0], *sample[1]),
                          st.integers(0, 65535), st.sampled_from(SAMPLES))
-FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# derandomize: the same examples every run (seeded), so CI cannot fail on a draw the developers never saw.
+FUZZ = settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
 
 def _feed_in_chunks(data: bytes, cuts: list[int]) -> list:
@@ -321,11 +322,12 @@ def test_fuzz_valid_frames_after_garbage_are_recovered(parts, tail, cuts):
        delete=st.booleans())
 def test_fuzz_damaged_frame_never_decodes(frame, i, value, delete):
     i %= len(frame)
+    assume(delete or value != frame[i])  # writing a byte over itself damages nothing
     bad = frame[:i] + frame[i + 1:] if delete else frame[:i] + bytes([value]) + frame[i + 1:]
     for f in frames(parse(bad)):  # a deletion can in principle slip past CRC-16; then it must be genuine
         assert_genuine(f, bad)
         assert f != frames(parse(frame))[0]
-    if not delete and value != frame[i]:
+    if not delete:
         assert not frames(parse(bad))
 
 
