@@ -195,20 +195,11 @@ def make_emulated_station(builder, setup, name: str = "station"):
     emu = Emulator(setup, speed=cfg.speed, drop=cfg.drop, garble=cfg.garble, nak_crc=cfg.nak_crc,
                    beam_loss=cfg.beam_loss, latch_beam_loss=cfg.latch_beam_loss).start()
     closers = [emu.stop]
-    try:
-        robot, counter = _transports(cfg, emu.robot_port, emu.counter_port, 115200, closers)
-        check_role(robot, "ROBOT", emu.robot_port)
-        check_role(counter, "COUNTER", emu.counter_port)
 
-        def refl(j):
-            expect_ack(counter.request("REFL", str(int(j))))
+    def refl(counter, j):
+        expect_ack(counter.request("REFL", str(int(j))))
 
-        station = make_hardware_station(builder, setup, (robot, counter), refl, name)
-    except BaseException:
-        for c in reversed(closers):
-            c()
-        raise
-    station.closers = closers
+    station = _open_station(builder, setup, cfg, emu.robot_port, emu.counter_port, 115200, closers, refl, name)
     station.emulator = emu
     return station
 
@@ -216,12 +207,21 @@ def make_emulated_station(builder, setup, name: str = "station"):
 def make_real_station(builder, setup, set_reflector=None, name: str = "station"):
     """Open the scenario's serial ports and add a station driving the real devices."""
     cfg = setup.scenario.station
-    closers: list = []
+    hook = None if set_reflector is None else (lambda counter, j: set_reflector(j))
+    return _open_station(builder, setup, cfg, cfg.robot_port, cfg.counter_port, cfg.baud, [], hook, name)
+
+
+def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name):
+    """Open both lines, check the devices' roles, add the station; close everything on failure.
+
+    ``set_reflector(counter_transport, j)`` readies reflector j (None: the station refuses a change).
+    """
     try:
-        robot, counter = _transports(cfg, cfg.robot_port, cfg.counter_port, cfg.baud, closers)
-        check_role(robot, "ROBOT", cfg.robot_port)
-        check_role(counter, "COUNTER", cfg.counter_port)
-        station = make_hardware_station(builder, setup, (robot, counter), set_reflector, name)
+        robot, counter = _transports(cfg, robot_port, counter_port, baud, closers)
+        check_role(robot, "ROBOT", robot_port)
+        check_role(counter, "COUNTER", counter_port)
+        hook = None if set_reflector is None else (lambda j: set_reflector(counter, j))
+        station = make_hardware_station(builder, setup, (robot, counter), hook, name)
     except BaseException:
         for c in reversed(closers):
             c()
