@@ -306,8 +306,10 @@ def _uncertainty_multilateration(args, t0) -> int:
     from .figures import plot_target_uncertainty
     from .machine import paper001_budget
     from .multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
-    from .uncertainty import ReadingErrors
+    from .uncertainty import ReadingErrors, uncertainty_dict
 
+    if args.maps:
+        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
     res = load_result(args.result)
     budget = load_budget(args.budget) if args.budget else paper001_budget()
     data = load_machine_campaign(args.campaign)
@@ -316,22 +318,12 @@ def _uncertainty_multilateration(args, t0) -> int:
     if len(x) != len(ident.names):
         raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
     std, _, samples, extra = _propagate(ident, x, ReadingErrors(budget), args)
-    n_i, n_j = data.n_targets, data.n_stations
-
-    def layout(v):
-        return {"targets_mm": v[:2 * n_i].reshape(-1, 2).tolist(),
-                "stations_mm": v[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2).tolist(),
-                "dead_paths_mm": v[2 * n_i + 2 * n_j:].tolist()}
-
-    out = {"format": "olti-uncertainty/1", "method": args.method, "k": 1, **layout(std),
-           "expanded": {"k": args.k, **layout(args.k * std)}, "budget": budget.name, "gauge": res["gauge"]}
-    if samples is not None:
-        lo, hi = np.percentile(samples, [50 * (1 - args.coverage), 50 * (1 + args.coverage)], axis=0)
-        out["coverage_interval"] = {"p": args.coverage, "low": layout(lo), "high": layout(hi)}
-    U = 1e3 * args.k * np.hypot(*std[:2 * n_i].reshape(-1, 2).T)
-    out.update(extra, elapsed_s=round(time.perf_counter() - t0, 3),
-               target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
-                                   "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
+    U = 1e3 * args.k * np.hypot(*std[:2 * data.n_targets].reshape(-1, 2).T)
+    extra.update(gauge=res["gauge"], elapsed_s=round(time.perf_counter() - t0, 3),
+                 target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
+                                     "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
+    out = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
+                           extra=extra)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1)
         f.write("\n")
@@ -343,8 +335,6 @@ def _uncertainty_multilateration(args, t0) -> int:
         plot_target_uncertainty(data.commands_mm, U, args.map, args.k,
                                 f"{'Monte Carlo' if samples is not None else 'linear'}, budget {budget.name}")
         print(f"wrote {args.map}")
-    if args.maps:
-        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
     return 0
 
 
@@ -404,7 +394,7 @@ def cmd_uncertainty(args) -> int:
             "points": int(np.isfinite(U[0]).sum()),
             "what": "k * sqrt(u_x^2 + u_y^2) of predicted positions on an XY grid inside the map range, "
                     "approach directions +1 and -1 (001 Fig. 14)"}
-    unc = uncertainty_dict(ident, x, std, args.method, budget, k=args.k, samples=samples,
+    unc = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples,
                            coverage=args.coverage, extra=extra)
     with open(args.out, "w", encoding="utf-8") as f:
         json.dump(unc, f, indent=1)

@@ -140,6 +140,12 @@ class Identifier(LeastSquaresProgram):
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
 
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
+        from .result import uncertainty_layout
+
+        return uncertainty_layout(self.robot0, v)
+
     def beam_lengths(self, x) -> np.ndarray:
         """Reflector distance ‖p̂(k) − P_j‖ of every reading at x, mm (the budget's cosine error scales with it)."""
         r, _, _ = self.residual_rows(np.asarray(x)[None])

@@ -113,6 +113,10 @@ class LeastSquaresProgram:
         """Length of the laser beam of every reading at x, mm (for the budget's cosine error)."""
         raise NotImplementedError
 
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (e.g. uncertainties) in the model's result keys and shapes."""
+        raise NotImplementedError
+
     def _equality_rows(self):
         """(A, b) of every linear equality in the program (gauge, fixed values), over all variables."""
         from pydrake.solvers import BoundingBoxConstraint, LinearConstraint

@@ -250,6 +250,14 @@ class Multilateration(LeastSquaresProgram):
         return {"line": int(self.data.line[k]), "station": int(self.data.station[k]),
                 "target": int(self.data.target[k])}
 
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
+        n_i, n_j = self.data.n_targets, self.data.n_stations
+        v = np.asarray(v, dtype=float)
+        return {"targets_mm": v[:2 * n_i].reshape(-1, 2).tolist(),
+                "stations_mm": v[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2).tolist(),
+                "dead_paths_mm": v[2 * n_i + 2 * n_j:].tolist()}
+
     def beam_lengths(self, x) -> np.ndarray:
         """‖p_i − P_j‖ of every reading at x, mm."""
         r, _ = self.residuals(x)

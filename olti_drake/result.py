@@ -27,7 +27,19 @@ def _values(model: ScaraModel, P, d0) -> dict:
     return out
 
 
-def result_dict(ident, identifier=None) -> dict:
+def uncertainty_layout(model: ScaraModel, v) -> dict:
+    """A vector in the parameter order of ``model`` + reflectors + dead paths, in the result's keys and
+    shapes without the map grids: the layout of the ``uncertainty`` object (formats.md)."""
+    v = np.asarray(v, dtype=float)
+    n = len(model.parameter_names())
+    n_t = (len(v) - n) // 3
+    out = _values(model.with_parameters(v[:n]), v[n:n + 2 * n_t], v[n + 2 * n_t:])
+    for axis in out.get("error_map", {}):
+        out["error_map"][axis].pop("grid_deg")
+    return out
+
+
+def result_dict(ident) -> dict:
     """The ``result.json`` object of an :class:`~olti_drake.identification.Identification`."""
     model = ident.model
     out = {"format": FORMAT, "model": "errormap" if model.is_errormap else "dh"}
@@ -35,16 +47,9 @@ def result_dict(ident, identifier=None) -> dict:
     out["gauge"] = ident.gauge
     out["residual_rms_mm"] = ident.residual_rms_mm
     out["n_readings"] = ident.n_readings
-    # Uncertainty: the same layout, filled with the standard uncertainties.
-    std_model = model.with_parameters(ident.std[:len(model.parameter_names())])
-    n = len(model.parameter_names())
-    n_t = len(ident.dead_paths_mm)
-    unc = _values(std_model, ident.std[n:n + 2 * n_t], ident.std[n + 2 * n_t:])
+    unc = uncertainty_layout(model, ident.std)  # the same layout, filled with standard uncertainties
     unc.update({"k": 1, "method": "linear propagation of the identification Jacobian (JCGM 100), "
                                   "residual-based reading uncertainty"})
-    if model.is_errormap:
-        for axis in ("J1", "J2"):
-            unc["error_map"][axis].pop("grid_deg")
     out["uncertainty"] = unc
     out["iterations"] = ident.iterations
     out["condition_number"] = ident.condition_number

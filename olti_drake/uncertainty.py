@@ -247,29 +247,20 @@ def prediction_std(ident, cov, x, commands) -> np.ndarray:
     return np.sqrt(np.maximum(np.column_stack(var), 0))
 
 
-def uncertainty_dict(ident, x, std, method: str, budget: Budget, k: float = 2.0, samples=None,
+def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, samples=None,
                      coverage: float = 0.95, extra=None) -> dict:
     """The ``uncertainty`` object of formats.md: result keys and shapes, standard uncertainties (k = 1).
 
+    ``ident``: the program the uncertainties belong to (its :meth:`layout` gives the keys).
     Adds ``expanded`` (the same layout times ``k``) and, for Monte Carlo, the
     probabilistically symmetric ``coverage_interval`` of probability ``coverage``.
     """
-    from .result import _values
-
-    def layout(v):
-        model, P, d0 = ident.split(v)
-        out = _values(model, P, d0)
-        for axis in ("J1", "J2"):
-            if "error_map" in out:
-                out["error_map"][axis].pop("grid_deg")
-        return out
-
     out = {"format": "olti-uncertainty/1", "method": method, "k": 1}
-    out.update(layout(std))
-    out["expanded"] = dict(k=k, **layout(k * std))
+    out.update(ident.layout(std))
+    out["expanded"] = dict(k=k, **ident.layout(k * std))
     if samples is not None:
         lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
-        out["coverage_interval"] = {"p": coverage, "low": layout(lo), "high": layout(hi)}
+        out["coverage_interval"] = {"p": coverage, "low": ident.layout(lo), "high": ident.layout(hi)}
     out["budget"] = budget.name
     out["parameters"] = {"names": list(ident.names), "std": std.tolist()}
     out.update(extra or {})

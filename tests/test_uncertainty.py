@@ -175,7 +175,7 @@ def _flat(layout, names):
 def test_coverage_interval_contains_estimate_and_expanded_is_k_times_std(setup, first, mc):
     ident, x, _ = first
     std = mc.samples.std(axis=0, ddof=1)
-    u = uncertainty_dict(ident, x, std, "mc", setup.budget, k=2.5, samples=mc.samples, coverage=0.95,
+    u = uncertainty_dict(ident, std, "mc", setup.budget, k=2.5, samples=mc.samples, coverage=0.95,
                          extra={"trials": len(mc.samples)})
     assert u["k"] == 1 and u["expanded"]["k"] == 2.5 and u["trials"] == MC_TRIALS
     np.testing.assert_allclose(_flat(u, ident.names), std, rtol=1e-12)
