@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_values, read_table
+from .csvio import InputError, check_finite, check_indices, check_values, read_table
 from .kinematics import JointCommands
 
 REQUIRED = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm")
@@ -60,15 +60,8 @@ def load_campaign(path) -> CampaignData:
     check_finite(t, path, REQUIRED)
     for c in ("dir1", "dir2"):
         check_values(t, path, c, (-1.0, 1.0))
-    j = t["reflector"]
-    if np.any(j < 0):
-        bad = np.flatnonzero(j < 0)[0]
-        raise InputError(f"{name}:{t['_line'][bad]}: column 'reflector': {j[bad]:g} is negative")
-    missing = sorted(set(range(int(j.max()) + 1)) - set(j.astype(int)))
-    if missing:
-        raise InputError(f"{name}: reflector index {missing[0]} has no valid reading "
-                         f"(indices must run 0..{int(j.max())})")
-    return CampaignData(j.astype(int), JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]),
+    j = check_indices(t, path, "reflector")
+    return CampaignData(j, JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]),
                         t["displacement_mm"], t["_line"], name, int((~keep).sum()))
 
 

@@ -94,6 +94,21 @@ def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> No
                          f"{table[column][bad[0]]:g} is not one of {', '.join(f'{a:g}' for a in allowed)}")
 
 
+def check_indices(table: Dict[str, np.ndarray], path, column: str) -> np.ndarray:
+    """The column as int indices: whole numbers >= 0, every index 0..max used; errors name file, line, column."""
+    v = table[column]
+    bad = np.flatnonzero((v < 0) | (v != np.round(v)))
+    if bad.size:
+        raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{column}': {v[bad[0]]:g} is not "
+                         f"an index >= 0")
+    idx = v.astype(int)
+    missing = sorted(set(range(idx.max() + 1)) - set(idx))
+    if missing:
+        raise InputError(f"{os.fspath(path)}: {column} index {missing[0]} has no valid reading "
+                         f"(indices must run 0..{idx.max()})")
+    return idx
+
+
 def read_json(path, fmt: str) -> dict:
     """A JSON object whose ``format`` must be ``fmt``; one-line errors name the file (and line)."""
     import json

@@ -21,7 +21,7 @@ from typing import Optional
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_values, read_json, read_table
+from .csvio import InputError, check_finite, check_indices, check_values, read_json, read_table
 from .kinematics import rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
@@ -76,11 +76,7 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
     if not len(t["_line"]):
         raise InputError(f"{source}: no valid readings")
     check_finite(t, source, REQUIRED)
-    for c in ("station", "target"):
-        bad = np.flatnonzero((t[c] < 0) | (t[c] != np.round(t[c])))
-        if bad.size:
-            raise InputError(f"{source}:{t['_line'][bad[0]]}: column '{c}': {t[c][bad[0]]:g} is not an index >= 0")
-    i = t["target"].astype(int)
+    i, j = check_indices(t, source, "target"), check_indices(t, source, "station")
     xy = np.column_stack([t["x_cmd_mm"], t["y_cmd_mm"]])
     cmd = np.full((i.max() + 1, 2), np.nan)
     cmd[i[::-1]] = xy[::-1]  # the first row of a target defines its command
@@ -89,12 +85,7 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
         k = clash[0]
         raise InputError(f"{source}:{t['_line'][k]}: target {i[k]} has command ({xy[k, 0]:g}, {xy[k, 1]:g}) mm, "
                          f"but ({cmd[i[k], 0]:g}, {cmd[i[k], 1]:g}) mm elsewhere")
-    for c, idx in (("target", i), ("station", t["station"].astype(int))):
-        missing = sorted(set(range(idx.max() + 1)) - set(idx))
-        if missing:
-            raise InputError(f"{source}: {c} index {missing[0]} has no valid reading "
-                             f"(indices must run 0..{idx.max()})")
-    return MachineCampaign(t["station"].astype(int), i, cmd, t["displacement_mm"], t["_line"], source)
+    return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source)
 
 
 def station_fit(points_mm, readings_mm, start_mm=None):
