@@ -110,13 +110,17 @@ def _dead_paths(scenario, plan, robot, P, P_est, theta40_est):
     return along if scenario.interferometer.cosine_error else np.hypot(along, miss)
 
 
-def make_station(builder, setup: Setup, name: str = "station"):
+def make_station(builder, setup: Setup, name: str = "station", session: int = 0):
     """Add the simulated station (a Diagram) to ``builder`` and return it.
 
     Ports -- inputs: ``joint_command`` (4: θ1*, θ2* rad, J3 m, θ4* rad),
     ``reflector`` (1); outputs: ``displacement`` (1, m), ``valid`` (1),
-    ``miss`` (1, m), ``direction`` (4, ±1), ``position`` (4, actual joint
-    positions), ``query_object`` (SceneGraph, for visualization).
+    ``miss`` (1, m), ``status`` (:class:`~olti_drake.systems.ReadStatus`),
+    ``direction`` (4, ±1), ``position`` (4, actual joint positions),
+    ``query_object`` (SceneGraph, for visualization).
+
+    ``session``: 0 for a campaign's first run, n for its n-th resumption
+    (``olti run --resume``): an emulator then draws fresh noise.
 
     ``setup.scenario.station`` chooses the station: ``Simulated`` (this
     Diagram), ``Emulated`` or ``Hardware`` (:mod:`olti_drake.hardware`: same
@@ -125,7 +129,7 @@ def make_station(builder, setup: Setup, name: str = "station"):
     from .scenario import Emulated, Hardware
     if isinstance(setup.scenario.station, Emulated):
         from .hardware import make_emulated_station
-        return make_emulated_station(builder, setup, name)
+        return make_emulated_station(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):
         from .hardware import console_prompt, make_real_station
         return make_real_station(builder, setup, console_prompt, name)
@@ -147,7 +151,7 @@ def make_station(builder, setup: Setup, name: str = "station"):
     inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
     inner.ExportInput(joints.GetInputPort("command"), "joint_command")
     inner.ExportInput(laser.GetInputPort("reflector"), "reflector")
-    for port in ("displacement", "valid", "miss"):
+    for port in ("displacement", "valid", "miss", "status"):
         inner.ExportOutput(laser.GetOutputPort(port), port)
     inner.ExportOutput(joints.GetOutputPort("direction"), "direction")
     inner.ExportOutput(joints.GetOutputPort("position"), "position")
@@ -162,30 +166,41 @@ def stream_seed(seed: int, *stream: int) -> int:
     return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
 
 
-def build_campaign_diagram(setup: Setup):
-    """The whole campaign as a Diagram; returns (diagram, recorder, sequencer)."""
+def build_campaign_diagram(setup: Setup, station_factory=None, extend=None, sink=None, session: int = 0):
+    """The whole campaign as a Diagram; returns (diagram, recorder, sequencer).
+
+    ``sink(row, status)``: called with every recorded reading (``CampaignRecorder``;
+    ``olti run`` writes it to disk); ``session``: as :func:`make_station`.
+
+    ``station_factory(builder, setup)`` adds the station (default
+    :func:`make_station`: the scenario's); ``extend(builder, setup=, station=,
+    sequencer=, steering=, recorder=)``, if given, adds more systems (e.g. the
+    Meshcat view of :mod:`olti_drake.meshcat_view`) before the diagram is built.
+    """
     from pydrake.systems.framework import DiagramBuilder
 
     from .systems import BeamSteering, CampaignRecorder, PlanSequencer
 
     s, r = setup.scenario, setup.scenario.robot
     builder = DiagramBuilder()
-    station = make_station(builder, setup)
+    station = station_factory(builder, setup) if station_factory else make_station(builder, setup, session=session)
     seq = builder.AddNamedSystem("plan_sequencer", PlanSequencer(
         setup.plan.theta1_deg, setup.plan.theta2_deg, setup.plan.measure, len(setup.reflectors_mm),
         s.period_s))
     steer = builder.AddNamedSystem("beam_steering", BeamSteering(
         r.nominal_L1_mm, r.nominal_L2_mm, setup.reflectors_estimate_mm, setup.theta40_estimate_deg))
-    rec = builder.AddNamedSystem("campaign_recorder", CampaignRecorder(s.period_s))
+    rec = builder.AddNamedSystem("campaign_recorder", CampaignRecorder(s.period_s, sink))
     builder.Connect(seq.GetOutputPort("arm_command"), steer.GetInputPort("arm_command"))
     builder.Connect(seq.GetOutputPort("reflector"), steer.GetInputPort("reflector"))
     builder.Connect(steer.GetOutputPort("joint_command"), station.GetInputPort("joint_command"))
     builder.Connect(seq.GetOutputPort("reflector"), station.GetInputPort("reflector"))
     builder.Connect(steer.GetOutputPort("joint_command"), rec.GetInputPort("joint_command"))
-    for port in ("direction", "displacement", "valid"):
+    for port in ("direction", "displacement", "valid", "status"):
         builder.Connect(station.GetOutputPort(port), rec.GetInputPort(port))
     for port in ("reflector", "measure", "row"):
         builder.Connect(seq.GetOutputPort(port), rec.GetInputPort(port))
+    if extend is not None:
+        extend(builder, setup=setup, station=station, sequencer=seq, steering=steer, recorder=rec)
     diagram = builder.Build()
     diagram.station = station
     return diagram, rec, seq
@@ -211,16 +226,19 @@ class Campaign:
         return cls(columns, truth_result(setup, columns))
 
 
-def run_campaign(setup: Setup, progress=None) -> Campaign:
+def run_campaign(setup: Setup, progress=None, extend=None, realtime_rate: float = 0.0) -> Campaign:
     """Simulate the diagram through the whole plan and collect the readings.
 
     ``progress(fraction)``, if given, is called as the simulation advances.
+    ``extend`` as in :func:`build_campaign_diagram` (e.g. a Meshcat view);
+    ``realtime_rate`` > 0 paces the simulation for a viewer (0: as fast as possible).
     """
     from pydrake.systems.analysis import Simulator
 
-    diagram, rec, seq = build_campaign_diagram(setup)
+    diagram, rec, seq = build_campaign_diagram(setup, extend=extend)
     try:
         simulator = Simulator(diagram)
+        simulator.set_target_realtime_rate(realtime_rate)
         chunks = 50 if progress else 1
         for k in range(1, chunks + 1):
             simulator.AdvanceTo(seq.duration_s * k / chunks)

@@ -35,7 +35,7 @@ def _refuse_overwrite(out_paths, inputs):
             raise ValueError(f"{p}: output would overwrite an input file")
 
 
-def _simulate(scenario_path, out_dir, seed=None, progress=True):
+def _simulate(scenario_path, out_dir, seed=None, progress=True, extend=None, realtime_rate=0.0):
     from .campaign import prepare, run_campaign, write_campaign
     from .scenario import load_scenario
 
@@ -51,7 +51,7 @@ def _simulate(scenario_path, out_dir, seed=None, progress=True):
         inputs.append(scenario.resolve(scenario.plan.path))
     _refuse_overwrite([os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], inputs)
     setup = prepare(scenario)
-    campaign = run_campaign(setup, progress=_progress(progress))
+    campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate)
     source = scenario_path or "embedded default (paper 000 experiment)"
     paths = write_campaign(campaign, out_dir, comments=[f"scenario: {source}; seed {scenario.seed}"])
     return setup, campaign, paths
@@ -81,9 +81,20 @@ def _summary(setup, campaign, elapsed_s: float) -> str:
 
 def cmd_simulate(args) -> int:
     t0 = time.perf_counter()
-    setup, campaign, paths = _simulate(args.scenario, args.out, args.seed)
+    extend, rate = None, args.realtime_rate
+    if rate is not None and not rate >= 0:
+        raise ValueError(f"--realtime-rate must be >= 0, got {rate}")
+    if args.meshcat:
+        from .meshcat_view import campaign_view, start_meshcat
+
+        meshcat = start_meshcat(args.meshcat_port)
+        print(f"meshcat: live view at {meshcat.web_url()}", flush=True)
+        extend, rate = campaign_view(meshcat, error_scale=args.error_scale), 20.0 if rate is None else rate
+    setup, campaign, paths = _simulate(args.scenario, args.out, args.seed, extend=extend, realtime_rate=rate or 0.0)
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
+    if args.meshcat and sys.stdin.isatty():
+        input("press Enter to close the Meshcat view: ")
     return 0
 
 
@@ -561,6 +572,97 @@ def cmd_design(args) -> int:
     return 0
 
 
+def cmd_diagrams(args) -> int:
+    """Render the simulated, emulated and hardware campaign diagrams (SVG + wiring files)."""
+    from .diagram_pictures import write_pictures
+
+    for path in write_pictures(args.out):
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    """The calibration report: DIR/report.html, self-contained (figures embedded, also written as PNG)."""
+    from .report import OUTPUT_NAMES, write_report
+
+    _refuse_overwrite([os.path.join(args.out, n) for n in OUTPUT_NAMES],
+                      [args.result, args.uncertainty, args.campaign, args.truth])
+    t0 = time.perf_counter()
+    paths = write_report(args.result, args.out, args.uncertainty, args.campaign, args.truth, date=args.date)
+    for path in paths:
+        print(f"wrote {path}")
+    html_path = paths[-1]
+    print(f"report {html_path}: {os.path.getsize(html_path) / 1e6:.2f} MB, self-contained, "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def cmd_compensate(args) -> int:
+    """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    from .compensation import compensate_file, write_commands, write_tables
+    from .result import load_result
+
+    tables = [os.path.join(args.tables, f"{a}_compensation.csv") for a in ("J1", "J2")] if args.tables else []
+    _refuse_overwrite([args.out] + tables, [args.result, args.targets])
+    model, _, _, _ = load_result(args.result, outside=args.outside)
+    if args.tables and not model.is_errormap:
+        raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is 'dh'")
+    comp, lines = compensate_file(model, args.targets, elbow=args.elbow)
+    write_commands(comp, args.out, comments=[
+        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
+        "executed with dir1, dir2 these commands put the end effector on x_mm, y_mm by the model (000 Eq. 3, 7)"])
+    c = comp.commands
+    print(f"compensated {len(c)} targets ({'errormap' if model.is_errormap else 'dh'} model): "
+          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm")
+    print(f"  theta1* {c.theta1_deg.min():.4f}..{c.theta1_deg.max():.4f} deg, "
+          f"theta2* {c.theta2_deg.min():.4f}..{c.theta2_deg.max():.4f} deg")
+    flagged = lines[comp.needs_approach.any(axis=1)]
+    if flagged.size:
+        shown = ", ".join(str(n) for n in flagged[:10]) + (" ..." if flagged.size > 10 else "")
+        print(f"  note: {flagged.size} target(s) reverse an axis by less than its backlash; approach them with an "
+              f"overrun move in the stated direction (lines {shown})")
+    print(f"wrote {args.out}")
+    for path in write_tables(model, args.tables, f" from {args.result}") if args.tables else []:
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from .hardware import StationError
+    from .runner import RunInterrupted, run
+
+    import logging
+
+    resume_hint = f"olti run {args.scenario} --out {args.out} --resume"
+    # The emulator's notes on injected faults are for the emulator's own log, not this command's stderr.
+    logging.getLogger("olti_drake.emulator").addHandler(logging.NullHandler())
+    nl = "\n" if sys.stderr.isatty() else ""
+
+    def progress(done, planned):
+        if sys.stderr.isatty():
+            sys.stderr.write(f"\r  readings on disk {done}/{planned}")
+            sys.stderr.flush()
+
+    try:
+        s = run(args.scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress)
+    except RunInterrupted as e:
+        print(f"{nl}error: {e}; continue with: {resume_hint}", file=sys.stderr)
+        return 130
+    except StationError as e:
+        print(f"{nl}error: {' '.join(str(e).split())}; every reading taken is on disk; after fixing it continue "
+              f"with: {resume_hint}", file=sys.stderr)
+        return 3
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    if s.taken == 0 and s.complete:
+        print(f"{args.out}: the campaign is already complete ({s.on_disk} of {s.planned} readings)")
+        return 0
+    print(f"session {s.session}: {s.taken} readings taken ({s.invalid} invalid) from step {s.start_step} in "
+          f"{s.elapsed_s:.2f} s; {s.on_disk} of {s.planned} planned readings in "
+          f"{os.path.join(args.out, 'campaign.csv')}" + ("" if s.complete else " (incomplete)"))
+    return 0 if s.complete else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
@@ -582,6 +684,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument("--meshcat", action="store_true",
+                   help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
+    p.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: first free from 7000)")
+    p.add_argument("--realtime-rate", type=float, default=None,
+                   help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
+    p.add_argument("--error-scale", type=float, default=500.0,
+                   help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
@@ -684,6 +793,65 @@ def build_parser() -> argparse.ArgumentParser:
                    help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
     p.add_argument("--out", required=True, help="design JSON to write")
     p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("diagrams", help="draw the simulated, emulated and hardware campaign diagrams (Graphviz SVG)",
+                       description="Build the campaign diagram of diagrams/paper000_scara.yaml, "
+                                   "paper000_emulated.yaml and paper000_hardware.yaml (the hardware station on "
+                                   "unopened ports, the emulator started and stopped) and write NAME.svg "
+                                   "(Graphviz dot) and NAME.wiring.txt (sorted 'src.port -> dst.port' lines).")
+    p.add_argument("--out", default=None, help="output directory (default: the package's diagrams/)")
+    p.set_defaults(func=cmd_diagrams)
+
+    p = sub.add_parser("report", help="calibration report: one self-contained HTML page with tables and figures",
+                       description="Write DIR/report.html for a result (SCARA olti-result/1 or machine-tool "
+                                   "olti-multilateration/1): parameters with standard (k = 1) and expanded "
+                                   "uncertainties, the identified maps with error bars (000 Fig. 6), ISO 230-2 "
+                                   "style statistics per axis (B, B-bar, E, E-up, E-down, M), the predicted-position "
+                                   "uncertainty map (001 Fig. 14 style, needs --campaign), residuals and, with "
+                                   "--truth, validation (000 Figs. 9-11). Figures are embedded as data URIs and "
+                                   "written as PNG files in DIR. mm and degrees.")
+    p.add_argument("result", help="result JSON (olti identify or olti multilaterate)")
+    p.add_argument("uncertainty", nargs="?", default=None,
+                   help="uncertainty JSON of this result (olti uncertainty; default: the result's own)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--campaign", help="the campaign CSV of the result: covariance (linear), map, residuals")
+    p.add_argument("--truth", help="truth.json of a simulated SCARA campaign (olti simulate): validation")
+    p.add_argument("--date", help="date text for the header (the report never reads the clock)")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("compensate", help="joint commands that put the end effector on targets by the model",
+                       description="Invert the identified model (000 Eq. 3 with Eq. 7): for every target of "
+                                   "TARGETS.csv (x_mm, y_mm; optional dir1, dir2) the commands theta1_deg, "
+                                   "theta2_deg and approach directions that put the end effector on it. Without "
+                                   "dir columns the directions follow the compensated sequence itself "
+                                   "(formats.md rule). Targets beyond the reach or the map grid are refused "
+                                   "with their line. mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
+    p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
+    p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
+                                                "x_mm, y_mm)")
+    p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
+                                    "compensation tables at the map nodes) into this directory")
+    p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--outside", choices=("error", "clamp"), default="error",
+                   help="commands outside the map grid: refuse the target (default) or hold the end values")
+    p.set_defaults(func=cmd_compensate)
+    p = sub.add_parser("run", help="run a scenario's campaign on its station (simulated, emulated or hardware), "
+                                   "writing every reading to disk as it arrives; --resume continues",
+                       description="Run the scenario's measurement plan on the station the scenario names "
+                                   "(station: !Simulated, !Emulated or !Hardware). Every reading is appended to "
+                                   "DIR/campaign.csv (formats.md columns plus step, session, raw status, "
+                                   "attempts, time) and flushed to disk as it arrives; events (zeroings, "
+                                   "re-reads, alarms) go to DIR/events.jsonl. After Ctrl-C, kill -9 or a lost "
+                                   "line, --resume continues from the first reading not on disk: none lost, "
+                                   "none duplicated (docs/runner.md). Exit 0 complete, 130 interrupted, "
+                                   "3 station failure, 2 bad input.")
+    p.add_argument("scenario", help="scenario YAML (e.g. diagrams/paper000_emulated.yaml)")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted campaign in --out")
+    p.add_argument("--no-fsync", action="store_true",
+                   help="flush each reading to the OS but skip fsync (faster; a power cut may lose the last ones)")
+    p.set_defaults(func=cmd_run)
     return parser
 
 

@@ -21,15 +21,18 @@ answers ``NAK,BEAM``) if the reflector changed, then ``READ`` and
 
 from __future__ import annotations
 
+import time
 from typing import Callable, Optional
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSystem
 
 from .csvio import InputError
 from .errormap import approach_directions
-from .protocol import (NakError, ProtocolError, decode_pong, decode_position, decode_reading, expect_ack, movj_fields,
-                       wait_fields)
+from .protocol import (NakError, ProtocolError, decode_alarms, decode_pong, decode_position, decode_reading,
+                       expect_ack, movj_fields, wait_fields)
+from .systems import ReadStatus
 
 M_TO_MM = 1e3
 REVOLUTE = np.array([True, True, False, True])
@@ -59,30 +62,53 @@ class HardwareStation(LeafSystem):
     ``set_reflector(j)``: sets up reflector position ``j`` (the emulator's
     ``REFL``, or an operator prompt); it returns once done. ``period_s``:
     the campaign clock (the update runs at ``period_s / 4`` in each period).
+    ``policy``: a :class:`~olti_drake.scenario.RunPolicy` (re-reads,
+    re-zeroing, alarms). ``on_event(kind, **fields)``: told of every zeroing,
+    re-read, re-zeroing, re-approach and alarm (``olti run`` logs them).
     """
 
     def __init__(self, robot, counter, period_s: float,
-                 set_reflector: Optional[Callable[[int], None]] = None, wait_ms: int = WAIT_MS):
+                 set_reflector: Optional[Callable[[int], None]] = None, wait_ms: int = WAIT_MS,
+                 policy=None, on_event: Optional[Callable[..., None]] = None):
+        from .scenario import RunPolicy
+
         super().__init__()
         self.robot, self.counter = robot, counter
         self.set_reflector = set_reflector or operator_prompt_required
         self.wait_ms = int(wait_ms)
+        self.policy = policy or RunPolicy()
+        self.on_event = on_event or (lambda kind, **fields: None)
+        #: Reference (zero) poses known before the run, {reflector: (command (4,) deg/mm, directions (4,))}:
+        #: set by ``olti run --resume`` so that the counter is zeroed where the interrupted run zeroed it.
+        self.zero_poses: dict = {}
         self.closers: list = []
+        self._alarms_cleared = 0
         self.DeclareVectorInputPort("joint_command", 4)
         self.DeclareVectorInputPort("reflector", 1)
-        # State: last command sent (4, deg/mm; NaN = none), directions (4), reflector set up (-1 = none),
-        # displacement (m), valid, encoder position (4, rad/m), counter zeroed since the reflector was set up.
-        x0 = np.concatenate([np.full(4, np.nan), np.ones(4), [-1.0, np.nan, 0.0], np.full(4, np.nan), [0.0]])
-        self.DeclareDiscreteState(x0)
+        self.DeclareDiscreteState(_initial_state())
+        self.DeclareAbstractState(AbstractValue.Make(ReadStatus()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.25 * period_s, self._update)
-        self.DeclareVectorOutputPort("displacement", 1, lambda c, o: self._out(c, o, slice(9, 10)))
-        self.DeclareVectorOutputPort("valid", 1, lambda c, o: self._out(c, o, slice(10, 11)))
+        self.DeclareVectorOutputPort("displacement", 1, lambda c, o: self._out(c, o, _DISP))
+        self.DeclareVectorOutputPort("valid", 1, lambda c, o: self._out(c, o, _VALID))
         self.DeclareVectorOutputPort("miss", 1, lambda c, o: o.SetAtIndex(0, np.nan))
-        self.DeclareVectorOutputPort("direction", 4, lambda c, o: self._out(c, o, slice(4, 8)))
-        self.DeclareVectorOutputPort("position", 4, lambda c, o: self._out(c, o, slice(11, 15)))
+        self.DeclareStateOutputPort("status", AbstractStateIndex(0))
+        self.DeclareVectorOutputPort("direction", 4, lambda c, o: self._out(c, o, _DIRS))
+        self.DeclareVectorOutputPort("position", 4, lambda c, o: self._out(c, o, _ENCODER))
 
     def _out(self, context, output: BasicVector, part: slice):
         output.SetFromVector(context.get_discrete_state_vector().value()[part])
+
+    def resume_at(self, context, last_command, last_directions) -> None:
+        """Continue an interrupted campaign: the robot is somewhere unknown.
+
+        ``last_command`` (4, deg/mm) and ``last_directions`` (4, ±1) are the
+        plan's previous row, so the next command gets the plan's approach
+        directions; the first move is a re-approach that makes the robot
+        arrive from those sides (``policy.approach_overrun_deg``).
+        """
+        x = _initial_state()
+        x[_LAST], x[_DIRS], x[_REAPPROACH] = last_command, last_directions, 1.0
+        context.get_mutable_discrete_state_vector().SetFromVector(x)
 
     def _request(self, transport, what: str, verb: str, *fields: str, **kw):
         try:
@@ -98,43 +124,140 @@ class HardwareStation(LeafSystem):
         except ProtocolError as e:
             raise StationError(f"station: {what} {verb}: bad reply: {type(e).__name__}: {e}") from None
 
+    # ---------------------------------------------------------------- motion
+
+    def _movj_wait(self, cmd) -> None:
+        """MOVJ + WAIT; an alarm is read back, and cleared per the policy or reported."""
+        try:
+            expect_ack(self.robot.request("MOVJ", *movj_fields(*cmd)))
+            expect_ack(self.robot.request("WAIT", *wait_fields(self.wait_ms),
+                                          timeout_s=self.wait_ms / 1000.0 + self.robot.timeout_s))
+        except NakError as e:
+            if e.code != "ALARM":
+                raise StationError(f"station: robot MOVJ,{','.join(movj_fields(*cmd))} failed: NakError: {e}") \
+                    from None
+            raise _Alarm() from None
+        except ProtocolError as e:
+            raise StationError(f"station: robot MOVJ,{','.join(movj_fields(*cmd))} failed: "
+                               f"{type(e).__name__}: {e}") from None
+
+    def _handle_alarm(self, cmd) -> None:
+        codes = self._call("robot", "ALRM", decode_alarms, self.robot)
+        self.on_event("alarm", codes=list(codes), command=list(cmd))
+        if self._alarms_cleared >= self.policy.clear_alarms:
+            raise StationError(f"station: controller alarm {' '.join(codes) or '(no code)'} at "
+                               f"MOVJ,{','.join(movj_fields(*cmd))}; the policy clears at most "
+                               f"{self.policy.clear_alarms}: remove the cause, clear it, then resume")
+        left = self._call("robot", "ALRM", decode_alarms, self.robot, "CLR")
+        if left:
+            raise StationError(f"station: controller alarm {' '.join(left)} cannot be cleared (ALRM,CLR)")
+        self._alarms_cleared += 1
+        self.on_event("alarm_cleared", codes=list(codes))
+
+    def _move(self, cmd, directions, approach: bool) -> None:
+        """Go to ``cmd`` (deg/mm); with ``approach``, arrive in ``directions`` from the overrun point.
+
+        A move stopped by an alarm (cleared per the policy) is redone as a re-approach, since the
+        robot stopped somewhere on the way and the approach side must be re-established.
+        """
+        while True:
+            try:
+                if approach:
+                    before = cmd - np.where(REVOLUTE, directions * self.policy.approach_overrun_deg, 0.0)
+                    self._movj_wait(before)
+                self._movj_wait(cmd)
+                return
+            except _Alarm:
+                self._handle_alarm(cmd)
+                approach = True
+
+    # ---------------------------------------------------------------- counter
+
+    def _zero(self, x) -> bool:
+        """ZERO at the current pose; False while the counter has no beam (NAK BEAM)."""
+        try:
+            expect_ack(self.counter.request("ZERO"))
+        except NakError as e:
+            if e.code == "BEAM":
+                return False
+            raise StationError(f"station: counter ZERO failed: NakError: {e}") from None
+        except ProtocolError as e:
+            raise StationError(f"station: counter ZERO failed: {type(e).__name__}: {e}") from None
+        x[_ZEROED] = 1.0
+        return True
+
+    def _rezero(self, x, j: int) -> None:
+        """Zero again at the run's reference pose, approached as when it was first zeroed, then return."""
+        ref_cmd, ref_dirs = x[_ZERO_CMD], x[_ZERO_DIRS]
+        self._move(ref_cmd, ref_dirs, approach=True)
+        if not self._zero(x):
+            raise StationError(f"station: the counter has no beam at the reference pose of reflector {j} "
+                               f"(where the run was zeroed): check the reflector, then resume")
+        self.on_event("zero", reflector=j, command=list(ref_cmd), directions=list(ref_dirs), again=True)
+        self._move(x[_LAST], x[_DIRS], approach=True)
+
+    def _read(self, x, j: int):
+        """READ with the policy's re-reads and re-zeroings; returns (reading, ReadStatus)."""
+        reads = rezeros = 0
+        if x[_ZEROED] < 0.5:   # no zero yet (no beam at this run's poses so far): nothing to retry
+            reading = self._call("counter", "READ", decode_reading, self.counter)
+            return reading, ReadStatus(reading.status, 1, 0)
+        while True:
+            for _ in range(1 + self.policy.rereads):
+                if reads and self.policy.reread_delay_s > 0:
+                    time.sleep(self.policy.reread_delay_s)
+                reading = self._call("counter", "READ", decode_reading, self.counter)
+                reads += 1
+                if reading.valid:
+                    return reading, ReadStatus(reading.status, reads, rezeros)
+                self.on_event("invalid_reading", reflector=j, status=reading.status, reads=reads)
+            if rezeros >= self.policy.rezeros or np.isnan(x[_ZERO_CMD][0]):
+                return reading, ReadStatus(reading.status, reads, rezeros)
+            self._rezero(x, j)
+            rezeros += 1
+
+    # ---------------------------------------------------------------- the period
+
     def _update(self, context, state):
         x = context.get_discrete_state_vector().value().copy()
         u = self.get_input_port(0).Eval(context)
         cmd = np.where(REVOLUTE, np.degrees(u), np.asarray(u) * M_TO_MM)
         j = int(self.get_input_port(1).Eval(context)[0])
-        last = x[0:4]
+        last = x[_LAST].copy()
         # The approach directions of the commands sent, by the spec's rule (as ErrorMapJoint).
-        x[4:8] = approach_directions(cmd[None], last, x[4:8])[0]
-        if np.any(np.isnan(last)) or movj_fields(*cmd) != movj_fields(*last):
-            self._call("robot", "MOVJ", expect_ack, self.robot, *movj_fields(*cmd))
-            self._call("robot", "WAIT", expect_ack, self.robot, *wait_fields(self.wait_ms),
-                       timeout_s=self.wait_ms / 1000.0 + self.robot.timeout_s)
-        x[0:4] = cmd
-        if j != int(x[8]):
+        x[_DIRS] = approach_directions(cmd[None], last, x[_DIRS])[0]
+        x[_LAST] = cmd
+        if x[_REAPPROACH] > 0.5:
+            self.on_event("reapproach", command=list(cmd), directions=list(x[_DIRS]))
+            self._move(cmd, x[_DIRS], approach=True)
+            x[_REAPPROACH] = 0.0
+        elif np.any(np.isnan(last)) or movj_fields(*cmd) != movj_fields(*last):
+            self._move(cmd, x[_DIRS], approach=False)
+        if j != int(x[_REFLECTOR]):
             try:
                 self.set_reflector(j)
             except ProtocolError as e:
                 raise StationError(f"station: setting up reflector {j} failed: {type(e).__name__}: {e}") from None
-            x[8], x[15] = j, 0.0
-        if x[15] < 0.5:
-            # Zero at the first pose of the run where the beam reaches the counter: until then
-            # (NAK BEAM) the readings are invalid, as the counter says.
-            try:
-                expect_ack(self.counter.request("ZERO"))
-                x[15] = 1.0
-            except NakError as e:
-                if e.code != "BEAM":
-                    raise StationError(f"station: counter ZERO failed: NakError: {e}") from None
-            except ProtocolError as e:
-                raise StationError(f"station: counter ZERO failed: {type(e).__name__}: {e}") from None
-        reading = self._call("counter", "READ", decode_reading, self.counter)
-        x[9] = reading.displacement_mm / M_TO_MM if reading.valid else np.nan
-        x[10] = 1.0 if reading.valid else 0.0
+            x[_REFLECTOR], x[_ZEROED] = j, 0.0
+            known = self.zero_poses.get(j)
+            x[_ZERO_CMD], x[_ZERO_DIRS] = known if known is not None else (np.nan, np.nan)
+        if x[_ZEROED] < 0.5:
+            if not np.isnan(x[_ZERO_CMD][0]):
+                self._rezero(x, j)     # resuming: zero where the interrupted run did
+            elif self._zero(x):
+                # Zero at the first pose of the run where the beam reaches the counter: until then
+                # (NAK BEAM) the readings are invalid, as the counter says. This pose is the run's
+                # reference: a re-zeroing returns here.
+                x[_ZERO_CMD], x[_ZERO_DIRS] = cmd, x[_DIRS]
+                self.on_event("zero", reflector=j, command=list(cmd), directions=list(x[_DIRS]), again=False)
+        reading, status = self._read(x, j)
+        x[_DISP] = reading.displacement_mm / M_TO_MM if reading.valid else np.nan
+        x[_VALID] = 1.0 if reading.valid else 0.0
         enc = self._call("robot", "POSJ", decode_position, self.robot).encoder
         q = np.array([enc.theta1_deg, enc.theta2_deg, enc.z_mm, enc.theta4_deg])
-        x[11:15] = np.where(REVOLUTE, np.radians(q), q / M_TO_MM)
+        x[_ENCODER] = np.where(REVOLUTE, np.radians(q), q / M_TO_MM)
         state.get_mutable_discrete_state().set_value(x)
+        state.get_mutable_abstract_state(0).set_value(status)
 
     def close(self) -> None:
         """Close what the station opened (serial ports, an emulator), last opened first."""
@@ -143,6 +266,23 @@ class HardwareStation(LeafSystem):
                 self.closers.pop()()
             except Exception:  # closing is best effort
                 pass
+
+
+class _Alarm(Exception):
+    """A move refused or stopped by a controller alarm (handled by HardwareStation._move)."""
+
+
+# The station's discrete state: last command sent (4, deg/mm; NaN = none), directions (4), reflector
+# set up (-1 = none), displacement (m), valid, encoder position (4, rad/m), counter zeroed since the
+# reflector was set up, the run's reference (zero) pose: command (4) and directions (4), and
+# "re-approach the next command" (after a resume).
+_LAST, _DIRS, _REFLECTOR, _DISP, _VALID = slice(0, 4), slice(4, 8), 8, slice(9, 10), slice(10, 11)
+_ENCODER, _ZEROED, _ZERO_CMD, _ZERO_DIRS, _REAPPROACH = slice(11, 15), 15, slice(16, 20), slice(20, 24), 24
+
+
+def _initial_state() -> np.ndarray:
+    return np.concatenate([np.full(4, np.nan), np.ones(4), [-1.0, np.nan, 0.0], np.full(4, np.nan), [0.0],
+                           np.full(8, np.nan), [0.0]])
 
 
 def check_role(transport, role: str, port: str = "") -> str:
@@ -157,11 +297,11 @@ def check_role(transport, role: str, port: str = "") -> str:
     return pong.model
 
 
-def make_hardware_station(builder, setup, transports, set_reflector=None, name: str = "station"):
+def make_hardware_station(builder, setup, transports, set_reflector=None, name: str = "station", policy=None):
     """Add a :class:`HardwareStation` on ``transports`` = (robot, counter) to ``builder``; returns it."""
     robot, counter = transports
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
-                                                           set_reflector))
+                                                           set_reflector, policy=policy))
     return station
 
 
@@ -187,13 +327,24 @@ def _transports(station_cfg, robot_port, counter_port, baud, closers):
     return out
 
 
-def make_emulated_station(builder, setup, name: str = "station"):
-    """Start an in-process Emulator on the setup and add a station driving it through its ptys."""
+#: Noise stream of an emulator started for a resumed session (campaign.stream_seed).
+STREAM_EMULATOR = 2
+
+
+def make_emulated_station(builder, setup, name: str = "station", session: int = 0):
+    """Start an in-process Emulator on the setup and add a station driving it through its ptys.
+
+    ``session`` > 0 (a resumed campaign) seeds the emulator's noise and faults afresh.
+    """
+    from .campaign import stream_seed
     from .emulator import Emulator
 
     cfg = setup.scenario.station
-    emu = Emulator(setup, speed=cfg.speed, drop=cfg.drop, garble=cfg.garble, nak_crc=cfg.nak_crc,
-                   beam_loss=cfg.beam_loss, latch_beam_loss=cfg.latch_beam_loss).start()
+    seed = None if session == 0 else stream_seed(setup.scenario.seed, STREAM_EMULATOR, session)
+    emu = Emulator(setup, speed=cfg.speed, seed=seed, drop=cfg.drop, garble=cfg.garble, nak_crc=cfg.nak_crc,
+                   bad_crc=cfg.bad_crc, partial=cfg.partial, latency_s=cfg.latency_s, beam_loss=cfg.beam_loss,
+                   alarm_at=cfg.alarm_at, disconnect_after=cfg.disconnect_after,
+                   latch_beam_loss=cfg.latch_beam_loss).start()
     closers = [emu.stop]
 
     def refl(counter, j):
@@ -221,7 +372,7 @@ def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, 
         check_role(robot, "ROBOT", robot_port)
         check_role(counter, "COUNTER", counter_port)
         hook = None if set_reflector is None else (lambda j: set_reflector(counter, j))
-        station = make_hardware_station(builder, setup, (robot, counter), hook, name)
+        station = make_hardware_station(builder, setup, (robot, counter), hook, name, policy=cfg.policy)
     except BaseException:
         for c in reversed(closers):
             c()

@@ -15,7 +15,7 @@ Units: mm and degrees (mdeg where the field name says so).
 
 import os
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import List, Union
+from typing import List, Optional, Union
 
 import numpy as np
 
@@ -124,22 +124,51 @@ class Simulated:
 
 
 @dataclass
+class RunPolicy:
+    """What a device station does when a reading or a move fails (``olti run``; docs/runner.md).
+
+    ``rereads``: READs repeated after an invalid one (a transient beam interruption), each after
+    ``reread_delay_s`` seconds. ``rezeros``: then, re-zeroings of the counter at the run's reference
+    pose, each followed by a READ at the pose (a counter that lost its count stays invalid until
+    zeroed; zeroing where the run was zeroed, approached the same way, keeps the dead path of the
+    run). ``approach_overrun_deg``: a re-approach to a pose (after a resume, an alarm or to re-zero)
+    starts this far before it on the side of its approach direction, on J1, J2 and J4 (deg; the
+    plan's overrun), so every axis arrives from the planned side. ``clear_alarms``: controller
+    alarms the station may clear (``ALRM,CLR``) and then re-approach; beyond that the run stops with
+    the alarm codes (an operator should look first).
+    """
+
+    rereads: int = 2
+    reread_delay_s: float = 0.0
+    rezeros: int = 1
+    approach_overrun_deg: float = 2.0
+    clear_alarms: int = 0
+
+
+@dataclass
 class Emulated:
     """The station is the in-process device emulator (docs/emulator.md), driven over its pseudo-terminals.
 
     ``speed``: ``fast`` or ``realistic``; the fault fields are those of
-    :class:`olti_drake.emulator.Faults` (probabilities per frame); ``timeout_s``
-    and ``retries`` are the host transport's (docs/protocol.md).
+    :class:`olti_drake.emulator.Faults`; ``timeout_s`` and ``retries`` are the
+    host transport's (docs/protocol.md); ``policy`` what the station does on
+    beam loss and alarms.
     """
 
     speed: str = "fast"
     drop: float = 0.0
     garble: float = 0.0
     nak_crc: float = 0.0
+    bad_crc: float = 0.0
+    partial: float = 0.0
+    latency_s: float = 0.0
     beam_loss: float = 0.0
+    alarm_at: Optional[int] = None
+    disconnect_after: Optional[int] = None
     latch_beam_loss: bool = False
     timeout_s: float = 1.0
     retries: int = 2
+    policy: RunPolicy = field(default_factory=RunPolicy)
 
 
 @dataclass
@@ -151,6 +180,7 @@ class Hardware:
     baud: int = 115200
     timeout_s: float = 1.0
     retries: int = 2
+    policy: RunPolicy = field(default_factory=RunPolicy)
 
 
 def _paper_reflectors() -> list[list[float]]:
@@ -228,10 +258,15 @@ def _check_station(name, st):
     if isinstance(st, Emulated):
         if st.speed not in ("fast", "realistic"):
             raise InputError(f"{name}.speed must be fast or realistic, got {st.speed!r}")
-        for key in ("drop", "garble", "nak_crc", "beam_loss"):
+        for key in ("drop", "garble", "nak_crc", "bad_crc", "partial", "beam_loss"):
             p = getattr(st, key)
             if not (np.isfinite(p) and 0.0 <= p <= 1.0):
                 raise InputError(f"{name}.{key} must be a probability 0..1, got {p!r}")
+        _nonnegative(f"{name}.latency_s", st.latency_s)
+        for key in ("alarm_at", "disconnect_after"):
+            v = getattr(st, key)
+            if v is not None and v < 1:
+                raise InputError(f"{name}.{key} must be >= 1 (or absent), got {v!r}")
     if isinstance(st, Hardware):
         for key in ("robot_port", "counter_port"):
             if not getattr(st, key):
@@ -242,6 +277,12 @@ def _check_station(name, st):
         _positive(f"{name}.timeout_s", st.timeout_s)
         if st.retries < 0:
             raise InputError(f"{name}.retries must be >= 0, got {st.retries!r}")
+        pol = st.policy
+        for key in ("rereads", "rezeros", "clear_alarms"):
+            if getattr(pol, key) < 0:
+                raise InputError(f"{name}.policy.{key} must be >= 0, got {getattr(pol, key)!r}")
+        _nonnegative(f"{name}.policy.reread_delay_s", pol.reread_delay_s)
+        _positive(f"{name}.policy.approach_overrun_deg", pol.approach_overrun_deg)
 
 
 def _finite(name, v):

@@ -14,7 +14,7 @@ steps to the next plan row (move), and half a period later the
 
 from __future__ import annotations
 
-from typing import List, Optional, Sequence
+from typing import Callable, List, NamedTuple, Optional, Sequence
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -27,6 +27,20 @@ from .interferometer import InterferometerOptions, simulate_readings
 from .steering import beam_command_deg
 
 M_TO_MM = 1e3
+
+
+class ReadStatus(NamedTuple):
+    """How one interferometer reading was obtained (the stations' abstract ``status`` output).
+
+    ``raw``: the counter's raw status, logged and never interpreted (docs/protocol.md READ; the
+    simulated counter uses the emulator's register: ``0000`` good, ``8001`` no beam); ``reads``:
+    READ requests made for this reading (1 + re-reads); ``rezeros``: counter re-zeroings at the
+    run's reference pose made for it (the beam-loss policy, :mod:`olti_drake.hardware`).
+    """
+
+    raw: str = ""
+    reads: int = 0
+    rezeros: int = 0
 
 
 def _deg_mm(values, revolute):
@@ -158,6 +172,11 @@ class LaserInterferometer(LeafSystem):
             {self.all_sources_ticket()})
         for i, name in enumerate(("displacement", "valid", "miss")):
             self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+        self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+    def _calc_status(self, context, value):
+        valid = self._reading.Eval(context)[1] > 0.5
+        value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
 
     def _count(self, context, discrete_state):
         discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
@@ -228,29 +247,37 @@ class CampaignRecorder(LeafSystem):
     """Takes the reading half a period after each move and keeps measured rows.
 
     Inputs ``joint_command`` (4), ``direction`` (4), ``displacement`` (1, m),
-    ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1). Each kept
-    row is (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid,
-    plan row) in mm/deg, appended to :attr:`rows` (a sink, like a file).
+    ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1), and
+    optionally ``status`` (a :class:`ReadStatus`). Each kept row is
+    (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid, plan row)
+    in mm/deg, appended to :attr:`rows` and handed to ``sink(row, status)``
+    if given (``olti run`` writes it to disk there, as it arrives).
     """
 
     COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm",
                "theta4_deg", "valid", "plan_row")
 
-    def __init__(self, period_s: float):
+    def __init__(self, period_s: float, sink: Optional[Callable[[tuple, ReadStatus], None]] = None):
         super().__init__()
         self.rows: List[tuple] = []
+        self.sink = sink
         for name, size in (("joint_command", 4), ("direction", 4), ("displacement", 1), ("valid", 1),
                            ("reflector", 1), ("measure", 1), ("row", 1)):
             self.DeclareVectorInputPort(name, size)
+        self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
         self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
 
     def _record(self, context):
-        u = [self.get_input_port(i).Eval(context) for i in range(self.num_input_ports())]
+        u = [self.get_input_port(i).Eval(context) for i in range(7)]
         cmd, direction, disp, valid, refl, measure, row = u
         if measure[0] < 0.5:
             return
         ok = valid[0] > 0.5
         # A lost beam has no reading: NaN, never a plausible-looking number.
-        self.rows.append((int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
-                          int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
-                          int(ok), int(row[0])))
+        record = (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
+                  int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
+                  int(ok), int(row[0]))
+        self.rows.append(record)
+        if self.sink is not None:
+            status = self._status.Eval(context) if self._status.HasValue(context) else ReadStatus()
+            self.sink(record, status)

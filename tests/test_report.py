@@ -1,0 +1,298 @@
+"""The calibration report (`olti report`) and the ISO 230-2 style statistics (olti_drake.iso230).
+
+One module-scoped fixture identifies the error-map model on the shipped paper campaign
+(data/paper000/campaign.csv, the simulated paper-000 experiment), propagates the 000 Table 2 budget
+linearly (`olti uncertainty`) and writes the full report with campaign and truth. Units: mm and degrees.
+"""
+
+import base64
+import json
+import os
+import re
+import shutil
+import types
+
+import numpy as np
+import pytest
+
+from olti_drake.campaign_io import load_campaign
+from olti_drake.cli import main
+from olti_drake.errormap import ErrorMap
+from olti_drake.identification import IdentificationOptions, identify, parse_grid
+from olti_drake.iso230 import STATISTICS, axis_statistics, map_statistics
+from olti_drake.report import write_report
+from olti_drake.result import load_result, write_result
+from olti_drake.scenario import Robot
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
+TRUTH = os.path.join(ROOT, "data", "paper000", "truth.json")
+PNG = b"\x89PNG\r\n\x1a\n"
+FULL_FIGURES = {"fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png", "fig_residuals.png",
+                "fig_path_x200.png", "fig_error_vectors.png"}
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory):
+    """result.json (error map), unc.json (linear, 000 Table 2) and the full report of the paper campaign."""
+    d = tmp_path_factory.mktemp("report")
+    data = load_campaign(CAMPAIGN)
+    write_result(identify(data, IdentificationOptions(model="errormap")), d / "result.json")
+    assert main(["uncertainty", str(d / "result.json"), CAMPAIGN, "--method", "linear",
+                 "--out", str(d / "unc.json")]) == 0
+    written = write_report(d / "result.json", d / "out", d / "unc.json", CAMPAIGN, TRUTH)
+    return d, written
+
+
+def _html(path):
+    with open(path, encoding="utf-8") as f:
+        return f.read()
+
+
+def _imgs(html_text):
+    return re.findall(r"<img\b[^>]*\bsrc=\"([^\"]*)\"", html_text)
+
+
+def assert_self_contained(html_path, written):
+    """Every <img> is a data: URI holding exactly a written PNG; nothing refers to the network."""
+    text = _html(html_path)
+    srcs = _imgs(text)
+    pngs = [p for p in written if p.endswith(".png")]
+    assert len(srcs) == len(pngs) == text.count("<img")
+    for src, path in zip(srcs, pngs):
+        assert src.startswith("data:image/png;base64,"), src[:40]
+        with open(path, "rb") as f:
+            assert base64.b64decode(src.split(",", 1)[1]) == f.read()
+    assert not re.search(r"https?://", text), "the page refers to the network"
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", text, re.I)
+    assert not re.search(r"url\(", text), "CSS must not load anything"
+
+
+def assert_png_files(written):
+    for p in written:
+        if p.endswith(".png"):
+            assert os.path.getsize(p) > 1000, p
+            with open(p, "rb") as f:
+                assert f.read(8) == PNG, p
+
+
+# -- the page -----------------------------------------------------------------------------------------
+def test_full_report_renders_self_contained_with_every_figure(paper):
+    d, written = paper
+    names = {os.path.basename(p) for p in written}
+    assert FULL_FIGURES <= names and {"report.html", "iso230.json"} <= names
+    assert all(os.path.dirname(p) == str(d / "out") for p in written)
+    assert_png_files(written)
+    html_path = str(d / "out" / "report.html")
+    assert_self_contained(html_path, written)
+    text = _html(html_path)
+    # Header, parameters with u and U (k from the uncertainty file's 'expanded'), ISO table, map method.
+    res = json.load(open(d / "result.json"))
+    unc = json.load(open(d / "unc.json"))
+    assert f"{1e3 * res['residual_rms_mm']:.2f} µm" in text and str(res["n_readings"]) in text
+    assert f"{res['L1_mm']:.4f} mm" in text
+    assert f"{1e3 * unc['L1_mm']:.2f}</td><td>{2e3 * unc['L1_mm']:.2f}" in text
+    assert "U (k = 2)" in text and "reversal value of the axis" in text and "not available" in text.lower()
+    assert "linear propagation (JCGM 100) of the full parameter covariance" in text
+    assert "repeatab" in text  # R named as not available, not invented
+    assert "<dt>date</dt>" not in text  # no wall-clock date unless passed
+
+
+def test_report_is_deterministic_escapes_text_and_prints_a_given_date(paper, tmp_path):
+    d, _ = paper
+    res = json.load(open(d / "result.json"))
+    res["gauge"] = "<script>alert('x')</script> & <b>bold</b>"
+    bad = tmp_path / "result_markup.json"
+    bad.write_text(json.dumps(res))
+    a = write_report(bad, tmp_path / "a", d / "unc.json", date="2024-06-01")
+    b = write_report(bad, tmp_path / "b", d / "unc.json", date="2024-06-01")
+    ha, hb = _html(a[-1]), _html(b[-1])
+    assert ha == hb  # same input, same bytes
+    for pa, pb in zip(a, b):
+        with open(pa, "rb") as fa, open(pb, "rb") as fb:
+            assert fa.read() == fb.read(), pa
+    assert "<script>" not in ha and "<b>bold" not in ha
+    assert "&lt;script&gt;alert(&#x27;x&#x27;)&lt;/script&gt; &amp; &lt;b&gt;bold&lt;/b&gt;" in ha
+    assert "<dt>date</dt><dd>2024-06-01</dd>" in ha
+    # Without the campaign: no covariance, so no map (said so) and independence stated for the ISO u.
+    assert "needs the covariance" in ha and "independence is assumed" in ha
+    assert_self_contained(a[-1], a)
+
+
+# -- ISO 230-2 statistics --------------------------------------------------------------------------------
+def test_iso230_statistics_of_a_hand_built_map():
+    # forward x̄↑ = [1, 3, 2, 6], reverse x̄↓ = [0, 4, -1, 5] mdeg at 0, 10, 20, 30 deg
+    f, r = np.array([1.0, 3.0, 2.0, 6.0]), np.array([0.0, 4.0, -1.0, 5.0])
+    m = ErrorMap([0, 10, 20, 30], 1e-3 * f, 1e-3 * r, axis="J1")
+    s = axis_statistics(m)
+    # B_i = [1, -1, 3, 1]; x̄_i = [0.5, 3.5, 0.5, 5.5]
+    assert 1e3 * s.reversal_deg == pytest.approx([1, -1, 3, 1])
+    assert 1e3 * s.mean_deg == pytest.approx([0.5, 3.5, 0.5, 5.5])
+    assert 1e3 * s.B_deg == pytest.approx(3.0) and s.B_index == 2
+    assert 1e3 * s.B_mean_deg == pytest.approx(1.0)
+    assert 1e3 * s.E_forward_deg == pytest.approx(6 - 1)
+    assert 1e3 * s.E_reverse_deg == pytest.approx(5 - (-1))
+    assert 1e3 * s.E_deg == pytest.approx(6 - (-1))
+    assert 1e3 * s.M_deg == pytest.approx(5.5 - 0.5)
+    assert s.where["E"] == ((3, 1), (2, -1)) and s.where["M"] == (3, 0)
+    # The sign of B is kept: reverse above forward gives a negative reversal value.
+    neg = axis_statistics(ErrorMap([0, 10], [0.0, 0.0], [0.004, 0.002]))
+    assert 1e3 * neg.B_deg == pytest.approx(-4.0) and 1e3 * neg.B_mean_deg == pytest.approx(-3.0)
+    # Differences do not see the J1 gauge constant.
+    shifted = axis_statistics(ErrorMap([0, 10, 20, 30], 1e-3 * (f + 7), 1e-3 * (r + 7)))
+    for name in STATISTICS:
+        assert shifted.value(name) == pytest.approx(s.value(name), abs=1e-15)
+
+
+def test_iso230_uncertainty_propagation_independent_and_correlated():
+    f, r = np.array([1.0, 3.0, 2.0, 6.0]), np.array([0.0, 4.0, -1.0, 5.0])
+    m = ErrorMap([0, 10, 20, 30], 1e-3 * f, 1e-3 * r)
+    uf, ur = 1e-3 * np.array([0.1, 0.2, 0.3, 0.4]), 1e-3 * np.array([0.5, 0.6, 0.7, 0.8])
+    s = axis_statistics(m, std=(uf, ur))
+    assert s.correlated is False
+    assert s.u_reversal_deg == pytest.approx(np.hypot(uf, ur))
+    assert s.u_mean_deg == pytest.approx(0.5 * np.hypot(uf, ur))
+    assert s.u["B"] == pytest.approx(np.hypot(uf[2], ur[2]))  # the arg-max node
+    assert s.u["B_mean"] == pytest.approx(np.sqrt(np.sum(uf ** 2 + ur ** 2)) / 4)
+    assert s.u["E_forward"] == pytest.approx(np.hypot(uf[3], uf[0]))
+    assert s.u["E"] == pytest.approx(np.hypot(uf[3], ur[2]))
+    assert s.u["M"] == pytest.approx(0.5 * np.sqrt(uf[3] ** 2 + ur[3] ** 2 + uf[0] ** 2 + ur[0] ** 2))
+    # Correlation rho between x̄↑_i and x̄↓_i: u(B_i)² = u↑² + u↓² − 2 rho u↑ u↓, u(x̄_i)² = (... + 2 rho ...)/4.
+    rho = 0.8
+    C = np.diag(np.concatenate([uf, ur]) ** 2)
+    C[np.arange(4), 4 + np.arange(4)] = C[4 + np.arange(4), np.arange(4)] = rho * uf * ur
+    c = axis_statistics(m, cov=C)
+    assert c.correlated is True
+    assert c.u_reversal_deg == pytest.approx(np.sqrt(uf ** 2 + ur ** 2 - 2 * rho * uf * ur))
+    assert c.u_mean_deg == pytest.approx(0.5 * np.sqrt(uf ** 2 + ur ** 2 + 2 * rho * uf * ur))
+    assert c.u["B_mean"] == pytest.approx(np.sqrt(np.sum(uf ** 2 + ur ** 2 - 2 * rho * uf * ur)) / 4)
+    # The runner-up of B (|B_i| = 3 vs 1) is far beyond 2u: not ambiguous; a near tie is.
+    assert c.ambiguous["B"] is False
+    tie = axis_statistics(ErrorMap([0, 10], [0.0, 0.0], [-0.0030, -0.00299]), std=np.full(4, 1e-4))
+    assert tie.ambiguous["B"] is True
+    with pytest.raises(ValueError, match="8 values"):
+        axis_statistics(m, std=np.ones(3))
+
+
+def test_iso230_of_the_identified_paper_map_matches_the_truth_within_uncertainty(paper):
+    d, _ = paper
+    iso = json.load(open(d / "out" / "iso230.json"))["axes"]
+    truth = json.load(open(TRUTH))
+    robot = Robot()  # the paper truth (scenario defaults): backlash b + b'·θ* on J1, b on J2
+    for axis, dev in (("J1", robot.J1), ("J2", robot.J2)):
+        t = axis_statistics(ErrorMap.from_dict(truth["error_map"][axis], axis))
+        g = t.positions_deg
+        b_true = 1e-3 * (dev.backlash_mdeg + dev.backlash_slope_mdeg_per_deg * g)  # forward − reverse, deg
+        assert t.reversal_deg == pytest.approx(b_true, abs=1e-12)
+        a = iso[axis]
+        assert a["nodes"]["positions_deg"] == pytest.approx(g)
+        assert a["correlated"] is True  # the campaign gave the node correlations
+        for name in ("B", "B_mean", "E", "M"):
+            est, u = a[f"{name}_deg"], a["u_deg"][name]
+            assert 0 < u < 3e-3, (axis, name, u)  # a few mdeg at most: a real uncertainty, not a placeholder
+            assert abs(est - t.value(name)) < 3 * u, (axis, name, est, t.value(name), u)
+        # The identified backlash is the truth's: B̄ within 3u and B of the same sign and size.
+        assert a["B_mean_deg"] == pytest.approx(np.mean(b_true), abs=3 * a["u_deg"]["B_mean"])
+        assert np.sign(a["B_deg"]) == np.sign(t.B_deg)
+        # Correlations matter: forward and reverse move together, so u(B̄) is below the independent value.
+        u_ind = np.sqrt(np.sum(np.square(a["nodes"]["u_forward_deg"]) + np.square(a["nodes"]["u_reverse_deg"])))
+        assert a["u_deg"]["B_mean"] < 0.8 * u_ind / len(g)
+
+
+def test_map_statistics_of_a_result_and_refusal_of_a_dh_model(paper):
+    d, _ = paper
+    model = load_result(d / "result.json")[0]
+    stats = map_statistics(model)
+    assert set(stats) == {"J1", "J2"} and not stats["J1"].u
+    assert stats["J2"].forward_deg == pytest.approx(model.map2.forward_deg)
+    with pytest.raises(ValueError, match="error-map"):
+        map_statistics(types.SimpleNamespace(is_errormap=False))
+
+
+# -- command line: bad input -------------------------------------------------------------------------------
+def _one_line_error(capsys, argv, *needles):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    for n in needles:
+        assert n in err, (n, err)
+
+
+def test_cli_bad_input_is_one_line_and_writes_nothing(paper, tmp_path, capsys):
+    d, _ = paper
+    # An uncertainty file of another result: the same model on a coarser J1 grid (6 nodes, not 11).
+    data = load_campaign(CAMPAIGN)
+    coarse = identify(data, IdentificationOptions(model="errormap", grid1_deg=parse_grid("-140:60:40", "g")))
+    write_result(coarse, tmp_path / "coarse.json")
+    out = tmp_path / "out"
+    _one_line_error(capsys, ["report", str(tmp_path / "coarse.json"), str(d / "unc.json"), "--out", str(out)],
+                    "does not match", "error_map.J1.forward_deg")
+    dh = identify(data, IdentificationOptions(model="dh"))
+    write_result(dh, tmp_path / "dh.json")
+    _one_line_error(capsys, ["report", str(tmp_path / "dh.json"), str(d / "unc.json"), "--out", str(out)],
+                    "does not match", "theta20_deg")
+    _one_line_error(capsys, ["report", str(d / "result.json"), TRUTH, "--out", str(out)],
+                    "'format' must be 'olti-uncertainty/1'")
+    _one_line_error(capsys, ["report", str(d / "unc.json"), "--out", str(out)], "'format' must be")
+    _one_line_error(capsys, ["report", str(tmp_path / "missing.json"), "--out", str(out)], "missing.json")
+    _one_line_error(capsys, ["report", str(d / "result.json"), "--out", str(out), "--campaign",
+                             str(tmp_path / "nope.csv")], "nope.csv")
+    assert not out.exists()
+    # Never overwrite an input: a result called report.html in the output directory.
+    shutil.copy(d / "result.json", tmp_path / "report.html")
+    before = (tmp_path / "report.html").read_bytes()
+    _one_line_error(capsys, ["report", str(tmp_path / "report.html"), "--out", str(tmp_path)],
+                    "overwrite an input")
+    assert (tmp_path / "report.html").read_bytes() == before
+    assert not (tmp_path / "fig_maps.png").exists()
+
+
+def test_cli_dh_report_with_campaign_and_truth(paper, tmp_path, capsys):
+    d, _ = paper
+    write_result(identify(load_campaign(CAMPAIGN), IdentificationOptions(model="dh")), tmp_path / "dh.json")
+    assert main(["report", str(tmp_path / "dh.json"), "--out", str(tmp_path / "r"), "--campaign", CAMPAIGN,
+                 "--truth", TRUTH]) == 0
+    printed = capsys.readouterr().out
+    written = [l[len("wrote "):] for l in printed.splitlines() if l.startswith("wrote ")]
+    names = {os.path.basename(p) for p in written}
+    assert names == {"fig_residuals.png", "fig_path_x200.png", "fig_error_vectors.png", "report.html"}
+    assert_png_files(written)
+    assert_self_contained(written[-1], written)
+    text = _html(written[-1])
+    assert "θ20" in text and "ISO 230-2 style" not in text  # no map, no ISO table
+    # The validation table: the error map (identified from the campaign) beats the D-H model (000 §4.3).
+    rms = re.findall(r"<td class=\"l\">grid paths</td><td class=\"l\">(D-H|error map)</td><td>\d+</td>"
+                     r"<td>([\d.]+)</td>", text)
+    got = {m: float(v) for m, v in rms}
+    assert set(got) == {"D-H", "error map"} and got["error map"] < 0.5 * got["D-H"]
+
+
+# -- machine tool (001) ------------------------------------------------------------------------------------
+def test_multilateration_report_renders_targets_and_uncertainties(paper, tmp_path, capsys):
+    from olti_drake.machine import MachineScenario, simulate_machine_campaign, write_machine_campaign
+
+    cols, _ = simulate_machine_campaign(MachineScenario())
+    write_machine_campaign(cols, tmp_path / "m.csv")
+    assert main(["multilaterate", str(tmp_path / "m.csv"), "--out", str(tmp_path / "ml.json")]) == 0
+    assert main(["uncertainty", str(tmp_path / "ml.json"), str(tmp_path / "m.csv"), "--method", "linear",
+                 "--out", str(tmp_path / "mu.json")]) == 0
+    capsys.readouterr()
+    written = write_report(tmp_path / "ml.json", tmp_path / "r", tmp_path / "mu.json", tmp_path / "m.csv")
+    names = {os.path.basename(p) for p in written}
+    assert names == {"fig_targets.png", "fig_target_uncertainty.png", "fig_residuals.png", "report.html"}
+    assert_png_files(written)
+    assert_self_contained(written[-1], written)
+    text = _html(written[-1])
+    res, unc = json.load(open(tmp_path / "ml.json")), json.load(open(tmp_path / "mu.json"))
+    T, c, u = np.array(res["targets_mm"]), np.array(res["commands_mm"]), np.array(unc["targets_mm"])
+    dev = 1e3 * np.hypot(*(T - c).T)
+    U = 2e3 * np.hypot(*u.T)
+    assert f"Deviation from the commands: max {dev.max():.2f} µm, mean {dev.mean():.2f} µm" in text
+    assert f"max {U.max():.2f} µm" in text
+    assert text.count("<tr>") >= len(T) + len(res["stations_mm"]) + 2  # every target and station has a row
+    assert "ISO 230-2 statistics are given for the SCARA error map only" in text
+    # An uncertainty file of a SCARA result does not fit; --truth is for SCARA only.
+    _one_line_error(capsys, ["report", str(tmp_path / "ml.json"), str(paper[0] / "unc.json"), "--out",
+                             str(tmp_path / "x")], "does not match", "targets_mm")
+    _one_line_error(capsys, ["report", str(tmp_path / "ml.json"), "--out", str(tmp_path / "x"), "--truth", TRUTH],
+                    "SCARA")

@@ -1,0 +1,251 @@
+"""``olti run``: readings on disk as they arrive, resume without loss or duplicates, retry policies.
+
+Campaigns run through the emulator's real pseudo-terminals with pyserial. Noise-free scenarios
+make every reading reproducible, so a resumed campaign is compared with an uninterrupted one
+reading by reading: a wrong approach direction or counter zero after a resume would show.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from olti_drake.csvio import InputError, read_table
+
+PLANNED = 1056
+COLS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "valid", "step", "session",
+        "reads", "rezeros")
+
+
+def _scenario(tmp_path, name="scenario.yaml", station="!Emulated {}", noise=False, seed=0):
+    """The paper scenario (defaults) with exact steering, optionally without noise, on ``station``."""
+    interferometer = "" if noise else "interferometer: {noise: false}\n"
+    text = f"reflector_estimate: !ExactEstimate {{}}\n{interferometer}seed: {seed}\nstation: {station}\n"
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+def _table(out_dir):
+    return read_table(os.path.join(out_dir, "campaign.csv"), COLS)
+
+
+def _run(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "olti_drake.cli", "run", *args], capture_output=True,
+                          text=True, timeout=300, **kw)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The uninterrupted noise-free emulated campaign (in process)."""
+    from olti_drake.runner import run
+
+    tmp = tmp_path_factory.mktemp("reference")
+    out = str(tmp / "run")
+    summary = run(_scenario(tmp), out)
+    assert summary.complete and summary.taken == summary.on_disk == PLANNED
+    return _table(out)
+
+
+def _assert_same_campaign(t, ref):
+    """Exactly the plan's readings, once each, in plan order, equal to the uninterrupted campaign's."""
+    assert len(t["step"]) == PLANNED
+    assert np.array_equal(np.sort(t["step"]), ref["step"]) and np.all(np.diff(t["step"]) > 0)
+    for c in ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "valid"):
+        assert np.array_equal(t[c], ref[c]), c
+    ok = ref["valid"] == 1
+    assert np.all(np.isnan(t["displacement_mm"][~ok]))
+    np.testing.assert_allclose(t["displacement_mm"][ok], ref["displacement_mm"][ok], rtol=0, atol=1e-9)
+
+
+def _lines(path):
+    try:
+        with open(path, "rb") as f:
+            return f.read().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+def test_sigkill_at_random_points_then_resume_loses_and_duplicates_nothing(tmp_path, reference):
+    scenario, out = _scenario(tmp_path), str(tmp_path / "run")
+    csv = os.path.join(out, "campaign.csv")
+    header = 3
+    kills = np.sort(np.random.default_rng(7).choice(np.arange(40, PLANNED - 40), 3, replace=False))
+    on_disk = []
+    for k, target in enumerate(kills):
+        p = subprocess.Popen([sys.executable, "-m", "olti_drake.cli", "run", scenario, "--out", out]
+                             + (["--resume"] if k else []), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 120
+        while _lines(csv) - header < target and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.001)
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        assert p.returncode == -signal.SIGKILL, "the run ended before it could be killed"
+        on_disk.append(_lines(csv) - header)
+    assert on_disk == sorted(on_disk) and on_disk[-1] < PLANNED
+    done = _run(scenario, "--out", out, "--resume")
+    assert done.returncode == 0, done.stderr
+    assert f"{PLANNED} of {PLANNED} planned readings" in done.stdout
+    t = _table(out)
+    _assert_same_campaign(t, reference)
+    assert set(np.unique(t["session"])) == {0, 1, 2, 3}
+    events = [json.loads(line) for line in open(os.path.join(out, "events.jsonl"))]
+    assert sum(e["kind"] == "reapproach" for e in events) == 3   # once per resumed session
+    manifest = json.load(open(os.path.join(out, "run.json")))
+    assert manifest["complete"] and len(manifest["sessions"]) == 4
+    again = _run(scenario, "--out", out, "--resume")
+    assert again.returncode == 0 and "already complete" in again.stdout
+
+
+def test_ctrl_c_stops_after_the_reading_in_progress_and_resume_completes(tmp_path, reference):
+    scenario, out = _scenario(tmp_path), str(tmp_path / "run")
+    csv = os.path.join(out, "campaign.csv")
+    p = subprocess.Popen([sys.executable, "-m", "olti_drake.cli", "run", scenario, "--out", out],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    while _lines(csv) < 300 and p.poll() is None:
+        time.sleep(0.001)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert "interrupted by SIGINT" in err and "--resume" in err and "Traceback" not in err
+    assert open(csv, "rb").read().endswith(b"\n")  # stopped between readings, not in one
+    assert _run(scenario, "--out", out, "--resume").returncode == 0
+    _assert_same_campaign(_table(out), reference)
+
+
+def test_disconnect_is_a_one_line_error_and_resume_on_a_fixed_line_completes(tmp_path, reference):
+    out = str(tmp_path / "run")
+    broken = _scenario(tmp_path, station="!Emulated {disconnect_after: 1500, timeout_s: 0.2, retries: 1}")
+    r = _run(broken, "--out", out)
+    assert r.returncode == 3
+    err = r.stderr.strip()
+    assert err.startswith("error: station:") and "\n" not in err and "--resume" in err
+    assert "LinkLost" in err or "TimeoutError" in err
+    n = len(_table(out)["step"])
+    assert 0 < n < PLANNED
+    fixed = _scenario(tmp_path, station="!Emulated {}")   # same file name: the cable was replaced
+    assert fixed == broken
+    assert _run(fixed, "--out", out, "--resume").returncode == 0
+    _assert_same_campaign(_table(out), reference)
+
+
+def test_beam_loss_is_reread_and_a_lost_count_rezeroed_at_the_reference_pose(tmp_path, reference):
+    from olti_drake.runner import run
+
+    # Injected interruptions, counter that keeps counting: re-reads recover every reading.
+    out = str(tmp_path / "transient")
+    run(_scenario(tmp_path, "a.yaml", "!Emulated {beam_loss: 0.05}"), out)
+    t = _table(out)
+    _assert_same_campaign(t, reference)
+    assert np.sum(t["reads"] > 1) > 20 and np.all(t["rezeros"] == 0)
+
+    # A counter that loses its count: re-reading cannot help; zeroing again where the run was
+    # zeroed, approached the same way, restores the run's dead path exactly.
+    out = str(tmp_path / "latched")
+    run(_scenario(tmp_path, "b.yaml", "!Emulated {beam_loss: 0.02, latch_beam_loss: true, policy: {rezeros: 3}}"), out)
+    t = _table(out)
+    _assert_same_campaign(t, reference)
+    assert np.sum(t["rezeros"] > 0) > 5
+
+    # Without a policy the lost readings are kept, flagged, and nothing made up.
+    out = str(tmp_path / "none")
+    run(_scenario(tmp_path, "c.yaml", "!Emulated {beam_loss: 0.05, policy: {rereads: 0, rezeros: 0}}"), out)
+    t = _table(out)
+    lost = (t["valid"] == 0) & (reference["valid"] == 1)
+    assert len(t["step"]) == PLANNED and lost.sum() > 20
+    assert np.all(np.isnan(t["displacement_mm"][t["valid"] == 0]))
+    ok = t["valid"] == 1
+    np.testing.assert_allclose(t["displacement_mm"][ok], reference["displacement_mm"][ok], rtol=0, atol=1e-9)
+
+
+def test_alarm_is_cleared_per_policy_and_the_pose_reapproached(tmp_path, reference):
+    from olti_drake.hardware import StationError
+    from olti_drake.runner import run
+
+    out = str(tmp_path / "cleared")
+    run(_scenario(tmp_path, "a.yaml", "!Emulated {alarm_at: 500, policy: {clear_alarms: 1}}"), out)
+    _assert_same_campaign(_table(out), reference)
+    kinds = [json.loads(line)["kind"] for line in open(os.path.join(out, "events.jsonl"))]
+    assert kinds.count("alarm") == 1 and kinds.count("alarm_cleared") == 1
+
+    out = str(tmp_path / "stopped")
+    with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at MOVJ.*then resume"):
+        run(_scenario(tmp_path, "b.yaml", "!Emulated {alarm_at: 500}"), out)
+    assert 0 < len(_table(out)["step"]) < PLANNED
+    run(_scenario(tmp_path, "b.yaml", "!Emulated {}"), out, resume=True)
+    _assert_same_campaign(_table(out), reference)
+
+
+def test_simulated_run_resumed_in_process_equals_the_uninterrupted_one(tmp_path):
+    """The simulated station resumes too (joint directions, laser noise stream), noise on."""
+    from olti_drake.runner import run
+
+    scenario = _scenario(tmp_path, station="!Simulated {}", noise=True)
+    whole = str(tmp_path / "whole")
+    run(scenario, whole)
+
+    class Stop(Exception):
+        pass
+
+    def stop_at(n):
+        def progress(done, planned):
+            if done >= n:
+                raise Stop
+        return progress
+
+    out = str(tmp_path / "parts")
+    for k, n in enumerate((100, 500)):
+        with pytest.raises(Stop):
+            run(scenario, out, resume=bool(k), progress=stop_at(n))
+    run(scenario, out, resume=True)
+    a, b = _table(out), _table(whole)
+    assert np.array_equal(a["step"], b["step"])
+    np.testing.assert_array_equal(a["displacement_mm"], b["displacement_mm"])
+    assert set(np.unique(a["session"])) == {0, 1, 2}
+
+
+def test_a_cut_last_line_is_dropped_and_taken_again(tmp_path):
+    from olti_drake.runner import run
+
+    scenario = _scenario(tmp_path, station="!Simulated {}")
+    whole, out = str(tmp_path / "whole"), str(tmp_path / "cut")
+    run(scenario, whole)
+    text = open(os.path.join(whole, "campaign.csv"), encoding="utf-8").read()
+    lines = text.splitlines(keepends=True)
+    os.makedirs(out)
+    for name in ("run.json", "events.jsonl"):
+        with open(os.path.join(whole, name), encoding="utf-8") as f:
+            open(os.path.join(out, name), "w", encoding="utf-8").write(f.read())
+    # 400 readings on disk and half of the 401st, as a kill in the middle of a write leaves it.
+    open(os.path.join(out, "campaign.csv"), "w", encoding="utf-8").write(
+        "".join(lines[:403]) + lines[403][:25])
+    run(scenario, out, resume=True)
+    a, b = _table(out), _table(whole)
+    assert np.array_equal(a["step"], b["step"])
+    np.testing.assert_array_equal(a["displacement_mm"], b["displacement_mm"])
+    events = [json.loads(line) for line in open(os.path.join(out, "events.jsonl"))]
+    assert any(e["kind"] == "dropped_partial_line" and e["text"] == lines[403][:25] for e in events)
+
+
+def test_bad_starts_and_resumes_are_one_line_errors(tmp_path):
+    from olti_drake.runner import run
+
+    scenario, out = _scenario(tmp_path, station="!Simulated {}"), str(tmp_path / "run")
+    with pytest.raises(InputError, match=r"run\.json: no campaign to resume"):
+        run(scenario, out, resume=True)
+    run(scenario, out)
+    r = _run(scenario, "--out", out)
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "exists: continue that campaign with --resume" \
+        in r.stderr and r.stderr.count("\n") == 1
+    other_plan = tmp_path / "other_plan.yaml"
+    other_plan.write_text(open(scenario).read() + "plan: !BidirectionalGrid {theta1_step: 40.0}\n")
+    with pytest.raises(InputError, match=r"command sequence differs"):
+        run(str(other_plan), out, resume=True)
+    emulated = _scenario(tmp_path, "emu.yaml", station="!Emulated {}")
+    with pytest.raises(InputError, match=r"ran on a simulated station.*emulated"):
+        run(emulated, out, resume=True)
