@@ -79,8 +79,8 @@ def _summary(setup, campaign, elapsed_s: float) -> str:
     return "\n".join(lines)
 
 
-def cmd_simulate(args) -> int:
-    t0 = time.perf_counter()
+def _meshcat_view(args):
+    """(extend, realtime rate) of the --meshcat options: the live view's systems, or none."""
     extend, rate = None, args.realtime_rate
     if rate is not None and not rate >= 0:
         raise ValueError(f"--realtime-rate must be >= 0, got {rate}")
@@ -90,7 +90,23 @@ def cmd_simulate(args) -> int:
         meshcat = start_meshcat(args.meshcat_port)
         print(f"meshcat: live view at {meshcat.web_url()}", flush=True)
         extend, rate = campaign_view(meshcat, error_scale=args.error_scale), 20.0 if rate is None else rate
-    setup, campaign, paths = _simulate(args.scenario, args.out, args.seed, extend=extend, realtime_rate=rate or 0.0)
+    return extend, rate or 0.0
+
+
+def _add_meshcat_options(p):
+    p.add_argument("--meshcat", action="store_true",
+                   help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
+    p.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: first free from 7000)")
+    p.add_argument("--realtime-rate", type=float, default=None,
+                   help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
+    p.add_argument("--error-scale", type=float, default=500.0,
+                   help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
+
+
+def cmd_simulate(args) -> int:
+    t0 = time.perf_counter()
+    extend, rate = _meshcat_view(args)
+    setup, campaign, paths = _simulate(args.scenario, args.out, args.seed, extend=extend, realtime_rate=rate)
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
     if args.meshcat and sys.stdin.isatty():
@@ -644,7 +660,9 @@ def cmd_run(args) -> int:
             sys.stderr.flush()
 
     try:
-        s = run(args.scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress)
+        extend, rate = _meshcat_view(args)
+        s = run(args.scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress,
+                extend=extend, realtime_rate=rate)
     except RunInterrupted as e:
         print(f"{nl}error: {e}; continue with: {resume_hint}", file=sys.stderr)
         return 130
@@ -684,13 +702,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
-    p.add_argument("--meshcat", action="store_true",
-                   help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
-    p.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: first free from 7000)")
-    p.add_argument("--realtime-rate", type=float, default=None,
-                   help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
-    p.add_argument("--error-scale", type=float, default=500.0,
-                   help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
+    _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
@@ -851,6 +863,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue the interrupted campaign in --out")
     p.add_argument("--no-fsync", action="store_true",
                    help="flush each reading to the OS but skip fsync (faster; a power cut may lose the last ones)")
+    _add_meshcat_options(p)
     p.set_defaults(func=cmd_run)
     return parser
 

@@ -1,22 +1,25 @@
-"""The station as real devices: the robot controller and the counter over the serial protocol.
+"""The station as real devices: a robot controller and an interferometer counter behind drivers.
 
 :class:`HardwareStation` is a ``LeafSystem`` with the ports of the simulated
 station (``campaign.make_station``) -- inputs ``joint_command`` (4: θ1*, θ2*
 rad, J3 m, θ4* rad) and ``reflector`` (1); outputs ``displacement`` (1, m),
 ``valid`` (1), ``miss`` (1, m: unknown on real devices, always NaN),
-``direction`` (4, ±1) and ``position`` (4: the encoder angles from ``POSJ``,
-rad/m) -- but it moves a real robot (or the emulator, docs/emulator.md) and
-reads a real counter through two :class:`~olti_drake.protocol.Transport` s.
+``status`` (a :class:`~olti_drake.systems.ReadStatus`), ``direction`` (4, ±1)
+and ``position`` (4: the encoder angles, rad/m) -- but it moves a real robot
+(or the emulator, docs/emulator.md) and reads a real counter through two
+drivers (:mod:`olti_drake.drivers`; the olti serial protocol by default).
 
 Timing: one unrestricted update per period at ``period_s / 4``, i.e. after
 the sequencer's step at k·T and before the recorder's reading at k·T + T/2.
-The update moves (``MOVJ``, ``WAIT``) if the command changed, sets up the
-reflector (``REFL,<j>`` on the emulator, an operator prompt on hardware) and
-zeroes the counter (``ZERO``; retried at the next rows while the counter
-answers ``NAK,BEAM``) if the reflector changed, then ``READ`` and
-``POSJ``; the outputs are the stored results. A lost beam is ``valid`` 0 and
-``displacement`` NaN, never a made-up value. A protocol failure raises
-:class:`StationError` naming the command.
+The update moves and waits in position if the command changed (re-approaching
+it from the planned sides after a resume or an alarm), sets up the reflector
+(``REFL,<j>`` on the emulator, an operator prompt on hardware) and zeroes the
+counter if the reflector changed (retried at the next rows while there is no
+beam; the pose where it succeeds is the run's reference pose), then reads the
+counter -- with the policy's re-reads and re-zeroings at the reference pose
+(:class:`~olti_drake.scenario.RunPolicy`) -- and the encoders. A lost beam is
+``valid`` 0 and ``displacement`` NaN, never a made-up value. A device failure
+raises :class:`StationError` naming the operation.
 """
 
 from __future__ import annotations
@@ -30,8 +33,8 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 
 from .csvio import InputError
 from .errormap import approach_directions
-from .protocol import (NakError, ProtocolError, decode_alarms, decode_pong, decode_position, decode_reading,
-                       expect_ack, movj_fields, wait_fields)
+from .drivers import AlarmActive, DriverError
+from .protocol import ProtocolError, expect_ack, movj_fields
 from .systems import ReadStatus
 
 M_TO_MM = 1e3
@@ -58,7 +61,8 @@ def console_prompt(j: int) -> None:
 class HardwareStation(LeafSystem):
     """The robot and its counter behind the serial protocol, with the simulated station's ports.
 
-    ``robot``, ``counter``: :class:`~olti_drake.protocol.Transport` s.
+    ``robot``, ``counter``: a :class:`~olti_drake.drivers.RobotDriver` and a
+    :class:`~olti_drake.drivers.CounterDriver`.
     ``set_reflector(j)``: sets up reflector position ``j`` (the emulator's
     ``REFL``, or an operator prompt); it returns once done. ``period_s``:
     the campaign clock (the update runs at ``period_s / 4`` in each period).
@@ -110,47 +114,31 @@ class HardwareStation(LeafSystem):
         x[_LAST], x[_DIRS], x[_REAPPROACH] = last_command, last_directions, 1.0
         context.get_mutable_discrete_state_vector().SetFromVector(x)
 
-    def _request(self, transport, what: str, verb: str, *fields: str, **kw):
+    def _do(self, what: str, call, *args):
+        """One driver call; a device failure becomes a StationError naming the operation."""
         try:
-            return transport.request(verb, *fields, **kw)
-        except ProtocolError as e:
-            raise StationError(f"station: {what} {verb}{',' if fields else ''}{','.join(fields)} failed: "
-                               f"{type(e).__name__}: {e}") from None
-
-    def _call(self, what: str, verb: str, decode, transport, *fields: str, **kw):
-        frame = self._request(transport, what, verb, *fields, **kw)
-        try:
-            return decode(frame)
-        except ProtocolError as e:
-            raise StationError(f"station: {what} {verb}: bad reply: {type(e).__name__}: {e}") from None
-
-    # ---------------------------------------------------------------- motion
+            return call(*args)
+        except (ProtocolError, DriverError) as e:
+            if isinstance(e, AlarmActive):
+                raise
+            raise StationError(f"station: {what} failed: {type(e).__name__}: {e}") from None
 
     def _movj_wait(self, cmd) -> None:
-        """MOVJ + WAIT; an alarm is read back, and cleared per the policy or reported."""
-        try:
-            expect_ack(self.robot.request("MOVJ", *movj_fields(*cmd)))
-            expect_ack(self.robot.request("WAIT", *wait_fields(self.wait_ms),
-                                          timeout_s=self.wait_ms / 1000.0 + self.robot.timeout_s))
-        except NakError as e:
-            if e.code != "ALARM":
-                raise StationError(f"station: robot MOVJ,{','.join(movj_fields(*cmd))} failed: NakError: {e}") \
-                    from None
-            raise _Alarm() from None
-        except ProtocolError as e:
-            raise StationError(f"station: robot MOVJ,{','.join(movj_fields(*cmd))} failed: "
-                               f"{type(e).__name__}: {e}") from None
+        """Move and wait in position; an alarm becomes :class:`AlarmActive` (handled by ``_move``)."""
+        what = f"robot move to {_joints_text(cmd)}"
+        self._do(what, self.robot.move, cmd)
+        self._do(what + " (wait in position)", self.robot.wait, self.wait_ms)
 
     def _handle_alarm(self, cmd) -> None:
-        codes = self._call("robot", "ALRM", decode_alarms, self.robot)
+        codes = self._do("robot alarm report", self.robot.alarms)
         self.on_event("alarm", codes=list(codes), command=list(cmd))
         if self._alarms_cleared >= self.policy.clear_alarms:
-            raise StationError(f"station: controller alarm {' '.join(codes) or '(no code)'} at "
-                               f"MOVJ,{','.join(movj_fields(*cmd))}; the policy clears at most "
-                               f"{self.policy.clear_alarms}: remove the cause, clear it, then resume")
-        left = self._call("robot", "ALRM", decode_alarms, self.robot, "CLR")
+            raise StationError(f"station: controller alarm {' '.join(codes) or '(no code)'} at the move to "
+                               f"{_joints_text(cmd)}; the policy clears at most {self.policy.clear_alarms}: "
+                               f"remove the cause, clear it, then resume")
+        left = self._do("robot alarm clear", self.robot.alarms, True)
         if left:
-            raise StationError(f"station: controller alarm {' '.join(left)} cannot be cleared (ALRM,CLR)")
+            raise StationError(f"station: controller alarm {' '.join(left)} cannot be cleared")
         self._alarms_cleared += 1
         self.on_event("alarm_cleared", codes=list(codes))
 
@@ -167,22 +155,16 @@ class HardwareStation(LeafSystem):
                     self._movj_wait(before)
                 self._movj_wait(cmd)
                 return
-            except _Alarm:
+            except AlarmActive:
                 self._handle_alarm(cmd)
                 approach = True
 
     # ---------------------------------------------------------------- counter
 
     def _zero(self, x) -> bool:
-        """ZERO at the current pose; False while the counter has no beam (NAK BEAM)."""
-        try:
-            expect_ack(self.counter.request("ZERO"))
-        except NakError as e:
-            if e.code == "BEAM":
-                return False
-            raise StationError(f"station: counter ZERO failed: NakError: {e}") from None
-        except ProtocolError as e:
-            raise StationError(f"station: counter ZERO failed: {type(e).__name__}: {e}") from None
+        """Zero the counter at the current pose; False while it has no beam."""
+        if not self._do("counter zero", self.counter.zero):
+            return False
         x[_ZEROED] = 1.0
         return True
 
@@ -200,13 +182,13 @@ class HardwareStation(LeafSystem):
         """READ with the policy's re-reads and re-zeroings; returns (reading, ReadStatus)."""
         reads = rezeros = 0
         if x[_ZEROED] < 0.5:   # no zero yet (no beam at this run's poses so far): nothing to retry
-            reading = self._call("counter", "READ", decode_reading, self.counter)
+            reading = self._do("counter read", self.counter.read)
             return reading, ReadStatus(reading.status, 1, 0)
         while True:
             for _ in range(1 + self.policy.rereads):
                 if reads and self.policy.reread_delay_s > 0:
                     time.sleep(self.policy.reread_delay_s)
-                reading = self._call("counter", "READ", decode_reading, self.counter)
+                reading = self._do("counter read", self.counter.read)
                 reads += 1
                 if reading.valid:
                     return reading, ReadStatus(reading.status, reads, rezeros)
@@ -236,7 +218,7 @@ class HardwareStation(LeafSystem):
         if j != int(x[_REFLECTOR]):
             try:
                 self.set_reflector(j)
-            except ProtocolError as e:
+            except (ProtocolError, DriverError) as e:
                 raise StationError(f"station: setting up reflector {j} failed: {type(e).__name__}: {e}") from None
             x[_REFLECTOR], x[_ZEROED] = j, 0.0
             known = self.zero_poses.get(j)
@@ -253,7 +235,7 @@ class HardwareStation(LeafSystem):
         reading, status = self._read(x, j)
         x[_DISP] = reading.displacement_mm / M_TO_MM if reading.valid else np.nan
         x[_VALID] = 1.0 if reading.valid else 0.0
-        enc = self._call("robot", "POSJ", decode_position, self.robot).encoder
+        enc = self._do("robot position", self.robot.position).encoder
         q = np.array([enc.theta1_deg, enc.theta2_deg, enc.z_mm, enc.theta4_deg])
         x[_ENCODER] = np.where(REVOLUTE, np.radians(q), q / M_TO_MM)
         state.get_mutable_discrete_state().set_value(x)
@@ -268,8 +250,8 @@ class HardwareStation(LeafSystem):
                 pass
 
 
-class _Alarm(Exception):
-    """A move refused or stopped by a controller alarm (handled by HardwareStation._move)."""
+def _joints_text(cmd) -> str:
+    return "(" + ", ".join(f"{v:.6f}" for v in cmd) + ") deg/mm"
 
 
 # The station's discrete state: last command sent (4, deg/mm; NaN = none), directions (4), reflector
@@ -285,21 +267,9 @@ def _initial_state() -> np.ndarray:
                            np.full(8, np.nan), [0.0]])
 
 
-def check_role(transport, role: str, port: str = "") -> str:
-    """PING the device and check its role (``ROBOT``/``COUNTER``); returns its model."""
-    where = f" on {port}" if port else ""
-    try:
-        pong = decode_pong(transport.request("PING"))
-    except ProtocolError as e:
-        raise StationError(f"station: {role.lower()} PING{where} failed: {type(e).__name__}: {e}") from None
-    if pong.role != role:
-        raise StationError(f"station: the device{where} is a {pong.role} ({pong.model}), expected the {role}")
-    return pong.model
-
-
-def make_hardware_station(builder, setup, transports, set_reflector=None, name: str = "station", policy=None):
-    """Add a :class:`HardwareStation` on ``transports`` = (robot, counter) to ``builder``; returns it."""
-    robot, counter = transports
+def make_hardware_station(builder, setup, devices, set_reflector=None, name: str = "station", policy=None):
+    """Add a :class:`HardwareStation` on ``devices`` = (robot, counter) drivers to ``builder``; returns it."""
+    robot, counter = devices
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
                                                            set_reflector, policy=policy))
     return station
@@ -314,17 +284,6 @@ def open_serial(port: str, baud: int, what: str):
     except (OSError, ValueError) as e:  # SerialException is an OSError
         detail = " ".join(str(e).split())
         raise InputError(f"station: cannot open the {what} port {port}: {detail}") from None
-
-
-def _transports(station_cfg, robot_port, counter_port, baud, closers):
-    from .protocol import Transport
-
-    out = []
-    for port, what in ((robot_port, "robot"), (counter_port, "counter")):
-        s = open_serial(port, baud, what)
-        closers.append(s.close)
-        out.append(Transport(s, timeout_s=station_cfg.timeout_s, retries=station_cfg.retries))
-    return out
 
 
 #: Noise stream of an emulator started for a resumed session (campaign.stream_seed).
@@ -348,7 +307,7 @@ def make_emulated_station(builder, setup, name: str = "station", session: int = 
     closers = [emu.stop]
 
     def refl(counter, j):
-        expect_ack(counter.request("REFL", str(int(j))))
+        expect_ack(counter.transport.request("REFL", str(int(j))))
 
     station = _open_station(builder, setup, cfg, emu.robot_port, emu.counter_port, 115200, closers, refl, name)
     station.emulator = emu
@@ -363,15 +322,29 @@ def make_real_station(builder, setup, set_reflector=None, name: str = "station")
 
 
 def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name):
-    """Open both lines, check the devices' roles, add the station; close everything on failure.
+    """Open both devices with the scenario's drivers, add the station; close everything on failure.
 
-    ``set_reflector(counter_transport, j)`` readies reflector j (None: the station refuses a change).
+    ``set_reflector(counter, j)`` readies reflector j (None: the station refuses a change).
     """
+    from .drivers import driver_class
+
+    names = (getattr(cfg, "robot_driver", "olti"), getattr(cfg, "counter_driver", "olti"))
     try:
-        robot, counter = _transports(cfg, robot_port, counter_port, baud, closers)
-        check_role(robot, "ROBOT", robot_port)
-        check_role(counter, "COUNTER", counter_port)
-        hook = None if set_reflector is None else (lambda j: set_reflector(counter, j))
+        devices = []
+        for kind, (port, what) in enumerate(((robot_port, "robot"), (counter_port, "counter"))):
+            try:
+                cls = driver_class(names[kind], kind)
+            except ValueError as e:
+                raise InputError(f"station: {what}_driver: {e}") from None
+            try:
+                devices.append(cls.open(port, baud, cfg.timeout_s, cfg.retries))
+            except DriverError as e:
+                raise StationError(f"station: {e}") from None
+            closers.append(devices[-1].close)
+        robot, counter = devices
+        # A counter driver that knows the reflector set-up (a test bench) does it; else the hook (operator).
+        hook = getattr(counter, "set_up_reflector", None) or (
+            None if set_reflector is None else (lambda j: set_reflector(counter, j)))
         station = make_hardware_station(builder, setup, (robot, counter), hook, name, policy=cfg.policy)
     except BaseException:
         for c in reversed(closers):

@@ -137,10 +137,13 @@ def _resume_state(diagram, context, setup, commands, step: int, log) -> None:
 
 
 def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync: bool = True,
-        progress: Optional[Callable[[int, int], None]] = None, scenario=None) -> RunSummary:
+        progress: Optional[Callable[[int, int], None]] = None, scenario=None, extend=None,
+        realtime_rate: float = 0.0) -> RunSummary:
     """Run (or resume) the scenario's campaign on its station, logging every reading to ``out_dir``.
 
-    ``progress(on_disk, planned)`` is called after every reading. Raises
+    ``progress(on_disk, planned)`` is called after every reading; ``extend``
+    and ``realtime_rate`` as in :func:`~olti_drake.campaign.run_campaign`
+    (e.g. the Meshcat view of :mod:`olti_drake.meshcat_view`). Raises
     :class:`RunInterrupted` on SIGINT/SIGTERM (after the reading in progress
     is on disk), :class:`~olti_drake.hardware.StationError` when the station
     fails (line lost, alarm, ...); either way every reading taken is on disk
@@ -185,7 +188,7 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
             raise KeyboardInterrupt     # a second Ctrl-C: stop at once
         stop["signal"] = signal.Signals(signum).name
 
-    diagram, rec, seq = build_campaign_diagram(setup, sink=sink, session=log.session)
+    diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session)
     station = diagram.station
     if hasattr(station, "on_event"):
         station.on_event = log.event
@@ -194,6 +197,7 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
     try:
         log.begin_session(start, station=_station_kind(scenario), resumed=bool(resume))
         simulator = Simulator(diagram)
+        simulator.set_target_realtime_rate(realtime_rate)
         _resume_state(diagram, simulator.get_mutable_context(), setup, commands, start, log)
         simulator.set_monitor(lambda context: EventStatus.ReachedTermination(None, "signal")
                               if stop["signal"] else EventStatus.Succeeded())

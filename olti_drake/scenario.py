@@ -173,11 +173,17 @@ class Emulated:
 
 @dataclass
 class Hardware:
-    """The real robot controller and interferometer counter on two serial ports (docs/protocol.md)."""
+    """The real robot controller and interferometer counter on two serial ports (docs/protocol.md).
+
+    ``robot_driver``, ``counter_driver``: ``olti`` (the olti serial protocol) or
+    ``package.module:Class`` -- a driver of another device (:mod:`olti_drake.drivers`).
+    """
 
     robot_port: str = ""
     counter_port: str = ""
     baud: int = 115200
+    robot_driver: str = "olti"
+    counter_driver: str = "olti"
     timeout_s: float = 1.0
     retries: int = 2
     policy: RunPolicy = field(default_factory=RunPolicy)

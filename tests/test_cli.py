@@ -22,7 +22,8 @@ def test_help_does_not_import_pydrake():
     assert r.returncode == 0, r.stderr
 
 
-@pytest.mark.parametrize("verb", ["demo", "simulate", "identify", "predict", "uncertainty", "design", "multilaterate"])
+@pytest.mark.parametrize("verb", ["demo", "simulate", "identify", "predict", "uncertainty", "design", "multilaterate",
+                                  "compensate", "run", "report", "diagrams"])
 def test_every_verb_has_help(verb):
     r = _olti(verb, "--help")
     assert r.returncode == 0 and "--out" in r.stdout

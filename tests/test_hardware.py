@@ -94,7 +94,7 @@ def test_station_errors_name_the_command():
     diagram, rec, seq = build_campaign_diagram(prepare(_quiet(Emulated())))
     try:
         diagram.station.emulator.raise_alarm()
-        with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at MOVJ,-142\.000000,.*clears at most 0"):
+        with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at the move to \(-142\.000000, .*clears at most 0"):
             Simulator(diagram).AdvanceTo(seq.duration_s)
     finally:
         diagram.station.close()

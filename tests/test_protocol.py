@@ -177,32 +177,73 @@ def test_doc_bitwise_crc_matches():
         assert ns["crc16_ccitt_false"](data) == P.crc16(data)
 
 
-def test_doc_driver_and_emulator_examples_work_together():
-    (driver,) = [b for b in _doc_python_blocks() if "class MyCounter" in b]
+def test_doc_emulator_example_answers_the_olti_counter_driver():
+    from olti_drake.drivers import OltiCounter
+
     (emulator,) = [b for b in _doc_python_blocks() if "class CounterEmulator" in b]
     ns = {"request_bytes": encode(3, "READ")}
     exec(emulator, ns)
     assert parse(ns["reply"]) == [Frame(3, "DIS", ("0.000000000", "1", "0000"))]
-
     emu = ns["CounterEmulator"]()
-
-    class FakeSerial:  # stands in for serial.Serial: a loopback to the emulator
-        def __init__(self, *a, **kw):
-            self.stream = Loopback(Responder(emu))
-            self.write, self.read = self.stream.write, self.stream.read
-
-    dns = {}
-    exec(driver, dns)
-    dns["serial"] = type("serial", (), {"Serial": FakeSerial})
-    counter = dns["MyCounter"]("/dev/fake")
+    counter = OltiCounter(P.Transport(Loopback(Responder(emu))))
     emu.displacement_mm = 5.25
     assert counter.read() == P.Reading(5.25, True, "0000")
-    counter.zero()
+    assert counter.zero() is True
     assert counter.read().displacement_mm == 0.0
     emu.beam = False
-    with pytest.raises(NakError, match="BEAM"):
-        counter.zero()
+    assert counter.zero() is False          # NAK BEAM: no beam to zero on
     assert counter.read().valid is False
+
+
+def test_doc_driver_of_another_protocol_meets_the_driver_rules():
+    from olti_drake.drivers import AlarmActive, DriverError
+
+    (driver,) = [b for b in _doc_python_blocks() if "class FanucRobot" in b]
+
+    class VendorLink:  # the vendor's own link, as the example assumes it
+        def __init__(self, port, baud, timeout_s):
+            self.alarm_codes_, self.q, self.refuse = [], (0.0, 0.0, 0.0, 0.0), False
+
+        def send_joint_move(self, *q):
+            if self.alarm_codes_ or self.refuse:
+                return False
+            self.q = q
+            return True
+
+        def alarm(self):
+            return bool(self.alarm_codes_)
+
+        def alarm_text(self):
+            return " ".join(self.alarm_codes_)
+
+        def wait_in_position(self, s):
+            pass
+
+        def joints(self):
+            return self.q, self.q
+
+        def reset_alarms(self):
+            self.alarm_codes_ = []
+
+        def alarm_codes(self):
+            return self.alarm_codes_
+
+        def close(self):
+            pass
+
+    ns = {"MyVendorLink": VendorLink}
+    exec(driver, ns)
+    robot = ns["FanucRobot"].open("/dev/fake", 115200, 1.0, 2)
+    robot.move((10.0, 20.0, 0.0, 30.0))
+    robot.wait(1000)
+    assert robot.position().encoder == P.Joints(10.0, 20.0, 0.0, 30.0)
+    robot.link.alarm_codes_ = ["E2_LIMIT"]
+    with pytest.raises(AlarmActive, match="E2_LIMIT"):
+        robot.move((0.0, 0.0, 0.0, 0.0))
+    assert robot.alarms() == ("E2_LIMIT",) and robot.alarms(clear=True) == ()
+    robot.link.refuse = True
+    with pytest.raises(DriverError, match="move refused"):
+        robot.move((0.0, 0.0, 0.0, 0.0))
 
 
 # ----------------------------------------------------------------------------- corruption

@@ -174,7 +174,7 @@ def test_alarm_is_cleared_per_policy_and_the_pose_reapproached(tmp_path, referen
     assert kinds.count("alarm") == 1 and kinds.count("alarm_cleared") == 1
 
     out = str(tmp_path / "stopped")
-    with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at MOVJ.*then resume"):
+    with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at the move to.*then resume"):
         run(_scenario(tmp_path, "b.yaml", "!Emulated {alarm_at: 500}"), out)
     assert 0 < len(_table(out)["step"]) < PLANNED
     run(_scenario(tmp_path, "b.yaml", "!Emulated {}"), out, resume=True)
@@ -249,3 +249,40 @@ def test_bad_starts_and_resumes_are_one_line_errors(tmp_path):
     emulated = _scenario(tmp_path, "emu.yaml", station="!Emulated {}")
     with pytest.raises(InputError, match=r"ran on a simulated station.*emulated"):
         run(emulated, out, resume=True)
+
+
+def test_another_device_family_is_one_driver_class_per_device(tmp_path):
+    """A Hardware scenario naming other drivers runs the campaign with no other change."""
+    import memory_devices
+
+    from olti_drake.campaign import prepare
+    from olti_drake.runner import run
+    from olti_drake.scenario import load_scenario
+
+    station = ("!Hardware {robot_port: mem0, counter_port: mem1, robot_driver: 'memory_devices:MemoryRobot', "
+               "counter_driver: 'memory_devices:MemoryCounter'}")
+    def exact(path):
+        text = open(path).read().replace("interferometer: {noise: false}",
+                                         "interferometer: {noise: false, quantization: false, beam_loss: false}")
+        open(path, "w").write(text)
+        return path
+
+    path = exact(_scenario(tmp_path, station=station))
+    memory_devices.MemoryRobot.setup = prepare(load_scenario(path))
+    out = str(tmp_path / "run")
+    summary = run(path, out)
+    assert summary.complete and summary.on_disk == PLANNED
+    t = read_table(os.path.join(out, "campaign.csv"), COLS)
+    sim = str(tmp_path / "sim")
+    run(exact(_scenario(tmp_path, "sim.yaml", station="!Simulated {}")), sim)
+    s = read_table(os.path.join(sim, "campaign.csv"), COLS)
+    for c in ("step", "dir1", "dir2", "theta1_deg"):
+        assert np.array_equal(t[c], s[c]), c
+    # Zeroed at the first pose of each run rather than the first measured one: compare within runs.
+    for j in range(3):
+        m = (t["reflector"] == j) & (s["valid"] == 1)
+        d = t["displacement_mm"][m] - s["displacement_mm"][m]
+        assert np.ptp(d) < 2.1e-9, (j, np.ptp(d))   # the file has 1e-9 mm digits
+    with pytest.raises(InputError, match=r"robot_driver: driver 'nowhere:Robot': cannot import"):
+        run(_scenario(tmp_path, "bad.yaml", station="!Hardware {robot_port: a, counter_port: b, "
+                                                    "robot_driver: 'nowhere:Robot'}"), str(tmp_path / "bad"))
