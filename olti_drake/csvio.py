@@ -109,8 +109,9 @@ def check_indices(table: Dict[str, np.ndarray], path, column: str) -> np.ndarray
     return idx
 
 
-def read_json(path, fmt: str) -> dict:
-    """A JSON object whose ``format`` must be ``fmt``; one-line errors name the file (and line)."""
+def read_json(path, fmt, what: str = "") -> dict:
+    """A JSON object whose ``format`` must be ``fmt`` (a string, a tuple of allowed ones, or None for
+    any); ``what`` names the file's role in the message. One-line errors name the file (and line)."""
     import json
 
     name = os.fspath(path)
@@ -121,8 +122,13 @@ def read_json(path, fmt: str) -> dict:
         raise InputError(f"{name}: cannot read ({e.strerror})") from None
     except json.JSONDecodeError as e:
         raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
-    if not isinstance(data, dict) or data.get("format") != fmt:
-        raise InputError(f"{name}: 'format' must be {fmt!r}")
+    if not isinstance(data, dict):
+        raise InputError(f"{name}: not a JSON object")
+    allowed = (fmt,) if isinstance(fmt, str) else tuple(fmt or ())
+    if allowed and data.get("format") not in allowed:
+        want = " or ".join(repr(f) for f in allowed)
+        raise InputError(f"{name}: 'format' must be {want}{' for ' + what if what else ''}, "
+                         f"got {data.get('format')!r}")
     return data
 
 

@@ -23,7 +23,7 @@ from typing import List, Optional
 
 import numpy as np
 
-from .csvio import InputError
+from .csvio import InputError, read_json
 from .iso230 import (ARCSEC_PER_DEG, EXTREME, NOT_AVAILABLE, STATISTICS, axis_statistics, map_statistics,
                      node_indices)
 
@@ -87,25 +87,6 @@ def _p(text, cls=None) -> str:
 
 def _num(v, fmt) -> str:
     return "—" if v is None or not np.isfinite(v) else format(v, fmt)
-
-
-def _read_json(path, fmt=None, what="file") -> dict:
-    """A JSON object (with ``format`` fmt if given); one-line errors name the file."""
-    name = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{name}: not a JSON object")
-    allowed = (fmt,) if isinstance(fmt, str) else tuple(fmt or ())
-    if allowed and data.get("format") not in allowed:
-        want = " or ".join(repr(f) for f in allowed)
-        raise InputError(f"{name}: 'format' must be {want} for {what}, got {data.get('format')!r}")
-    return data
 
 
 def _check_uncertainty(unc: dict, raw: dict, keys, unc_path, result_path) -> None:
@@ -743,13 +724,13 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     for p in inputs:
         if not os.path.isfile(p):
             raise InputError(f"{p}: no such file")
-    raw = _read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
-    unc = _read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
+    raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
+    unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
     truth = None
     if truth_path:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
-        truth = _read_json(truth_path, SCARA_FORMAT, "a truth")
+        truth = read_json(truth_path, SCARA_FORMAT, "a truth")
     if unc is not None:
         _check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)
