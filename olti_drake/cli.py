@@ -894,6 +894,9 @@ def main(argv=None) -> int:
         msg = " ".join(str(e).split()) or type(e).__name__
         print(f"error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except KeyboardInterrupt:  # Ctrl-C before a verb's own handling (e.g. while importing)
+        print(f"error: interrupted (olti {args.verb})", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

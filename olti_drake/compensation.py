@@ -282,7 +282,7 @@ def compensate(model: ScaraModel, x_mm, y_mm, dir1=None, dir2=None, elbow: int =
 def compensation_table(m: ErrorMap) -> Dict[str, np.ndarray]:
     """Bidirectional compensation table of one axis at its map nodes: Eq. (7) of 000 inverted.
 
-    For each node angle θ (``command_deg``: the angle the program wants), the
+    For each node angle θ (``angle_deg``: the actual joint angle wanted), the
     command a controller must send so that the actual angle is θ, per
     approach direction: ``forward_command_deg`` solves θ* + Δθ(θ*, +1) = θ,
     ``reverse_command_deg`` with −1; ``*_correction_deg`` = command − θ. All
@@ -295,7 +295,7 @@ def compensation_table(m: ErrorMap) -> Dict[str, np.ndarray]:
     g = m.grid_deg
     fwd, _ = invert_axis(clamp, g, 1.0)
     rev, _ = invert_axis(clamp, g, -1.0)
-    return {"command_deg": g, "forward_correction_deg": fwd - g, "reverse_correction_deg": rev - g,
+    return {"angle_deg": g, "forward_correction_deg": fwd - g, "reverse_correction_deg": rev - g,
             "forward_command_deg": fwd, "reverse_command_deg": rev}
 
 
@@ -312,7 +312,7 @@ def write_tables(model: ScaraModel, out_dir, source: str = "") -> list:
         path = os.path.join(out_dir, f"{m.axis}_compensation.csv")
         write_table(path, compensation_table(m), {},
                     comments=[f"olti compensate: bidirectional compensation table of {m.axis}{source}; degrees",
-                              "command_deg: wanted actual angle (map node); forward/reverse_command_deg: the "
+                              "angle_deg: wanted actual angle (map node); forward/reverse_command_deg: the "
                               "command to send when approaching in +1/-1 (000 Eq. 7 inverted)",
                               "correction = command - wanted; beyond the grid ends the map holds its end values"])
         paths.append(path)

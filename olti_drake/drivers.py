@@ -95,8 +95,21 @@ class OltiRobot(_OltiDevice):
     def move(self, command) -> None:
         self._ack("MOVJ", *movj_fields(*command))
 
+    #: One WAIT request's limit (ms): a longer wait is several requests, so a lost frame costs at
+    #: most this much (plus the line timeout) before the retry, not the whole wait.
+    WAIT_CHUNK_MS = 2000
+
     def wait(self, max_ms: int) -> None:
-        self._ack("WAIT", *wait_fields(max_ms), timeout_s=max_ms / 1000.0 + self.transport.timeout_s)
+        left = int(max_ms)
+        while True:
+            chunk = min(left, self.WAIT_CHUNK_MS)
+            try:
+                self._ack("WAIT", *wait_fields(chunk), timeout_s=chunk / 1000.0 + self.transport.timeout_s)
+                return
+            except NakError as e:
+                left -= chunk
+                if e.code != "TMO" or left <= 0:
+                    raise
 
     def position(self) -> Position:
         return decode_position(self.transport.request("POSJ"))

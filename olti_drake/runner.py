@@ -159,8 +159,14 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
     setup = prepare(scenario)
     commands, measured = _plan(setup)
     steps = _Steps(measured)
-    log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured), steps)
-    todo = np.flatnonzero(measured & ~np.isin(np.arange(len(measured)), sorted(log.recorded)))
+    csv_path = os.path.join(out_dir, "campaign.csv")
+    if not resume and os.path.exists(csv_path):
+        raise InputError(f"{csv_path} exists: continue that campaign with --resume, or choose another --out")
+    log = None
+    if resume:
+        log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured), steps)
+    recorded = log.recorded if log else set()
+    todo = np.flatnonzero(measured & ~np.isin(np.arange(len(measured)), sorted(recorded)))
     n_rows = len(setup.plan)
     t0 = time.monotonic()
     if todo.size == 0:
@@ -168,7 +174,7 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
         return RunSummary(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), log.session - 1, 0.0,
                           True)
     # A fresh campaign starts at step 0: the plan's first approach is part of the plan.
-    start = int(todo[0]) if log.recorded else 0
+    start = int(todo[0]) if recorded else 0
     taken = invalid = 0
     stop = {"signal": None}
 
@@ -188,7 +194,15 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
             raise KeyboardInterrupt     # a second Ctrl-C: stop at once
         stop["signal"] = signal.Signals(signum).name
 
-    diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session)
+    # The station (ports, emulator) opens here; a fresh run's directory is made only once it did.
+    diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session if log else 0)
+    if log is None:
+        try:
+            log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured),
+                            steps)
+        except BaseException:
+            getattr(diagram.station, "close", lambda: None)()
+            raise
     station = diagram.station
     if hasattr(station, "on_event"):
         station.on_event = log.event

@@ -108,7 +108,8 @@ class PerturbedEstimate:
 
 @dataclass
 class ExactEstimate:
-    """The steering knows the true reflector positions and θ40 (for noise-free tests)."""
+    """The steering uses ``reflectors_mm`` and ``robot.theta40_deg`` as given: in simulation the truth
+    (noise-free tests); on hardware the operator's Eq. (2) search result, which is all it knows."""
 
 
 @dataclass
@@ -257,6 +258,10 @@ class Scenario:
         if isinstance(self.plan, PlanFile) and not self.plan.path:
             raise InputError(f"{where}: plan.path is empty")
         _check_station(f"{where}: station", self.station)
+        if isinstance(self.station, Hardware) and not isinstance(self.reflector_estimate, ExactEstimate):
+            raise InputError(f"{where}: a !Hardware station needs reflector_estimate: !ExactEstimate {{}} with "
+                             f"reflectors_mm and robot.theta40_deg from your Eq. (2) search (a simulated search "
+                             f"cannot aim a real robot)")
         return self
 
 

@@ -152,7 +152,7 @@ def test_tables_invert_the_map(exact):
         t = comp.compensation_table(mp)
         clamp = dataclasses.replace(mp, outside="clamp")
         for key, d in (("forward_command_deg", 1.0), ("reverse_command_deg", -1.0)):
-            np.testing.assert_allclose(t[key] + clamp(t[key], d), t["command_deg"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(t[key] + clamp(t[key], d), t["angle_deg"], rtol=0, atol=1e-9)
         np.testing.assert_allclose(t["forward_correction_deg"], t["forward_command_deg"] - mp.grid_deg, atol=0)
         assert np.max(np.abs(t["forward_correction_deg"] - t["reverse_correction_deg"])) > 5e-3  # backlash
 
@@ -199,7 +199,7 @@ def test_cli_end_to_end_predict_maps_back_to_targets(tmp_path, result_json, nois
         tab = {k: np.array([float(row[k]) for row in rows]) for k in rows[0]}
         clamp = dataclasses.replace(mp, outside="clamp")
         for key, d in (("forward_command_deg", 1.0), ("reverse_command_deg", -1.0)):
-            np.testing.assert_allclose(tab[key] + clamp(tab[key], d), tab["command_deg"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(tab[key] + clamp(tab[key], d), tab["angle_deg"], rtol=0, atol=1e-9)
 
 
 def test_cli_given_directions_are_kept(tmp_path, result_json, noisy):

@@ -286,3 +286,18 @@ def test_another_device_family_is_one_driver_class_per_device(tmp_path):
     with pytest.raises(InputError, match=r"robot_driver: driver 'nowhere:Robot': cannot import"):
         run(_scenario(tmp_path, "bad.yaml", station="!Hardware {robot_port: a, counter_port: b, "
                                                     "robot_driver: 'nowhere:Robot'}"), str(tmp_path / "bad"))
+
+
+def test_a_port_that_cannot_be_opened_leaves_no_run_directory_behind(tmp_path):
+    scenario = _scenario(tmp_path, station="!Hardware {robot_port: /dev/olti-no-such-port, counter_port: /dev/x}")
+    out = tmp_path / "run"
+    r = _run(scenario, "--out", str(out))
+    assert r.returncode == 2 and "/dev/olti-no-such-port" in r.stderr and r.stderr.count("\n") == 1
+    assert not (out / "campaign.csv").exists() and not (out / "run.json").exists()
+
+
+def test_a_hardware_station_refuses_a_simulated_reflector_search(tmp_path):
+    path = tmp_path / "hw.yaml"
+    path.write_text("station: !Hardware {robot_port: /dev/a, counter_port: /dev/b}\n")
+    r = _run(str(path), "--out", str(tmp_path / "run"))
+    assert r.returncode == 2 and "needs reflector_estimate: !ExactEstimate" in r.stderr
