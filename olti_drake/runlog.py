@@ -76,9 +76,7 @@ class CampaignLog:
     @classmethod
     def create(cls, out_dir: str, manifest: dict, comments=(), fsync: bool = True) -> "CampaignLog":
         """Start a new campaign in ``out_dir``; refuses a directory that already holds one."""
-        csv_path = os.path.join(out_dir, "campaign.csv")
-        if os.path.exists(csv_path):
-            raise InputError(f"{csv_path} exists: continue that campaign with --resume, or choose another --out")
+        csv_path = cls.check_new(out_dir)
         os.makedirs(out_dir, exist_ok=True)
         with open(csv_path, "w", encoding="utf-8", newline="") as f:
             text = "".join(f"# {c}\n" for c in comments) + ",".join(COLUMNS) + "\n"
@@ -87,6 +85,14 @@ class CampaignLog:
         manifest = dict(manifest, format=FORMAT, sessions=[], complete=False)
         _write_json(os.path.join(out_dir, "run.json"), manifest)
         return cls(out_dir, manifest, set(), fsync)
+
+    @staticmethod
+    def check_new(out_dir: str) -> str:
+        """The campaign path of a new run in ``out_dir``; a one-line error if a campaign is there."""
+        csv_path = os.path.join(out_dir, "campaign.csv")
+        if os.path.exists(csv_path):
+            raise InputError(f"{csv_path} exists: continue that campaign with --resume, or choose another --out")
+        return csv_path
 
     @classmethod
     def reopen(cls, out_dir: str, fsync: bool = True) -> "CampaignLog":

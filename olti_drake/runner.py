@@ -153,15 +153,15 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
     from pydrake.systems.framework import EventStatus
 
     from .campaign import build_campaign_diagram, prepare
+    from .runlog import CampaignLog
     from .scenario import Hardware, load_scenario
 
     scenario = scenario or load_scenario(scenario_path)
     setup = prepare(scenario)
     commands, measured = _plan(setup)
     steps = _Steps(measured)
-    csv_path = os.path.join(out_dir, "campaign.csv")
-    if not resume and os.path.exists(csv_path):
-        raise InputError(f"{csv_path} exists: continue that campaign with --resume, or choose another --out")
+    if not resume:
+        CampaignLog.check_new(out_dir)   # before the station opens
     log = None
     if resume:
         log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured), steps)
