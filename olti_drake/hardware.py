@@ -300,9 +300,7 @@ def make_emulated_station(builder, setup, name: str = "station", session: int = 
 
     cfg = setup.scenario.station
     seed = None if session == 0 else stream_seed(setup.scenario.seed, STREAM_EMULATOR, session)
-    emu = Emulator(setup, speed=cfg.speed, seed=seed, drop=cfg.drop, garble=cfg.garble, nak_crc=cfg.nak_crc,
-                   bad_crc=cfg.bad_crc, partial=cfg.partial, latency_s=cfg.latency_s, beam_loss=cfg.beam_loss,
-                   alarm_at=cfg.alarm_at, disconnect_after=cfg.disconnect_after,
+    emu = Emulator(setup, speed=cfg.speed, seed=seed, faults=cfg.faults(),
                    latch_beam_loss=cfg.latch_beam_loss).start()
     closers = [emu.stop]
 

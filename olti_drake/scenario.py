@@ -171,6 +171,12 @@ class Emulated:
     retries: int = 2
     policy: RunPolicy = field(default_factory=RunPolicy)
 
+    def faults(self):
+        """The fault fields as the emulator's :class:`~olti_drake.emulator.Faults`, validated by it."""
+        from .emulator import Faults
+
+        return Faults(**{f.name: getattr(self, f.name) for f in fields(Faults) if hasattr(self, f.name)}).validate()
+
 
 @dataclass
 class Hardware:
@@ -269,15 +275,10 @@ def _check_station(name, st):
     if isinstance(st, Emulated):
         if st.speed not in ("fast", "realistic"):
             raise InputError(f"{name}.speed must be fast or realistic, got {st.speed!r}")
-        for key in ("drop", "garble", "nak_crc", "bad_crc", "partial", "beam_loss"):
-            p = getattr(st, key)
-            if not (np.isfinite(p) and 0.0 <= p <= 1.0):
-                raise InputError(f"{name}.{key} must be a probability 0..1, got {p!r}")
-        _nonnegative(f"{name}.latency_s", st.latency_s)
-        for key in ("alarm_at", "disconnect_after"):
-            v = getattr(st, key)
-            if v is not None and v < 1:
-                raise InputError(f"{name}.{key} must be >= 1 (or absent), got {v!r}")
+        try:
+            st.faults()
+        except ValueError as e:
+            raise InputError(f"{name}: {e}") from None
     if isinstance(st, Hardware):
         for key in ("robot_port", "counter_port"):
             if not getattr(st, key):
