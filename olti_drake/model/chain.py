@@ -480,11 +480,11 @@ def _staged_rank(columns, names, groups, rtol, n_poses, seed) -> BaseSet:
 
 
 def _trade_reason(unit, column, kept, names) -> str:
+    """The kept parameters whose columns combine into this one (in priority order)."""
     coef, *_ = np.linalg.lstsq(unit[:, kept], unit[:, column], rcond=None)
     residual = np.linalg.norm(unit[:, kept] @ coef - unit[:, column])
-    big = np.argsort(-np.abs(coef))
-    partners = [names[kept[k]] for k in big[:4] if abs(coef[k]) >= 0.1 * abs(coef[big[0]])]
-    text = ", ".join(partners) + (", ..." if np.sum(np.abs(coef) >= 0.1 * abs(coef[big[0]])) > 4 else "")
+    partners = [names[c] for c, a in zip(kept, coef) if abs(a) >= 0.1 * np.abs(coef).max()]
+    text = ", ".join(partners[:4]) + (", ..." if len(partners) > 4 else "")
     if residual < 1e-9:
         return f"trades with {text}"
     return f"nearly trades with {text} (independent part {residual:.1e})"
