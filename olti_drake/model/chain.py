@@ -129,42 +129,66 @@ class SerialChain:
         m = th.shape[0]
         rot = np.broadcast_to(np.eye(3), (m, 3, 3))  # moving frame of joint i-1 in the root
         org = np.zeros((m, 3))
-        cols = []  # per joint: (origin of F_i, axis, R_G, u_rx, u_ry, u_rz)
+        cols = []  # per joint: (origin of F_i, axis, R_G, u_rx, u_ry, u_rz), in the root frame
         for i in range(n):
-            rot_g = rot @ self.fixed_mm[i, :3, :3]
-            org_f = org + rot @ self.fixed_mm[i, :3, 3] + rot_g @ geo[i, :3]
+            fixed = self.fixed_mm[i]
             rx, ry, rz = (_axis_rotation(e, geo[i, 3 + k] * DEG) for k, e in enumerate(np.eye(3)))
-            rot_gx = rot_g @ rx
-            rot_gxy = rot_gx @ ry
-            rot_f = rot_gxy @ rz
-            axis = rot_f @ self.axes[i]
-            cols.append((org_f, axis, rot_g, rot_gx[..., 0], rot_gxy[..., 1], rot_f[..., 2]))
-            rot = rot_f @ _axis_rotation(self.axes[i], th[:, i] * DEG)
+            rot_g = _times(rot, fixed[:3, :3])
+            org_f = org + _times(rot, fixed[:3, 3]) + _times(rot_g, geo[i, :3])
+            rot_f = _times(rot_g, rx @ ry @ rz)
+            axis = _times(rot_f, self.axes[i])
+            if jacobian:
+                cols.append((org_f, axis, rot_g, _times(rot_g, rx[:, 0]),
+                             _times(rot_g, (rx @ ry)[:, 1]), rot_f[..., 2]))
+            rot = _rotate_about(rot_f, self.axes[i], th[:, i] * DEG)
             org = org_f
         tool = self.fixed_mm[n]
-        rot_t = rot @ tool[:3, :3]
-        p = org + rot @ tool[:3, 3] + rot_t @ params[6 * n:]
+        rot_t = _times(rot, tool[:3, :3])
+        p = org + _times(rot, tool[:3, 3]) + _times(rot_t, params[6 * n:])
         if not jacobian:
             return p, None
         jac = np.empty((m, 3, 7 * n + 3))
         for i, (org_f, axis, rot_g, ux, uy, uz) in enumerate(cols):
             r = p - org_f
-            jac[:, :, i] = np.cross(axis, r) * DEG
+            jac[:, :, i] = _cross(axis, r) * DEG
             base = n + 6 * i
             jac[:, :, base:base + 3] = rot_g
             for k, u in enumerate((ux, uy, uz)):
-                jac[:, :, base + 3 + k] = np.cross(u, r) * DEG
+                jac[:, :, base + 3 + k] = _cross(u, r) * DEG
         jac[:, :, 7 * n:] = rot_t
         return p, jac
 
 
-def _axis_rotation(axis, angle_rad):
-    """Rotation matrices about a unit ``axis`` by ``angle_rad`` (scalar or (M,)), Rodrigues."""
-    a = np.asarray(axis, dtype=float)
-    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    s = np.sin(angle_rad)[..., None, None]
-    c = np.cos(angle_rad)[..., None, None]
-    return np.eye(3) + s * k + (1.0 - c) * (k @ k)
+def _times(stack, const):
+    """Stacked rotations (M, 3, 3) times a constant 3×3 matrix or 3-vector, as one GEMM."""
+    m = stack.shape[0]
+    out = np.reshape(stack, (3 * m, 3)) @ const
+    return out.reshape((m, 3, 3) if np.ndim(const) == 2 else (m, 3))
+
+
+def _rotate_about(stack, axis, angle_rad):
+    """stack · Rot(axis, angle) for (M,) angles, Rodrigues: R + sin·(R K) + (1 - cos)·(R K²)."""
+    k = _skew(axis)
+    s = np.sin(angle_rad)[:, None, None]
+    c = np.cos(angle_rad)[:, None, None]
+    return stack + s * _times(stack, k) + (1.0 - c) * _times(stack, k @ k)
+
+
+def _cross(a, b):
+    """Row-wise cross product of (M, 3) arrays (cheaper than np.cross for small rows)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                     a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _axis_rotation(axis, angle_rad: float) -> np.ndarray:
+    """The 3×3 rotation about a unit ``axis`` by a scalar ``angle_rad`` (Rodrigues)."""
+    k = _skew(axis)
+    return np.eye(3) + np.sin(angle_rad) * k + (1.0 - np.cos(angle_rad)) * (k @ k)
 
 
 # --------------------------------------------------------------------- loading
