@@ -269,3 +269,43 @@ def test_parameters_no_reading_sees_are_named():
     assert reasons["wrist_3_joint_offset_deg"] == "no reading depends on it"
     assert reasons["wrist_3_joint_drz_deg"] == "no reading depends on it"
     assert GEOMETRIC_SUFFIXES[5] == "drz_deg"
+
+
+def test_tool_frame_may_be_an_sdformat_frame(tmp_path):
+    sdf = tmp_path / "scara_tcp.sdf"
+    sdf.write_text(SCARA.read_text().replace(
+        "  </model>",
+        '<frame name="tcp" attached_to="link2"><pose>0.225 0 -0.1 0 0 0</pose></frame></model>'))
+    chain = load_serial_chain(sdf, "tcp")
+    link2 = load_serial_chain(SCARA, "link2")
+    assert chain.joint_names == ("J1", "J2")
+    theta = chain.random_angles(20, seed=8)
+    expected = link2.positions(theta, link2.nominal_parameters((225.0, 0.0, -100.0)))
+    assert np.abs(chain.positions(theta) - expected).max() < 1e-9
+
+
+def test_tool_frame_in_two_models_is_ambiguous(tmp_path):
+    model = SCARA.read_text().split("<sdf version=\"1.9\">")[1].split("</sdf>")[0]
+    world = tmp_path / "two_scaras.sdf"
+    world.write_text('<?xml version="1.0"?><sdf version="1.9"><world name="cell">'
+                     + model + model.replace('model name="scara"', 'model name="scara2"')
+                     + "</world></sdf>")
+    with pytest.raises(ValueError, match="tool frame 'link2' is ambiguous in .*two_scaras.sdf: "
+                                         "2 frames have that name"):
+        load_serial_chain(world, "link2")
+
+
+def test_a_model_attached_to_the_world_keeps_its_attachment(tmp_path):
+    """A URDF ``world`` link: nothing is welded, the world is the root, the mount pose counts."""
+    urdf = tmp_path / "ur5_on_pedestal.urdf"
+    urdf.write_text(UR5.read_text().replace(
+        '<robot name="ur5">',
+        '<robot name="ur5"><link name="world"/><joint name="pedestal" type="fixed">'
+        '<parent link="world"/><child link="base_link"/>'
+        '<origin xyz="0.1 -0.2 0.5" rpy="0 0 1.5707963267948966"/></joint>'))
+    chain = load_serial_chain(urdf, "tool0")
+    assert chain.root == "world"
+    theta = chain.random_angles(20, seed=9)
+    base = load_serial_chain(UR5, "tool0").positions(theta)
+    mounted = np.column_stack([100.0 - base[:, 1], -200.0 + base[:, 0], 500.0 + base[:, 2]])
+    assert np.abs(chain.positions(theta) - mounted).max() < 1e-9

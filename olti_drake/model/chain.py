@@ -277,7 +277,8 @@ def _find_tool_frame(plant, instances, path, name):
     if len(matches) == 1:
         return matches[0]
     if matches:
-        raise ValueError(f"tool frame '{name}' is ambiguous in {path}: {len(matches)} frames have that name")
+        raise ValueError(f"tool frame '{name}' is ambiguous in {path}: "
+                         f"{len(matches)} frames have that name")
     joint_frames = set()
     for j in plant.GetJointIndices():
         joint = plant.get_joint(j)
