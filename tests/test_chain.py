@@ -309,3 +309,24 @@ def test_a_model_attached_to_the_world_keeps_its_attachment(tmp_path):
     base = load_serial_chain(UR5, "tool0").positions(theta)
     mounted = np.column_stack([100.0 - base[:, 1], -200.0 + base[:, 0], 500.0 + base[:, 2]])
     assert np.abs(chain.positions(theta) - mounted).max() < 1e-9
+
+
+@pytest.mark.parametrize("kind, drake_kind", [("ball", "ball_rpy"), ("screw", "screw")])
+def test_other_joint_types_on_the_chain_are_refused_by_name(kind, drake_kind, tmp_path):
+    sdf = tmp_path / f"scara_{kind}.sdf"
+    sdf.write_text(SCARA.read_text().replace('<joint name="J2" type="revolute">',
+                                             f'<joint name="J2" type="{kind}">'))
+    with pytest.raises(ValueError, match=f"joint 'J2' on the chain .* is {drake_kind}: "
+                                         "only revolute joints are supported"):
+        load_serial_chain(sdf, "link2")
+
+
+def test_root_is_welded_at_the_model_origin(tmp_path):
+    """An SDFormat root link posed in its model: the model frame, not the link, is the world."""
+    sdf = tmp_path / "raised.sdf"
+    sdf.write_text(SCARA.read_text().replace('<link name="base">',
+                                             '<link name="base"><pose>0 0 0.5 0 0 0</pose>'))
+    theta = np.array([[10.0, 20.0], [-30.0, 45.0]])
+    raised = load_serial_chain(sdf, "link2").positions(theta)
+    plain = load_serial_chain(SCARA, "link2").positions(theta)
+    np.testing.assert_allclose(raised - plain, [[0, 0, 500.0]] * 2, atol=1e-9)
