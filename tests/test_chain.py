@@ -159,6 +159,8 @@ def test_wrong_shapes_are_refused():
         chain.positions(np.zeros((4, 3)))
     with pytest.raises(ValueError, match="expected 15"):
         chain.positions(np.zeros((4, 2)), np.zeros(14))
+    with pytest.raises(ValueError, match="not finite"):
+        chain.jacobian(np.array([[0.0, np.nan]]))
 
 
 # --------------------------------------------------------------- loading rules
@@ -330,3 +332,21 @@ def test_root_is_welded_at_the_model_origin(tmp_path):
     raised = load_serial_chain(sdf, "link2").positions(theta)
     plain = load_serial_chain(SCARA, "link2").positions(theta)
     np.testing.assert_allclose(raised - plain, [[0, 0, 500.0]] * 2, atol=1e-9)
+
+
+def test_ur5_shapes_load_for_meshcat():
+    """The shipped model's simple shapes load into a SceneGraph (what Meshcat draws)."""
+    from pydrake.geometry import Role
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
+    Parser(plant).AddModels(str(UR5))
+    plant.Finalize()
+    inspector = scene_graph.model_inspector()
+    text = UR5.read_text()
+    assert text.count("<mesh") == 0
+    assert inspector.NumGeometriesWithRole(Role.kIllustration) == text.count("<visual") > 6
+    assert inspector.NumGeometriesWithRole(Role.kProximity) == text.count("<collision") > 6

@@ -30,7 +30,7 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Sequence, Tuple
+from typing import Sequence, Tuple
 
 import numpy as np
 import scipy.linalg
@@ -125,6 +125,8 @@ class SerialChain:
         params = self.nominal_parameters() if params is None else np.asarray(params, float)
         if params.shape != (6 * n + 3,):
             raise ValueError(f"parameters: {params.size} values, expected {6 * n + 3}")
+        if not (np.all(np.isfinite(th)) and np.all(np.isfinite(params))):
+            raise ValueError("joint angles or parameters: a value is not finite")
         geo = params[:6 * n].reshape(n, 6)
         m = th.shape[0]
         rot = np.broadcast_to(np.eye(3), (m, 3, 3))  # moving frame of joint i-1 in the root
