@@ -591,9 +591,13 @@ def cmd_design(args) -> int:
 
 def cmd_diagrams(args) -> int:
     """Render the simulated, emulated and hardware campaign diagrams (SVG + wiring files)."""
-    from .diagram_pictures import DIAGRAMS_DIR, SCENARIOS, write_pictures
+    from .diagram_pictures import SCENARIOS, write_pictures
+    from .resources import source_tree_dir
 
-    out = DIAGRAMS_DIR if args.out is None else args.out
+    out = args.out or source_tree_dir("diagrams")
+    if out is None:
+        raise ValueError("olti diagrams: give --out DIR (the default, diagrams/ of a source checkout, is not "
+                         "there: the package is installed)")
     _check_outputs(args, [os.path.join(out, n + ext) for n in SCENARIOS for ext in (".svg", ".wiring.txt")],
                    dirs=[out], create_dirs=True)
     for path in write_pictures(out):
@@ -828,7 +832,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "paper000_emulated.yaml and paper000_hardware.yaml (the hardware station on "
                                    "unopened ports, the emulator started and stopped) and write NAME.svg "
                                    "(Graphviz dot) and NAME.wiring.txt (sorted 'src.port -> dst.port' lines).")
-    p.add_argument("--out", default=None, help="output directory (default: the package's diagrams/)")
+    p.add_argument("--out", default=None, help="output directory (default: diagrams/ of the source checkout)")
     _add_force(p)
     p.set_defaults(func=cmd_diagrams)
 

@@ -25,8 +25,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .csvio import InputError
+from .resources import shipped
 
-DIAGRAMS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+#: The shipped scenarios (installed with the package; the top-level diagrams/ in a source checkout).
+DIAGRAMS_DIR = shipped("diagrams")
 #: Output name -> scenario file in ``diagrams/``.
 SCENARIOS = {"paper000_scara": "paper000_scara.yaml",
              "paper000_emulated": "paper000_emulated.yaml",
@@ -124,7 +126,7 @@ def render_svg(dot_source: str, dot: str = None) -> str:
     return run.stdout
 
 
-def write_pictures(out_dir=DIAGRAMS_DIR, names=None, max_depth=None) -> list:
+def write_pictures(out_dir=None, names=None, max_depth=None) -> list:
     """Write ``NAME.svg`` and ``NAME.wiring.txt`` of each shipped scenario; returns the paths written."""
     dot = find_dot()  # before any work: one line if it is missing
     out_dir = DIAGRAMS_DIR if out_dir is None else out_dir
