@@ -721,7 +721,7 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
               create_dirs=True)
     for p in inputs:
         if not os.path.isfile(p):
-            raise InputError(f"{p}: no such file")
+            raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
     truth = None

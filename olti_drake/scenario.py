@@ -331,7 +331,8 @@ def load_scenario(path=None) -> Scenario:
 
     name = os.fspath(path)
     if not os.path.isfile(name):
-        raise InputError(f"{name}: scenario file not found")
+        raise InputError(f"{name}: " + ("is a directory, expected a scenario YAML file" if os.path.isdir(name)
+                                        else "scenario file not found"))
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=name)
     except Exception as e:  # pydrake's messages are multi-line and may not name the key

@@ -321,3 +321,23 @@ def test_demo_into_a_directory_with_a_campaign_is_refused_before_simulating(tmp_
     _one_error_line(r.stderr)
     assert "holds measured data" in r.stderr and time.perf_counter() - t0 < 30
     assert (tmp_path / "campaign.csv").read_bytes() == before and sorted(os.listdir(tmp_path)) == ["campaign.csv"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["identify", "{d}/adir", "--model", "dh", "--out", "{d}/r.json"],
+    ["predict", "{d}/res.json", "{d}/adir", "--out", "{d}/p.csv"],
+    ["uncertainty", "{d}/adir", "{camp}", "--method", "linear", "--out", "{d}/u.json"],
+    ["design", "{d}/res.json", "--regions", "{d}/adir", "--out", "{d}/d.json"],
+    ["multilaterate", "{d}/adir", "--out", "{d}/m.json"],
+    ["compensate", "{d}/res.json", "{d}/adir", "--out", "{d}/c.csv"],
+    ["report", "{d}/res.json", "{d}/adir", "--out", "{d}/rep"],
+    ["simulate", "{d}/adir", "--out", "{d}/sim"],
+    ["run", "{d}/adir", "--out", "{d}/sim"],
+], ids=lambda a: a[0])
+def test_a_directory_given_for_an_input_file_is_one_line(capsys, ws, argv):
+    before = _snapshot(ws)
+    code, out, err = _olti(capsys, *_fill(argv, ws))
+    assert code == 2, (code, out, err)
+    _one_error_line(err)
+    assert f"{ws}/adir: " in err and "directory" in err.lower(), err
+    assert _snapshot(ws) == before and not (ws / "sim").exists() and not (ws / "rep").exists()
