@@ -189,14 +189,12 @@ def _plain(v):
 
 
 def _write_json(path: str, obj: dict) -> None:
-    """Replace ``path`` atomically (write a temporary file, fsync, rename)."""
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
+    """Replace the run's own ``path`` atomically (a temporary file, fsync, rename: outputs.writing)."""
+    from .outputs import writing
+
+    with writing(path, fsync=True) as f:
         json.dump(obj, f, indent=1)
         f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _drop_partial_line(path: str) -> str:
