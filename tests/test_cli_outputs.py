@@ -217,6 +217,8 @@ def test_a_measurement_is_never_replaced_even_by_a_race(tmp_path):
 
 
 def test_oserror_and_interrupted_import_are_one_line(capsys, monkeypatch):
+    """main(): an OSError is one line naming the file; Ctrl-C inside an import (pybind11 turns it into
+    ImportError "initialization failed" chained to the KeyboardInterrupt) is "interrupted", exit 130."""
     import olti_drake.cli as cli
 
     def denied(args):
@@ -231,28 +233,22 @@ def test_oserror_and_interrupted_import_are_one_line(capsys, monkeypatch):
     def real_import_error(args):
         raise ImportError("No module named 'nothing'")
 
-    monkeypatch.setattr(cli, "cmd_predict", denied)
-    parser = cli.build_parser
+    build = cli.build_parser
 
-    def build():
-        p = parser()
-        return p
+    def dispatching_to(func):
+        parser = build()
+        verbs = next(a for a in parser._actions if a.dest == "verb")
+        verbs.choices["predict"].set_defaults(func=func)
+        return parser
 
+    argv = ("predict", "r.json", "c.csv", "--out", "p.csv")
     for func, code, text in ((denied, 2, "error: /some/out.json: Permission denied\n"),
                              (interrupted_import, 130, "error: interrupted (olti predict)\n")):
-        monkeypatch.setattr(cli, "build_parser", lambda f=func: _with_func(parser(), f))
-        c, out, err = _olti(capsys, "predict", "r.json", "c.csv", "--out", "p.csv")
-        assert (c, err) == (code, text)
-    monkeypatch.setattr(cli, "build_parser", lambda: _with_func(parser(), real_import_error))
+        monkeypatch.setattr(cli, "build_parser", lambda f=func: dispatching_to(f))
+        assert _olti(capsys, *argv)[::2] == (code, text)
+    monkeypatch.setattr(cli, "build_parser", lambda: dispatching_to(real_import_error))
     with pytest.raises(ImportError):            # a real import error is not taken for Ctrl-C
-        main(["predict", "r.json", "c.csv", "--out", "p.csv"])
-
-
-def _with_func(parser, func):
-    """The parser with ``predict`` dispatching to ``func``."""
-    sub = next(a for a in parser._actions if a.dest == "verb")
-    sub.choices["predict"].set_defaults(func=func)
-    return parser
+        main(list(argv))
 
 
 def test_argparse_errors_are_one_line_and_help_still_works():
@@ -278,12 +274,16 @@ def test_a_closed_pipe_ends_quietly(tmp_path, result_json):
 
 
 def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(tmp_path):
+    # Ctrl-C as at a terminal: SIGINT at its default even when the tests run in the background (ignored there).
     p = subprocess.Popen([sys.executable, "-m", "olti_drake.cli", "simulate", "--out", str(tmp_path / "o")],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(1.0)                           # inside the imports and the set-up, well before the campaign ends
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=120)
-    assert p.returncode == 130, (out, err)
+    # 130, or death by SIGINT (a shell's $? is 130 too): CPython re-raises SIGINT at exit when a
+    # KeyboardInterrupt passed through code run by PyRun_String (pybind11 py::exec in pydrake's imports).
+    assert p.returncode in (130, -signal.SIGINT), (out, err)
     assert err == "error: interrupted (olti simulate)\n"
     assert not (tmp_path / "o" / "campaign.csv").exists()
 

@@ -322,9 +322,9 @@ def _copy_run(src, dst, keep=None):
     shutil.copytree(src, dst)
     if keep is not None:
         lines = open(os.path.join(src, "campaign.csv"), encoding="utf-8").read().splitlines(keepends=True)
-        head = [ln for ln in lines if ln.startswith("#")][:] + [lines[sum(ln.startswith("#") for ln in lines)]]
+        n_head = next(i for i, ln in enumerate(lines) if not ln.startswith("#")) + 1   # comments + header
+        head, rows = lines[:n_head], lines[n_head:]
         step_col = head[-1].strip().split(",").index("step")
-        rows = lines[len(head):]
         open(os.path.join(dst, "campaign.csv"), "w", encoding="utf-8").write(
             "".join(head + [r for r in rows if keep(int(r.split(",")[step_col]))]))
     return dst
