@@ -36,9 +36,10 @@ def _check_outputs(args, files=(), inputs=(), measurements=(), dirs=(), create_d
               create_dirs=create_dirs)
 
 
-def _simulate(args, scenario_path, out_dir, seed=None, progress=True, extend=None, realtime_rate=0.0, results=()):
+def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None, results=()):
     """Simulate the scenario's campaign into ``out_dir`` (campaign.csv, truth.json: measurements, never
-    replaced); ``results``: the caller's other outputs, checked with them before the simulation."""
+    replaced); ``results``: the caller's other outputs, checked with them before the simulation;
+    ``view()``: (extend, realtime rate) of a live view, started only once the outputs are known good."""
     from .campaign import prepare, run_campaign, write_campaign
     from .scenario import Hardware, load_scenario
 
@@ -57,6 +58,7 @@ def _simulate(args, scenario_path, out_dir, seed=None, progress=True, extend=Non
         inputs.append(scenario.resolve(scenario.plan.path))
     _check_outputs(args, [os.path.join(out_dir, n) for n in results], inputs,
                    [os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], [out_dir], create_dirs=True)
+    extend, realtime_rate = view() if view else (None, 0.0)
     setup = prepare(scenario)
     campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate)
     source = scenario_path or "embedded default (paper 000 experiment)"
@@ -112,8 +114,7 @@ def _add_meshcat_options(p):
 
 def cmd_simulate(args) -> int:
     t0 = time.perf_counter()
-    extend, rate = _meshcat_view(args)
-    setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, extend=extend, realtime_rate=rate)
+    setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
     if args.meshcat and sys.stdin.isatty():
