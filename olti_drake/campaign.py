@@ -9,7 +9,6 @@ procedure around it: PlanSequencer -> BeamSteering -> station -> CampaignRecorde
 Units: mm and degrees in files and in :class:`Campaign`; SI on Drake ports.
 """
 
-import json
 import os
 from dataclasses import dataclass
 from typing import Optional
@@ -315,13 +314,14 @@ CAMPAIGN_FORMATS = {"reflector": "%d", "theta1_deg": "%.12g", "theta2_deg": "%.1
 
 def write_campaign(campaign: Campaign, out_dir: str, comments=()) -> tuple:
     """Write ``campaign.csv`` (formats.md SCARA campaign) and ``truth.json``; returns both paths."""
-    os.makedirs(out_dir, exist_ok=True)
+    from .outputs import make_dir, write_json
+
+    make_dir(out_dir)
     csv_path, truth_path = os.path.join(out_dir, "campaign.csv"), os.path.join(out_dir, "truth.json")
     cols = {c: campaign.columns[c] for c in CAMPAIGN_FORMATS}
+    # Measurements: never replacing an existing file (outputs.writing).
     write_table(csv_path, cols, CAMPAIGN_FORMATS, comments=list(comments) + [
         "olti_drake SCARA campaign (shared/spec/formats.md): mm and degrees; "
-        "dir = approach direction; valid 0 = beam lost (no reading)"])
-    with open(truth_path, "w", encoding="utf-8") as f:
-        json.dump(campaign.truth, f, indent=1)
-        f.write("\n")
+        "dir = approach direction; valid 0 = beam lost (no reading)"], measurement=True)
+    write_json(truth_path, campaign.truth, measurement=True)
     return csv_path, truth_path

@@ -27,19 +27,26 @@ def _progress(enabled: bool):
     return report
 
 
-def _refuse_overwrite(out_paths, inputs):
-    """The CLI never overwrites an input file."""
-    real = {os.path.realpath(p) for p in inputs if p}
-    for p in out_paths:
-        if os.path.realpath(p) in real:
-            raise ValueError(f"{p}: output would overwrite an input file")
+def _check_outputs(args, files=(), inputs=(), measurements=(), dirs=(), create_dirs=False):
+    """Every output of a verb, checked before its work (olti_drake.outputs.preflight): never an input,
+    never a measurement, an existing result only with --force, a directory that can take it."""
+    from .outputs import preflight
+
+    preflight(files, inputs, force=getattr(args, "force", False), measurements=measurements, dirs=dirs,
+              create_dirs=create_dirs)
 
 
-def _simulate(scenario_path, out_dir, seed=None, progress=True, extend=None, realtime_rate=0.0):
+def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None, results=()):
+    """Simulate the scenario's campaign into ``out_dir`` (campaign.csv, truth.json: measurements, never
+    replaced); ``results``: the caller's other outputs, checked with them before the simulation;
+    ``view()``: (extend, realtime rate) of a live view, started only once the outputs are known good."""
     from .campaign import prepare, run_campaign, write_campaign
-    from .scenario import load_scenario
+    from .scenario import Hardware, load_scenario
 
     scenario = load_scenario(scenario_path)
+    if isinstance(scenario.station, Hardware):
+        raise ValueError(f"scenario {scenario_path}: station !Hardware: olti {args.verb} runs the simulated "
+                         f"station; drive the hardware with: olti run {scenario_path} --out DIR")
     if seed is not None:
         if seed < 0:
             raise ValueError(f"--seed must be >= 0, got {seed}")
@@ -49,7 +56,9 @@ def _simulate(scenario_path, out_dir, seed=None, progress=True, extend=None, rea
         inputs.append(scenario.resolve(scenario.budget))
     if hasattr(scenario.plan, "path"):
         inputs.append(scenario.resolve(scenario.plan.path))
-    _refuse_overwrite([os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], inputs)
+    _check_outputs(args, [os.path.join(out_dir, n) for n in results], inputs,
+                   [os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], [out_dir], create_dirs=True)
+    extend, realtime_rate = view() if view else (None, 0.0)
     setup = prepare(scenario)
     campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate)
     source = scenario_path or "embedded default (paper 000 experiment)"
@@ -105,8 +114,7 @@ def _add_meshcat_options(p):
 
 def cmd_simulate(args) -> int:
     t0 = time.perf_counter()
-    extend, rate = _meshcat_view(args)
-    setup, campaign, paths = _simulate(args.scenario, args.out, args.seed, extend=extend, realtime_rate=rate)
+    setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
     if args.meshcat and sys.stdin.isatty():
@@ -116,12 +124,14 @@ def cmd_simulate(args) -> int:
 
 def cmd_demo(args) -> int:
     """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
-    from .figures import write_campaign_figures
+    from .figures import CAMPAIGN_FIGURES, write_campaign_figures
     from .result import write_result
-    from .validation import campaign_data, validate_models, validation_table, write_validation_figures
+    from .validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
+                             write_validation_figures)
 
     t0 = time.perf_counter()
-    setup, campaign, paths = _simulate(None, args.out)
+    results = ("result_dh.json", "result_errormap.json") + CAMPAIGN_FIGURES + VALIDATION_FIGURES
+    setup, campaign, paths = _simulate(args, None, args.out, results=results)
     print("paper 000 experiment, simulated (open-loop tracking interferometer on a SCARA robot)")
     print(_summary(setup, campaign, time.perf_counter() - t0))
     print(f"wrote {paths[0]} and {paths[1]}")
@@ -189,7 +199,7 @@ def cmd_identify(args) -> int:
     from .identification import IdentificationOptions, identify, parse_grid
     from .result import write_result
 
-    _refuse_overwrite([args.out], [args.campaign])
+    _check_outputs(args, [args.out], [args.campaign])
     nominal = _pairs(args.nominal_mm, "--nominal-mm", 2)[0] if args.nominal_mm else (325.0, 225.0)
     options = IdentificationOptions(
         model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
@@ -209,13 +219,12 @@ def cmd_identify(args) -> int:
 
 
 def cmd_multilaterate(args) -> int:
-    import json
-
     import numpy as np
 
     from .multilateration import MultilaterationOptions, load_machine_campaign, multilaterate
+    from .outputs import write_json
 
-    _refuse_overwrite([args.out], [args.campaign])
+    _check_outputs(args, [args.out], [args.campaign, args.budget])
     options = MultilaterationOptions(
         stations_mm=_pairs(args.stations_mm, "--stations-mm", 2) if args.stations_mm else None, gauge=args.gauge,
         loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
@@ -229,9 +238,7 @@ def cmd_multilaterate(args) -> int:
 
         budget = paper001_budget() if args.budget is None else load_budget(args.budget)
     res = multilaterate(data, options, budget)
-    with open(args.out, "w", encoding="utf-8") as f:
-        json.dump(res.to_dict(), f, indent=1)
-        f.write("\n")
+    write_json(args.out, res.to_dict())
     dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
     U = 2e3 * np.hypot(*res.targets_std_mm.T)
     print(f"multilateration (001 Eq. 2-6): {len(data)} readings, {data.n_targets} targets, {data.n_stations} "
@@ -248,6 +255,12 @@ def cmd_multilaterate(args) -> int:
               + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
     print(f"wrote {args.out}")
     return 0
+
+
+def _add_force(p):
+    """--force: the verbs that write results (never a measurement nor an input: olti_drake.outputs)."""
+    p.add_argument("--force", action="store_true",
+                   help="replace existing result files (a campaign, a run log or an input is never replaced)")
 
 
 def _add_solver_options(p):
@@ -267,7 +280,7 @@ def cmd_predict(args) -> int:
     from .csvio import write_table
     from .result import load_result
 
-    _refuse_overwrite([args.out], [args.result, args.commands])
+    _check_outputs(args, [args.out], [args.result, args.commands])
     from .errormap import OutsideGridError
 
     model, _, _, _ = load_result(args.result, outside=args.outside)
@@ -325,14 +338,13 @@ def _propagate(ident, x, errors, args):
 
 def _uncertainty_multilateration(args, t0) -> int:
     """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
-    import json
-
     import numpy as np
 
     from .budget import load_budget
     from .figures import plot_target_uncertainty
     from .machine import paper001_budget
     from .multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
+    from .outputs import write_json
     from .uncertainty import ReadingErrors, uncertainty_dict
 
     if args.maps:
@@ -351,9 +363,7 @@ def _uncertainty_multilateration(args, t0) -> int:
                                      "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
     out = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
                            extra=extra)
-    with open(args.out, "w", encoding="utf-8") as f:
-        json.dump(out, f, indent=1)
-        f.write("\n")
+    write_json(args.out, out)
     print(f"uncertainty ({args.method}) of the multilateration {args.result} on {len(data)} readings; budget "
           f"{budget.name!r}" + (f"; {len(samples)} trials, seed {args.seed}" if samples is not None else ""))
     print(f"  targets: U (k = {args.k:g}) of the 2-norm max {U.max():.2f} um, mean {U.mean():.2f} um")
@@ -372,7 +382,6 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
-    import json
     import types
 
     import numpy as np
@@ -380,12 +389,10 @@ def cmd_uncertainty(args) -> int:
     from .budget import load_budget, paper000_budget
     from .campaign_io import load_campaign
     from .figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
+    from .outputs import write_json
     from .uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
 
-    outputs = [p for p in (args.out, args.map, args.maps) if p]
-    _refuse_overwrite(outputs, [args.result, args.campaign, args.budget])
-    if len({os.path.realpath(p) for p in outputs}) < len(outputs):
-        raise ValueError("--out, --map and --maps must name different files")
+    _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
     if args.trials < 2:
         raise ValueError(f"--trials must be >= 2, got {args.trials}")
     if not (np.isfinite(args.k) and args.k > 0):
@@ -423,9 +430,7 @@ def cmd_uncertainty(args) -> int:
                     "approach directions +1 and -1 (001 Fig. 14)"}
     unc = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples,
                            coverage=args.coverage, extra=extra)
-    with open(args.out, "w", encoding="utf-8") as f:
-        json.dump(unc, f, indent=1)
-        f.write("\n")
+    write_json(args.out, unc)
 
     u = dict(zip(ident.names, std))
     print(f"uncertainty ({args.method}) of {args.result} ({'errormap' if model.is_errormap else 'dh'}, "
@@ -473,18 +478,17 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
-    import json
-
     import numpy as np
 
     from .budget import load_budget, paper000_budget
     from .design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
                          workspace_commands)
     from .identification import UnidentifiableError
+    from .outputs import write_json
     from .plan import bidirectional_grid, load_plan
     from .result import load_result
 
-    _refuse_overwrite([args.out], [args.result, args.plan, args.regions, args.budget])
+    _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
     for name in ("step_mm", "workspace_step_mm"):
         v = getattr(args, name)
         if not (np.isfinite(v) and v > 0):
@@ -581,30 +585,34 @@ def cmd_design(args) -> int:
            "workspace": {"step_mm": args.workspace_step_mm, "commands": len(ws),
                          "directions": "(dir1, dir2) = (+1, +1), (+1, -1), (-1, +1), (-1, -1)"},
            "elapsed_s": round(elapsed, 3)}
-    with open(args.out, "w", encoding="utf-8") as f:
-        json.dump(out, f, indent=1)
-        f.write("\n")
+    write_json(args.out, out)
     print(f"wrote {args.out}")
     return 0
 
 
 def cmd_diagrams(args) -> int:
     """Render the simulated, emulated and hardware campaign diagrams (SVG + wiring files)."""
-    from .diagram_pictures import write_pictures
+    from .diagram_pictures import SCENARIOS, write_pictures
+    from .resources import source_tree_dir
 
-    for path in write_pictures(args.out):
+    out = args.out or source_tree_dir("diagrams")
+    if out is None:
+        raise ValueError("olti diagrams: give --out DIR (the default, diagrams/ of a source checkout, is not "
+                         "there: the package is installed)")
+    _check_outputs(args, [os.path.join(out, n + ext) for n in SCENARIOS for ext in (".svg", ".wiring.txt")],
+                   dirs=[out], create_dirs=True)
+    for path in write_pictures(out):
         print(f"wrote {path}")
     return 0
 
 
 def cmd_report(args) -> int:
     """The calibration report: DIR/report.html, self-contained (figures embedded, also written as PNG)."""
-    from .report import OUTPUT_NAMES, write_report
+    from .report import write_report
 
-    _refuse_overwrite([os.path.join(args.out, n) for n in OUTPUT_NAMES],
-                      [args.result, args.uncertainty, args.campaign, args.truth])
     t0 = time.perf_counter()
-    paths = write_report(args.result, args.out, args.uncertainty, args.campaign, args.truth, date=args.date)
+    paths = write_report(args.result, args.out, args.uncertainty, args.campaign, args.truth, date=args.date,
+                         force=args.force)
     for path in paths:
         print(f"wrote {path}")
     html_path = paths[-1]
@@ -619,7 +627,8 @@ def cmd_compensate(args) -> int:
     from .result import load_result
 
     tables = [os.path.join(args.tables, f"{a}_compensation.csv") for a in ("J1", "J2")] if args.tables else []
-    _refuse_overwrite([args.out] + tables, [args.result, args.targets])
+    _check_outputs(args, [args.out] + tables, [args.result, args.targets], dirs=[args.tables] if args.tables else [],
+                   create_dirs=True)
     model, _, _, _ = load_result(args.result, outside=args.outside)
     if args.tables and not model.is_errormap:
         raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is 'dh'")
@@ -681,8 +690,15 @@ def cmd_run(args) -> int:
     return 0 if s.complete else 1
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is the one line ``error: olti VERB: ...`` (exit 2), as every bad input."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"error: {self.prog}: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     sub.required = True
@@ -694,6 +710,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the identification (000 §4.3), write result_dh.json, "
                                    "result_errormap.json and figures (PNG).")
     p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
+    _add_force(p)
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
                        description="Build the scenario's Drake diagram with the simulated plant, run the "
@@ -717,6 +734,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reflectors-mm", help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     _add_solver_options(p)
+    _add_force(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
@@ -727,6 +745,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="prediction CSV to write")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse (default) or hold the end values")
+    _add_force(p)
     p.set_defaults(func=cmd_predict)
 
     p = sub.add_parser("multilaterate", help="paper-001 self-calibrating multilateration of a machine-tool campaign",
@@ -743,6 +762,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", help="budget YAML for the standard uncertainties (default: 001 Table 4); "
                                     "'residuals' propagates the residual variance instead")
     _add_solver_options(p)
+    _add_force(p)
     p.set_defaults(func=cmd_multilaterate)
 
     p = sub.add_parser("uncertainty", help="standard uncertainties of an identified result from a budget "
@@ -771,6 +791,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
     p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
     p.add_argument("--out", required=True, help="uncertainty JSON to write")
+    _add_force(p)
     p.set_defaults(func=cmd_uncertainty)
 
     p = sub.add_parser("design", help="design reflector positions that minimize the predicted-position "
@@ -804,6 +825,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base-radius-mm", type=float, default=40.0,
                    help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
     p.add_argument("--out", required=True, help="design JSON to write")
+    _add_force(p)
     p.set_defaults(func=cmd_design)
 
     p = sub.add_parser("diagrams", help="draw the simulated, emulated and hardware campaign diagrams (Graphviz SVG)",
@@ -811,7 +833,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "paper000_emulated.yaml and paper000_hardware.yaml (the hardware station on "
                                    "unopened ports, the emulator started and stopped) and write NAME.svg "
                                    "(Graphviz dot) and NAME.wiring.txt (sorted 'src.port -> dst.port' lines).")
-    p.add_argument("--out", default=None, help="output directory (default: the package's diagrams/)")
+    p.add_argument("--out", default=None, help="output directory (default: diagrams/ of the source checkout)")
+    _add_force(p)
     p.set_defaults(func=cmd_diagrams)
 
     p = sub.add_parser("report", help="calibration report: one self-contained HTML page with tables and figures",
@@ -829,6 +852,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--campaign", help="the campaign CSV of the result: covariance (linear), map, residuals")
     p.add_argument("--truth", help="truth.json of a simulated SCARA campaign (olti simulate): validation")
     p.add_argument("--date", help="date text for the header (the report never reads the clock)")
+    _add_force(p)
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("compensate", help="joint commands that put the end effector on targets by the model",
@@ -847,6 +871,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
+    _add_force(p)
     p.set_defaults(func=cmd_compensate)
     p = sub.add_parser("run", help="run a scenario's campaign on its station (simulated, emulated or hardware), "
                                    "writing every reading to disk as it arrives; --resume continues",
@@ -884,17 +909,51 @@ def _join_signed_values(argv):
     return out
 
 
+def _interrupted(e: BaseException) -> bool:
+    """Whether ``e`` is Ctrl-C, or an error it caused: an import interrupted inside an extension module
+    (pybind11's "initialization failed") surfaces as ImportError chained to the KeyboardInterrupt."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def _os_error_line(e: OSError) -> str:
+    """One line for an OSError: the file it names and the system's reason."""
+    where = ": ".join(os.fspath(f) for f in (e.filename, e.filename2) if f is not None)
+    reason = e.strerror or " ".join(str(e).split()) or type(e).__name__
+    return f"{where}: {reason}" if where else reason
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe (``olti ... | head``): point stdout at devnull so the exit flush is silent
+    (the recipe of the Python documentation, signal module, "Note on SIGPIPE")."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
-    from .csvio import InputError
-
     try:
-        return args.func(args)
-    except (InputError, ValueError, FileNotFoundError) as e:
+        code = args.func(args)
+        sys.stdout.flush()               # a reader that went away is found here, not at exit
+        return code
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 1
+    except ValueError as e:              # bad input (csvio.InputError and outputs.OutputError included)
         msg = " ".join(str(e).split()) or type(e).__name__
         print(f"error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:  # Ctrl-C before a verb's own handling (e.g. while importing)
+    except OSError as e:                 # an output or input the system refuses: one line naming it
+        print(f"error: {_os_error_line(e)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (KeyboardInterrupt, ImportError) as e:
+        if not _interrupted(e):
+            raise
         print(f"error: interrupted (olti {args.verb})", file=sys.stderr)
         return 130
 

@@ -306,7 +306,9 @@ def write_tables(model: ScaraModel, out_dir, source: str = "") -> list:
     """
     if not model.is_errormap:
         raise ValueError("compensation tables need an error-map result (model 'errormap'); a D-H model has no map")
-    os.makedirs(out_dir, exist_ok=True)
+    from .outputs import make_dir
+
+    make_dir(out_dir)
     paths = []
     for m in (model.map1, model.map2):
         path = os.path.join(out_dir, f"{m.axis}_compensation.csv")

@@ -133,15 +133,19 @@ def read_json(path, fmt, what: str = "") -> dict:
 
 
 def write_table(path, columns: Dict[str, Sequence], formats: Dict[str, str],
-                comments: Sequence[str] = ()) -> None:
+                comments: Sequence[str] = (), measurement: bool = False) -> None:
     """Write a CSV with ``# comment`` lines, a header and one row per entry.
 
     ``formats`` maps column -> %-format; deterministic output (same data, same
-    bytes) is what makes campaigns reproducible byte for byte.
+    bytes) is what makes campaigns reproducible byte for byte. Written
+    atomically by :func:`olti_drake.outputs.writing` (``measurement``: never
+    replacing an existing file).
     """
+    from .outputs import writing
+
     names = list(columns)
     n = len(columns[names[0]])
-    with open(path, "w", encoding="utf-8", newline="\n") as f:
+    with writing(path, measurement=measurement, newline="\n") as f:
         for c in comments:
             f.write(f"# {c}\n")
         f.write(",".join(names) + "\n")

@@ -25,8 +25,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .csvio import InputError
+from .resources import shipped
 
-DIAGRAMS_DIR = Path(__file__).resolve().parent.parent / "diagrams"
+#: The shipped scenarios (installed with the package; the top-level diagrams/ in a source checkout).
+DIAGRAMS_DIR = shipped("diagrams")
 #: Output name -> scenario file in ``diagrams/``.
 SCENARIOS = {"paper000_scara": "paper000_scara.yaml",
              "paper000_emulated": "paper000_emulated.yaml",
@@ -124,23 +126,22 @@ def render_svg(dot_source: str, dot: str = None) -> str:
     return run.stdout
 
 
-def write_pictures(out_dir=DIAGRAMS_DIR, names=None, max_depth=None) -> list:
+def write_pictures(out_dir=None, names=None, max_depth=None) -> list:
     """Write ``NAME.svg`` and ``NAME.wiring.txt`` of each shipped scenario; returns the paths written."""
     dot = find_dot()  # before any work: one line if it is missing
     out_dir = DIAGRAMS_DIR if out_dir is None else out_dir
-    os.makedirs(out_dir, exist_ok=True)
+    from .outputs import make_dir, write_text
+
+    make_dir(out_dir)
     written = []
     for name in names or SCENARIOS:
         with campaign_diagram(DIAGRAMS_DIR / SCENARIOS[name]) as diagram:
             source = graphviz_source(diagram, max_depth)
             wiring = wiring_lines(diagram)
         svg_path, wiring_path = (os.path.join(out_dir, f"{name}{ext}") for ext in (".svg", ".wiring.txt"))
-        with open(svg_path, "w", encoding="utf-8") as f:
-            f.write(render_svg(source, dot))
-        with open(wiring_path, "w", encoding="utf-8") as f:
-            f.write(f"# {name}: campaign diagram wiring of diagrams/{SCENARIOS[name]} "
-                    f"(olti diagrams; src.port -> dst.port)\n")
-            f.write("\n".join(wiring) + "\n")
+        write_text(svg_path, render_svg(source, dot))
+        write_text(wiring_path, f"# {name}: campaign diagram wiring of diagrams/{SCENARIOS[name]} "
+                                f"(olti diagrams; src.port -> dst.port)\n" + "\n".join(wiring) + "\n")
         written += [svg_path, wiring_path]
     return written
 

@@ -7,6 +7,8 @@ import os
 
 import numpy as np
 
+from .outputs import make_dir, save_figure
+
 
 def _pyplot():
     import matplotlib
@@ -39,7 +41,7 @@ def plot_poses_and_reflectors(setup, campaign, path):
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1))
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -61,16 +63,20 @@ def plot_truth_maps(setup, path):
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
 
+#: The files :func:`write_campaign_figures` writes.
+CAMPAIGN_FIGURES = ("fig5_poses_reflectors.png", "fig6_truth_maps.png")
+
+
 def write_campaign_figures(setup, campaign, out_dir):
-    """Write the campaign's figures into ``out_dir``; returns their paths."""
-    os.makedirs(out_dir, exist_ok=True)
-    return [plot_poses_and_reflectors(setup, campaign, os.path.join(out_dir, "fig5_poses_reflectors.png")),
-            plot_truth_maps(setup, os.path.join(out_dir, "fig6_truth_maps.png"))]
+    """Write the campaign's figures (:data:`CAMPAIGN_FIGURES`) into ``out_dir``; returns their paths."""
+    make_dir(out_dir)
+    fig5, fig6 = (os.path.join(out_dir, n) for n in CAMPAIGN_FIGURES)
+    return [plot_poses_and_reflectors(setup, campaign, fig5), plot_truth_maps(setup, fig6)]
 
 
 # -- identification and validation (000 Figs. 6, 9-11) ---------------------------------------------
@@ -80,7 +86,7 @@ _PASSES = ((1, "tab:red", "forward pass (+1)"), (-1, "tab:blue", "return pass (-
 
 def _save(fig, plt, path):
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -315,7 +321,7 @@ def plot_prediction_uncertainty_map(pmap: dict, path, k: float = 2.0, method: st
                  label=f"U (k = {k:g}) of the predicted position, k·sqrt(u_x² + u_y²), µm")
     fig.suptitle("Uncertainty of predicted positions inside the identified map range (001 Fig. 14 style)"
                  + (f" -- {method}" if method else ""), fontsize=11)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

@@ -14,7 +14,6 @@ Units: mm (µm in the error fields, as "thousandths of the command unit" of
   noise: 001 Table 4).
 """
 
-import os
 from dataclasses import dataclass, field
 from typing import Union
 
@@ -84,8 +83,9 @@ def paper001_budget():
     """001 Table 4 (k = 2) as a :class:`~olti_drake.budget.Budget` (the shipped YAML's content)."""
     from .budget import load_budget
 
-    return load_budget(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data",
-                                    "budget_paper001.yaml"))
+    from .resources import shipped
+
+    return load_budget(shipped("data", "budget_paper001.yaml"))
 
 
 @dataclass

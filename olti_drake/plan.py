@@ -204,7 +204,9 @@ def save_plan(plan: Plan, path) -> None:
     One ``#`` comment line, header ``theta1_deg,theta2_deg,measure``, values
     that round-trip exactly, measure as 0/1.
     """
-    with open(path, "w", encoding="utf-8", newline="") as f:
+    from .outputs import writing
+
+    with writing(path, newline="") as f:
         f.write("# olti_drake measurement plan (paper 000 sec. 4.1): commanded joint angles in "
                 "degrees, in execution order, row 1 = start; measure 1 = interferometer "
                 "reading, 0 = pass-through move; approach directions follow formats.md\n")

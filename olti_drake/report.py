@@ -17,13 +17,13 @@ mdeg (and arc-seconds).
 
 import base64
 import html
-import json
 import os
 from typing import List, Optional
 
 import numpy as np
 
 from .csvio import InputError, read_json
+from .outputs import make_dir, preflight, write_json, write_text
 from .iso230 import (ARCSEC_PER_DEG, EXTREME, NOT_AVAILABLE, STATISTICS, axis_statistics, map_statistics,
                      node_indices)
 
@@ -139,7 +139,7 @@ class _Page:
     def figure(self, make, name: str, caption: str):
         """``make(path)`` writes the PNG; the page embeds it as a data: URI with ``caption``."""
         path = os.path.join(self.out_dir, name)
-        os.makedirs(self.out_dir, exist_ok=True)  # only now: bad input found earlier leaves nothing behind
+        make_dir(self.out_dir)  # only now: bad input found earlier leaves nothing behind
         make(path)
         self.written.append(path)
         self.add(f'<figure><img alt="{_e(caption)}" src="{_png_uri(path)}">'
@@ -696,7 +696,7 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
 
 # -- the page ---------------------------------------------------------------------------------------------
 def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None, truth_path=None,
-                 date: Optional[str] = None) -> list:
+                 date: Optional[str] = None, force: bool = False) -> list:
     """Write ``out_dir/report.html`` (self-contained) and its PNG figures; returns the written paths.
 
     Args:
@@ -710,20 +710,18 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
             ISO statistics and the validation of 000 §4.3.
         date: a date string to print in the header (default: the result's ``date`` key, if any; the
             report never reads the clock, so its bytes depend only on the inputs).
+        force: replace report files already in ``out_dir`` (else refused; :mod:`olti_drake.outputs`).
 
     Raises InputError / ValueError (one-line messages) for bad input, before writing anything
-    when an output would overwrite an input.
+    when an output would overwrite an input or an existing file (without ``force``).
     """
     out_dir = os.fspath(out_dir)
     inputs = [os.fspath(p) for p in (result_path, uncertainty_path, campaign_path, truth_path) if p]
-    real = {os.path.realpath(p) for p in inputs}
-    for name in OUTPUT_NAMES:
-        path = os.path.join(out_dir, name)
-        if os.path.realpath(path) in real:
-            raise ValueError(f"{path}: output would overwrite an input file")
+    preflight([os.path.join(out_dir, name) for name in OUTPUT_NAMES], inputs, force=force, dirs=[out_dir],
+              create_dirs=True)
     for p in inputs:
         if not os.path.isfile(p):
-            raise InputError(f"{p}: no such file")
+            raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
     truth = None
@@ -756,19 +754,16 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
            f"<title>{_e('olti report: ' + os.path.basename(os.fspath(result_path)))}</title>"
            f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
-    os.makedirs(out_dir, exist_ok=True)
+    make_dir(out_dir)
     written = list(page.written)
     if page.iso is not None:
         path = os.path.join(out_dir, "iso230.json")
-        with open(path, "w", encoding="utf-8") as f:
-            json.dump({"format": "olti-iso230/1", "result": os.fspath(result_path),
-                       "what": "ISO 230-2 style systematic statistics of the identified error map, deg "
-                               "(olti_drake.iso230)", "k": 1,
-                       "axes": {a: s.to_dict() for a, s in page.iso.items()}}, f, indent=1)
-            f.write("\n")
+        write_json(path, {"format": "olti-iso230/1", "result": os.fspath(result_path),
+                          "what": "ISO 230-2 style systematic statistics of the identified error map, deg "
+                                  "(olti_drake.iso230)", "k": 1,
+                          "axes": {a: s.to_dict() for a, s in page.iso.items()}})
         written.append(path)
     path = os.path.join(out_dir, "report.html")
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(doc)
+    write_text(path, doc)
     written.append(path)
     return written

@@ -61,9 +61,9 @@ def result_dict(ident) -> dict:
 
 
 def write_result(ident, path) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        json.dump(result_dict(ident), f, indent=1)
-        f.write("\n")
+    from .outputs import write_json
+
+    write_json(path, result_dict(ident))
 
 
 def load_result(path, outside: str = "error"):

@@ -35,6 +35,8 @@ from .csvio import InputError
 FORMAT = "olti-run/1"
 COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "theta4_deg", "valid",
            "plan_row", "step", "session", "status", "reads", "rezeros", "time_utc", "elapsed_s")
+#: The files of a run directory: all measured data, never replaced (olti_drake.outputs).
+RUN_FILES = ("campaign.csv", "events.jsonl", "run.json", "truth.json")
 _FORMATS = ("%d", "%.12g", "%.12g", "%d", "%d", "%.9f", "%.9f", "%d", "%d", "%d", "%d", "%s", "%d", "%d", "%s",
             "%.3f")
 
@@ -76,22 +78,29 @@ class CampaignLog:
     @classmethod
     def create(cls, out_dir: str, manifest: dict, comments=(), fsync: bool = True) -> "CampaignLog":
         """Start a new campaign in ``out_dir``; refuses a directory that already holds one."""
+        from .outputs import make_dir, writing
+
         csv_path = cls.check_new(out_dir)
-        os.makedirs(out_dir, exist_ok=True)
-        with open(csv_path, "w", encoding="utf-8", newline="") as f:
-            text = "".join(f"# {c}\n" for c in comments) + ",".join(COLUMNS) + "\n"
-            _append(f, text, fsync)
-        open(os.path.join(out_dir, "events.jsonl"), "w").close()
+        make_dir(out_dir)
+        # Measurements: created only where no file is (outputs.writing never replaces one).
+        with writing(csv_path, measurement=True, fsync=fsync, newline="") as f:
+            f.write("".join(f"# {c}\n" for c in comments) + ",".join(COLUMNS) + "\n")
+        with writing(os.path.join(out_dir, "events.jsonl"), measurement=True, fsync=fsync):
+            pass
         manifest = dict(manifest, format=FORMAT, sessions=[], complete=False)
         _write_json(os.path.join(out_dir, "run.json"), manifest)
         return cls(out_dir, manifest, set(), fsync)
 
     @staticmethod
     def check_new(out_dir: str) -> str:
-        """The campaign path of a new run in ``out_dir``; a one-line error if a campaign is there."""
+        """The campaign path of a new run in ``out_dir``; a one-line error if a campaign or a run log is
+        there, or the directory cannot be made (:func:`olti_drake.outputs.preflight`)."""
+        from .outputs import preflight
+
         csv_path = os.path.join(out_dir, "campaign.csv")
         if os.path.exists(csv_path):
             raise InputError(f"{csv_path} exists: continue that campaign with --resume, or choose another --out")
+        preflight((), measurements=[os.path.join(out_dir, n) for n in RUN_FILES], dirs=[out_dir], create_dirs=True)
         return csv_path
 
     @classmethod
@@ -180,14 +189,12 @@ def _plain(v):
 
 
 def _write_json(path: str, obj: dict) -> None:
-    """Replace ``path`` atomically (write a temporary file, fsync, rename)."""
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
+    """Replace the run's own ``path`` atomically (a temporary file, fsync, rename: outputs.writing)."""
+    from .outputs import writing
+
+    with writing(path, fsync=True) as f:
         json.dump(obj, f, indent=1)
         f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _drop_partial_line(path: str) -> str:

@@ -170,9 +170,17 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
     n_rows = len(setup.plan)
     t0 = time.monotonic()
     if todo.size == 0:
+        session = log.session - 1
+        if not log.manifest.get("complete"):
+            # Every reading is on disk but the last session stopped before saying so (e.g. interrupted
+            # after its last reading): this resume completes the campaign on record.
+            session = log.session
+            log.begin_session(len(measured), station=_station_kind(scenario), resumed=True)
+            if not isinstance(scenario.station, Hardware):
+                _write_truth(setup, out_dir)
+            log.end_session("complete", complete=True, taken=0)
         log.close()
-        return RunSummary(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), log.session - 1, 0.0,
-                          True)
+        return RunSummary(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), session, 0.0, True)
     # A fresh campaign starts at step 0: the plan's first approach is part of the plan.
     start = int(todo[0]) if recorded else 0
     taken = invalid = 0
@@ -242,14 +250,13 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
 
 
 def _write_truth(setup, out_dir) -> None:
-    """The simulated truth (result format) of a complete simulated or emulated campaign."""
-    import json
-
+    """The simulated truth (result format) of a complete simulated or emulated campaign; one already
+    there (same command sequence, checked on resume) is kept: measured data is never replaced."""
     from .campaign import truth_result
     from .csvio import read_table
+    from .outputs import write_json
 
+    if os.path.exists(os.path.join(out_dir, "truth.json")):
+        return
     t = read_table(os.path.join(out_dir, "campaign.csv"), ("theta1_deg", "theta2_deg", "valid"))
-    truth = truth_result(setup, t)
-    with open(os.path.join(out_dir, "truth.json"), "w", encoding="utf-8") as f:
-        json.dump(truth, f, indent=1)
-        f.write("\n")
+    write_json(os.path.join(out_dir, "truth.json"), truth_result(setup, t), measurement=True)

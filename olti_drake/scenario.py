@@ -331,7 +331,8 @@ def load_scenario(path=None) -> Scenario:
 
     name = os.fspath(path)
     if not os.path.isfile(name):
-        raise InputError(f"{name}: scenario file not found")
+        raise InputError(f"{name}: " + ("is a directory, expected a scenario YAML file" if os.path.isdir(name)
+                                        else "scenario file not found"))
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=name)
     except Exception as e:  # pydrake's messages are multi-line and may not name the key
@@ -342,46 +343,89 @@ def load_scenario(path=None) -> Scenario:
 
 
 def _locate_bad_field(schema, filename: str) -> str:
-    """Dotted path of the first field that does not load on its own ('' if none found).
+    """Dotted path of the innermost field that does not load on its own ('' if none found).
 
     pydrake reports e.g. a non-integer seed without naming it; this retries the
-    untagged parts of the document field by field to name the culprit.
+    document field by field (tagged sub-trees such as ``J1: !HarmonicDeviation``
+    keep their tags and are entered as the class the tag names) to name the culprit,
+    e.g. ``seed`` or ``robot.J1.harmonics[0].amplitude_mdeg``.
     """
     import typing
 
     import yaml
     from pydrake.common.yaml import yaml_load_typed
 
+    class _Tagged:
+        def __init__(self, tag, value):
+            self.tag, self.value = tag, value
+
     class _Loader(yaml.SafeLoader):
         pass
 
-    tagged = object()
-    _Loader.add_multi_constructor("!", lambda loader, suffix, node: tagged)
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def construct(loader, suffix, node):
+        if isinstance(node, yaml.MappingNode):
+            return _Tagged(suffix, loader.construct_mapping(node, deep=True))
+        if isinstance(node, yaml.SequenceNode):
+            return _Tagged(suffix, loader.construct_sequence(node, deep=True))
+        return _Tagged(suffix, loader.construct_scalar(node))
+
+    def represent(dumper, t):
+        tag = "!" + t.tag
+        if isinstance(t.value, dict):
+            return dumper.represent_mapping(tag, t.value)
+        if isinstance(t.value, list):
+            return dumper.represent_sequence(tag, t.value)
+        return dumper.represent_scalar(tag, str(t.value))
+
+    _Loader.add_multi_constructor("!", construct)
+    _Dumper.add_representer(_Tagged, represent)
     try:
         with open(filename, encoding="utf-8") as f:
             raw = yaml.load(f, Loader=_Loader)
-    except yaml.YAMLError:
+    except (yaml.YAMLError, UnicodeDecodeError):
         return ""
+
+    def loads(cls, key, value) -> bool:
+        try:
+            yaml_load_typed(schema=cls, data=yaml.dump({key: value}, Dumper=_Dumper))
+            return True
+        except Exception:  # pydrake raises RuntimeError/ValueError/TypeError by case
+            return False
+
+    def members(hint):
+        """The dataclasses a field's type hint may hold (Union/Optional/List members, recursively)."""
+        if is_dataclass(hint):
+            return [hint]
+        return [c for a in typing.get_args(hint) for c in members(a)]
+
+    def enter(hint, value, where):
+        """The innermost bad field inside ``value`` of type ``hint`` ('' if none is found)."""
+        if isinstance(value, _Tagged):
+            cls = next((c for c in members(hint) if c.__name__ == value.tag), None)
+            return walk(cls, value.value, where + ".") if cls is not None else ""
+        if isinstance(value, list):
+            for i, item in enumerate(value):
+                found = enter(hint, item, f"{where}[{i}]")
+                if found:
+                    return found
+            return ""
+        cls = next(iter(members(hint)), None)
+        return walk(cls, value, where + ".") if cls is not None else ""
 
     def walk(cls, data, prefix):
         if not isinstance(data, dict):
             return ""
         hints = typing.get_type_hints(cls)
         for key, value in data.items():
-            if value is tagged or key not in hints:
+            if key not in hints or loads(cls, key, value):
                 continue
-            try:
-                yaml_load_typed(schema=cls, data=yaml.safe_dump({key: value}))
-            except Exception:
-                sub = hints[key]
-                deeper = walk(sub, value, f"{prefix}{key}.") if is_dataclass(sub) else ""
-                return deeper or f"{prefix}{key}"
+            return enter(hints[key], value, f"{prefix}{key}") or f"{prefix}{key}"
         return ""
 
-    try:
-        return walk(schema, raw, "")
-    except yaml.YAMLError:  # a subtree with tags nested inside plain data
-        return ""
+    return walk(schema, raw, "")
 
 
 def _first_line(e: Exception) -> str:

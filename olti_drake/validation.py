@@ -317,6 +317,10 @@ def validation_table(report: ValidationReport) -> str:
     return "\n".join(lines)
 
 
+#: The files :func:`write_validation_figures` writes.
+VALIDATION_FIGURES = ("fig6_maps.png", "fig9_10_x200.png", "fig11_error_vectors.png")
+
+
 def write_validation_figures(report: ValidationReport, out_dir, truth=None) -> list:
     """Figs. 6, 9-10 and 11 of 000 for the report, as PNG files in ``out_dir``; returns the paths.
 
@@ -327,14 +331,17 @@ def write_validation_figures(report: ValidationReport, out_dir, truth=None) -> l
 
     from .figures import plot_error_vectors, plot_identified_maps, plot_path_deviation
 
-    os.makedirs(out_dir, exist_ok=True)
+    from .outputs import make_dir
+
+    make_dir(out_dir)
     x200, grid = report.results["x200"], report.results["grid"]
+    fig6, fig9, fig11 = (os.path.join(out_dir, n) for n in VALIDATION_FIGURES)
     return [
-        plot_identified_maps(report.identifications["error map"], truth, os.path.join(out_dir, "fig6_maps.png")),
+        plot_identified_maps(report.identifications["error map"], truth, fig6),
         plot_path_deviation(x200.commands.xy_cmd_mm, x200.commands.pass_dir, x200.measured_mm,
                             x200.comparison["D-H"]["predicted_mm"], x200.comparison["error map"]["predicted_mm"],
-                            os.path.join(out_dir, "fig9_10_x200.png")),
+                            fig9),
         plot_error_vectors(grid.commands.xy_cmd_mm, grid.commands.pass_dir, grid.commands.path_id,
                            grid.measured_mm, grid.comparison["error map"]["predicted_mm"],
-                           grid.comparison["D-H"]["predicted_mm"], os.path.join(out_dir, "fig11_error_vectors.png")),
+                           grid.comparison["D-H"]["predicted_mm"], fig11),
     ]

@@ -301,3 +301,110 @@ def test_a_hardware_station_refuses_a_simulated_reflector_search(tmp_path):
     path.write_text("station: !Hardware {robot_port: /dev/a, counter_port: /dev/b}\n")
     r = _run(str(path), "--out", str(tmp_path / "run"))
     assert r.returncode == 2 and "needs reflector_estimate: !ExactEstimate" in r.stderr
+
+
+# -- the log's guarantees, each caught by a test when it is removed (issue 11) -------------------------------
+@pytest.fixture(scope="module")
+def simulated_run(tmp_path_factory):
+    """(scenario, run directory) of a whole noise-free simulated campaign; tests copy the directory."""
+    from olti_drake.runner import run
+
+    tmp = tmp_path_factory.mktemp("simulated")
+    scenario, out = _scenario(tmp, station="!Simulated {}"), str(tmp / "whole")
+    assert run(scenario, out).complete
+    return scenario, out
+
+
+def _copy_run(src, dst, keep=None):
+    """A copy of run directory ``src``; ``keep(step)`` selects the campaign rows copied (default all)."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    if keep is not None:
+        lines = open(os.path.join(src, "campaign.csv"), encoding="utf-8").read().splitlines(keepends=True)
+        n_head = next(i for i, ln in enumerate(lines) if not ln.startswith("#")) + 1   # comments + header
+        head, rows = lines[:n_head], lines[n_head:]
+        step_col = head[-1].strip().split(",").index("step")
+        open(os.path.join(dst, "campaign.csv"), "w", encoding="utf-8").write(
+            "".join(head + [r for r in rows if keep(int(r.split(",")[step_col]))]))
+    return dst
+
+
+def test_every_reading_and_event_is_fsynced_after_it_is_written(tmp_path, monkeypatch):
+    """The run log's promise (a power cut loses nothing written): fsync after each line, the line flushed
+    before it; --no-fsync (fsync=False) skips it."""
+    import types
+
+    from olti_drake import runlog
+
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(runlog.os, "fsync", lambda fd: (synced.append((fd, os.fstat(fd).st_size)), real(fd)))
+    status = types.SimpleNamespace(raw="OK", reads=1, rezeros=0)
+    record = (0, -140.0, 0.0, 1, 1, 12.5, 0.8, 1, 3)
+    for fsync in (True, False):
+        out = str(tmp_path / f"run{fsync}")
+        log = runlog.CampaignLog.create(out, {"planned": 1}, fsync=fsync)
+        synced.clear()
+        log.append(3, record, status)
+        log.event("zero", reflector=0)
+        csv_fd, ev_fd = log._csv.fileno(), log._events.fileno()
+        sizes = {fd: os.fstat(fd).st_size for fd in (csv_fd, ev_fd)}
+        log.close()
+        if fsync:
+            assert synced == [(csv_fd, sizes[csv_fd]), (ev_fd, sizes[ev_fd])], synced
+        else:
+            assert synced == []
+    assert _table_steps(os.path.join(str(tmp_path / "runTrue"), "campaign.csv")) == [3]
+
+
+def _table_steps(csv):
+    return read_table(csv, ("step",))["step"].astype(int).tolist()
+
+
+def test_resume_never_records_a_step_already_on_disk(tmp_path, simulated_run):
+    """Readings 100..149 missing in the middle: the resume takes exactly those, not the later ones again."""
+    from olti_drake.runner import run
+
+    scenario, whole = simulated_run
+    out = _copy_run(whole, str(tmp_path / "gap"), keep=lambda step: not 100 <= step < 150)
+    before = _table_steps(os.path.join(out, "campaign.csv"))
+    s = run(scenario, out, resume=True)
+    steps = _table_steps(os.path.join(out, "campaign.csv"))
+    assert len(steps) == len(set(steps)) == PLANNED and s.complete
+    assert s.taken == PLANNED - len(before) > 0    # only the readings of the gap were taken
+
+
+def test_a_step_recorded_twice_is_refused_on_resume(tmp_path, simulated_run):
+    from olti_drake.runlog import CampaignLog
+    from olti_drake.runner import run
+
+    scenario, whole = simulated_run
+    out = _copy_run(whole, str(tmp_path / "twice"))
+    csv = os.path.join(out, "campaign.csv")
+    lines = open(csv, encoding="utf-8").read().splitlines(keepends=True)
+    open(csv, "a", encoding="utf-8").write(lines[-5])        # a reading already on disk, again
+    with pytest.raises(InputError, match=r"campaign\.csv:\d+: step \d+ is recorded twice"):
+        CampaignLog.reopen(out)
+    r = _run(scenario, "--out", out, "--resume")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is recorded twice" in r.stderr
+
+
+def test_a_resume_that_finds_every_reading_on_disk_marks_the_run_complete(tmp_path, simulated_run):
+    """Interrupted after its last reading: run.json said complete false; the resume completes it."""
+    from olti_drake.runner import run
+
+    scenario, whole = simulated_run
+    out = _copy_run(whole, str(tmp_path / "last"))
+    manifest = json.load(open(os.path.join(out, "run.json")))
+    manifest["complete"] = False
+    manifest["sessions"][-1]["outcome"] = "interrupted (SIGINT)"
+    json.dump(manifest, open(os.path.join(out, "run.json"), "w"))
+    os.remove(os.path.join(out, "truth.json"))
+    s = run(scenario, out, resume=True)
+    assert s.complete and s.taken == 0
+    manifest = json.load(open(os.path.join(out, "run.json")))
+    assert manifest["complete"] is True and manifest["sessions"][-1]["outcome"] == "complete"
+    assert os.path.exists(os.path.join(out, "truth.json"))
+    r = _run(scenario, "--out", out, "--resume")
+    assert r.returncode == 0 and "already complete" in r.stdout
