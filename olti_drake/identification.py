@@ -23,7 +23,7 @@ from typing import List, Optional
 import numpy as np
 
 from .campaign_io import CampaignData
-from .csvio import InputError
+from .csvio import InputError, unit_bound
 from .errormap import ErrorMap
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
@@ -79,25 +79,41 @@ class Identification:
         return float(self.std[self.names.index(name)])
 
 
+#: Most nodes a map grid may have: the identification's dense matrices grow as the square of the
+#: 4 * nodes map parameters (2 maps x 2 directions); 2001 nodes (e.g. 0.1 deg over 200 deg) is 8004
+#: parameters, a 0.5 GB covariance -- a finer grid is a slip (a step in the wrong unit), not a plan.
+MAX_GRID_NODES = 2001
+
+
 def parse_grid(text: str, name: str) -> np.ndarray:
-    """``start:stop:step`` (inclusive) or a comma list, degrees, e.g. ``-140:60:10``."""
+    """``start:stop:step`` (inclusive) or a comma list, degrees, e.g. ``-140:60:10``: finite, strictly
+    ascending, within +-720 deg (``csvio.UNIT_BOUNDS``), at most :data:`MAX_GRID_NODES` nodes. Errors are
+    one line naming the option ``name``."""
+    form = (f"{name}: expected START:STOP:STEP (degrees, STOP >= START, STEP > 0) or a comma list, "
+            f"got {text!r}")
     try:
         if ":" in text:
             a, b, s = (float(v) for v in text.split(":"))
-            if not s > 0 or b < a:
-                raise ValueError
-            n = int(round((b - a) / s))
-            if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
-                raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
-            return a + s * np.arange(n + 1)
-        g = np.array([float(v) for v in text.split(",")])
-    except InputError:
-        raise
+        else:
+            g = np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise InputError(f"{name}: expected START:STOP:STEP (degrees, STOP >= START, STEP > 0) "
-                         f"or a comma list, got {text!r}") from None
+        raise InputError(form) from None
+    if ":" in text:
+        if not (np.isfinite([a, b, s]).all() and s > 0 and b >= a):
+            raise InputError(form)
+        n = (b - a) / s
+        if n + 1 > MAX_GRID_NODES:
+            raise InputError(f"{name}: {text!r} has {n + 1:.3g} nodes, more than {MAX_GRID_NODES} (use a coarser step)")
+        n = int(round(n))
+        if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
+            raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
+        g = a + s * np.arange(n + 1)
     if g.size == 0 or np.any(np.diff(g) <= 0) or not np.all(np.isfinite(g)):
         raise InputError(f"{name}: grid must be finite and strictly ascending, got {text!r}")
+    if g.size > MAX_GRID_NODES:
+        raise InputError(f"{name}: {g.size} nodes, more than {MAX_GRID_NODES}")
+    if np.abs(g).max() > unit_bound("_deg"):
+        raise InputError(f"{name}: nodes beyond +-{unit_bound('_deg'):g} deg, outside any physical range")
     return g
 
 

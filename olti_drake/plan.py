@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .csvio import check_finite, check_values, read_table
+from .csvio import check_finite, check_values, read_table, read_yaml
 from .errormap import MOTION_TOLERANCE_DEG, approach_directions
 
 #: Tolerance (deg) for "step divides the range".
@@ -216,6 +216,7 @@ def save_plan(plan: Plan, path) -> None:
 def _load_yaml(path: Path) -> Plan:
     from pydrake.common.yaml import yaml_load_typed
 
+    read_yaml(path, "plan")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
     try:
         grid = yaml_load_typed(schema=BidirectionalGrid, filename=str(path))
         return grid.plan()

@@ -43,6 +43,9 @@ class ReadingErrors:
 
     budget: Budget
 
+    def __post_init__(self):  # a constructed budget is checked before it is propagated, as a loaded one is
+        self.budget.validate()
+
     def _terms(self, acts_on):
         return [c for c in self.budget.contributors if c.acts_on == acts_on]
 
