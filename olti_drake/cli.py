@@ -42,9 +42,7 @@ def _simulate(scenario_path, out_dir, seed=None, progress=True, extend=None, rea
     from .scenario import load_scenario
 
     scenario = load_scenario(scenario_path)
-    if seed is not None:
-        if seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {seed}")
+    if seed is not None:  # checked by argparse (cliargs.seed)
         scenario.seed = seed
     inputs = [scenario_path]
     if scenario.budget:
@@ -83,9 +81,7 @@ def _summary(setup, campaign, elapsed_s: float) -> str:
 
 def _meshcat_view(args):
     """(extend, realtime rate) of the --meshcat options: the live view's systems, or none."""
-    extend, rate = None, args.realtime_rate
-    if rate is not None and not rate >= 0:
-        raise ValueError(f"--realtime-rate must be >= 0, got {rate}")
+    extend, rate = None, args.realtime_rate  # >= 0, checked by argparse (cliargs.nonnegative)
     if args.meshcat:
         from .meshcat_view import campaign_view, start_meshcat
 
@@ -378,16 +374,6 @@ def cmd_uncertainty(args) -> int:
     _refuse_overwrite(outputs, [args.result, args.campaign, args.budget])
     if len({os.path.realpath(p) for p in outputs}) < len(outputs):
         raise ValueError("--out, --map and --maps must name different files")
-    if args.trials < 2:
-        raise ValueError(f"--trials must be >= 2, got {args.trials}")
-    if not (np.isfinite(args.k) and args.k > 0):
-        raise ValueError(f"--k must be > 0, got {args.k:g}")
-    if not 0 < args.coverage < 1:
-        raise ValueError(f"--coverage must be a probability in (0, 1), got {args.coverage:g}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = load_budget(args.budget) if args.budget else paper000_budget()
@@ -467,8 +453,6 @@ def cmd_design(args) -> int:
     """
     import json
 
-    import numpy as np
-
     from .budget import load_budget, paper000_budget
     from .design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
                          workspace_commands)
@@ -477,18 +461,6 @@ def cmd_design(args) -> int:
     from .result import load_result
 
     _refuse_overwrite([args.out], [args.result, args.plan, args.regions, args.budget])
-    for name in ("step_mm", "workspace_step_mm"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0 mm, got {v:g}")
-    for name in ("min_separation_mm", "clearance_mm", "base_radius_mm"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v >= 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 0 mm, got {v:g}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if args.starts < 1 or args.max_sweeps < 1:
-        raise ValueError(f"--starts and --max-sweeps must be >= 1, got {args.starts} and {args.max_sweeps}")
     model, P, _, _ = load_result(args.result, outside="clamp")
     plan = load_plan(args.plan) if args.plan else bidirectional_grid()
     plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"

@@ -332,3 +332,21 @@ def test_physical_bounds_are_stated_and_shared():
 
     assert unit_bound("theta1_deg") == 720.0 and unit_bound("x_cmd_mm") == 1e5 and unit_bound("dir1") == np.inf
     assert cliargs.MAX_MM == unit_bound("_mm")
+
+
+def test_yaml_reader_accepts_repeated_keys_in_different_mappings_and_tags(tmp_path):
+    """Only a key given twice in ONE mapping is refused: sibling mappings, nested tags and a BOM are fine."""
+    from olti_drake.csvio import InputError, read_yaml
+
+    ok = tmp_path / "ok.yaml"
+    ok.write_bytes("\ufeffa: 1\nlist:\n- {name: x, v: 1}\n- {name: y, v: 2}\nstation: !Emulated {speed: fast}\n"
+                   "nested: {a: {a: 1}}\n".encode("utf-8"))
+    assert read_yaml(ok) == {"a": 1, "list": [{"name": "x", "v": 1}, {"name": "y", "v": 2}],
+                             "station": {"speed": "fast"}, "nested": {"a": {"a": 1}}}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: 1\nlist:\n- {name: x, v: 1}\n- name: y\n  v: 2\n  name: z\n")
+    with pytest.raises(InputError, match=r"bad.yaml:6: duplicate key 'name' \(first on line 4\)"):
+        read_yaml(bad)
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(InputError, match=r"bad.yaml:2: not valid YAML"):
+        read_yaml(bad)
