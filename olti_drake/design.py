@@ -45,7 +45,7 @@ import numpy as np
 
 from .budget import Budget
 from .campaign_io import CampaignData
-from .csvio import InputError, read_yaml
+from .csvio import InputError, read_yaml, unit_bound
 from .identification import UnidentifiableError
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid
 from .plan import Plan
@@ -105,10 +105,11 @@ def parse_regions(data, where: str = "regions") -> List[Region]:
             v = item[key]
             try:
                 lo, hi = (float(a) for a in v)
-                if isinstance(v, (str, bytes)) or not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+                if (isinstance(v, (str, bytes)) or not np.all(np.abs([lo, hi]) <= unit_bound(key)) or lo > hi):
                     raise ValueError
             except (TypeError, ValueError):
-                raise InputError(f"{label}.{key}: expected [lo, hi] in mm, finite, lo <= hi, got {v!r}") from None
+                raise InputError(f"{label}.{key}: expected [lo, hi] in mm, finite, within +-{unit_bound(key):g} mm, "
+                                 f"lo <= hi, got {v!r}") from None
             ranges.append((lo, hi))
         name = item.get("name", "")
         out.append(Region(ranges[0], ranges[1], str(name) if name is not None else ""))

@@ -190,6 +190,9 @@ class Identifier(LeastSquaresProgram):
         for axis, grid, cmd in (("J1", o.grid1_deg, c.theta1_deg), ("J2", o.grid2_deg, c.theta2_deg)):
             # Distinct commanded angles; files written elsewhere may carry 1e-12 deg of float noise.
             g = np.unique(np.round(cmd, 9)) if grid is None else np.asarray(grid, dtype=float)
+            if grid is None and g.size > MAX_GRID_NODES:
+                raise InputError(f"{self.data.source}: {g.size} distinct {axis} commands would be {g.size} map nodes, "
+                                 f"more than {MAX_GRID_NODES}; give the {axis} map grid (--grid{axis[1]}-deg)")
             out = (cmd < g[0] - 1e-9) | (cmd > g[-1] + 1e-9)
             if out.any():
                 k = np.flatnonzero(out)[0]

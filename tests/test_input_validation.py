@@ -350,3 +350,26 @@ def test_yaml_reader_accepts_repeated_keys_in_different_mappings_and_tags(tmp_pa
     bad.write_text("a: [1, 2\n")
     with pytest.raises(InputError, match=r"bad.yaml:2: not valid YAML"):
         read_yaml(bad)
+
+
+def test_generated_plans_regions_and_default_grids_are_capped(result, tmp_path, capsys):
+    """Steps in the wrong unit would allocate gigabytes: refused, naming the step or the option."""
+    out = tmp_path / "d.json"
+    plan = _write(tmp_path / "plan.yaml", ["theta1_start: -140.0", "theta1_stop: 60.0", "theta1_step: 1e-6"])
+    assert_refused(["design", result[0], "--regions", REGIONS, "--plan", plan, "--out", out], capsys,
+                   [plan, "theta1_step", "1,000,000"], out)
+    plan = _write(tmp_path / "plan2.yaml", ["theta1_step: 0.1", "theta2_step: 0.01"])
+    assert_refused(["design", result[0], "--regions", REGIONS, "--plan", plan, "--out", out], capsys,
+                   [plan, "theta2_step", "poses"], out)
+    regions = _write(tmp_path / "regions.yaml", ["regions:", "  - {x_mm: [650, 1e9], y_mm: [0, 100]}"])
+    assert_refused(["design", result[0], "--regions", regions, "--out", out], capsys,
+                   [regions, "regions[0].x_mm", "100000 mm"], out)
+    # A campaign of random poses: every command distinct, so the default grid would have thousands of nodes.
+    rng = np.random.default_rng(0)
+    rows = ["reflector,theta1_deg,theta2_deg,dir1,dir2,displacement_mm"]
+    rows += [f"{i % 3},{t1:.6f},{t2:.6f},1,1,{d:.6f}" for i, (t1, t2, d) in
+             enumerate(zip(rng.uniform(-140, 60, 2500), rng.uniform(0, 140, 2500), rng.uniform(-100, 100, 2500)))]
+    campaign = _write(tmp_path / "random.csv", rows)
+    out = tmp_path / "r.json"
+    assert_refused(["identify", campaign, "--model", "errormap", "--out", out], capsys,
+                   [campaign, "distinct J1 commands", "--grid1-deg"], out)
