@@ -730,7 +730,9 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     if truth_path:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
-        truth = read_json(truth_path, SCARA_FORMAT, "a truth")
+        from .result import load_result
+
+        truth = load_result(truth_path, outside="clamp")[3]  # a truth is a result-format file: same schema check
     if unc is not None:
         _check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)

@@ -163,8 +163,11 @@ RESULT_CASES = {
 
 
 # `olti uncertainty` takes a machine-tool result too (its own schema: test_bad_machine_result_is_refused).
-RESULT_VERB_CASES = [(c, v) for c in sorted(RESULT_CASES) for v in ("predict", "compensate", "design", "uncertainty")
-                     if not (v == "uncertainty" and c in ("machine-tool result", "uncertainty file"))]
+# `olti report` too, and it reads a machine-tool result by that schema (missing 'targets_mm').
+RESULT_VERB_CASES = [(c, v) for c in sorted(RESULT_CASES)
+                     for v in ("predict", "compensate", "design", "uncertainty", "report")
+                     if not (v in ("uncertainty", "report") and c == "machine-tool result")
+                     and not (v == "uncertainty" and c == "uncertainty file")]
 
 
 @pytest.mark.parametrize("case, verb", RESULT_VERB_CASES)
@@ -177,12 +180,23 @@ def test_bad_result_is_refused_naming_the_key(case, verb, result, tmp_path, caps
     out = tmp_path / "out.csv"
     rest = {"predict": [CAMPAIGN, "--out", out], "compensate": [_targets(tmp_path), "--out", out],
             "design": ["--regions", REGIONS, "--out", out],
-            "uncertainty": [CAMPAIGN, "--method", "linear", "--out", out]}[verb]
+            "uncertainty": [CAMPAIGN, "--method", "linear", "--out", out], "report": ["--out", out]}[verb]
     assert_refused([verb, bad] + rest, capsys, [str(bad)] + needles, out)
 
 
 def _targets(tmp_path):
     return _write(tmp_path / "targets.csv", ["x_mm,y_mm", "400,100", "300,-200"])
+
+
+def test_bad_truth_is_refused_by_report(result, tmp_path, capsys):
+    """A truth.json is a result-format file (olti simulate): read with the same schema check."""
+    truth = json.load(open(os.path.join(DATA, "paper000", "truth.json"), encoding="utf-8"))
+    truth["error_map"]["J1"]["forward_deg"][2] = float("nan")
+    bad = tmp_path / "truth.json"
+    bad.write_text(json.dumps(truth))
+    out = tmp_path / "report"
+    assert_refused(["report", result[0], "--truth", bad, "--out", out], capsys,
+                   [str(bad), "'error_map.J1.forward_deg'[2]", "nan"], out)
 
 
 def test_a_campaign_given_as_result_is_refused(tmp_path, capsys):
