@@ -361,7 +361,7 @@ def _iso_section(page, stats, truth_stats, k, u_note, truth_note):
 def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, truth_path, k):
     from .result import load_result
 
-    model, P, d0, _ = load_result(result_path, outside="clamp")
+    model, P, d0, _ = load_result(result_path, outside="clamp", identified=True)
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None and unc is None:
         try:

@@ -66,8 +66,12 @@ def write_result(ident, path) -> None:
         f.write("\n")
 
 
-def load_result(path, outside: str = "error"):
+def load_result(path, outside: str = "error", identified: bool = False):
     """Read a result.json -> (ScaraModel, reflectors (Nt, 2) mm, dead paths (Nt,) mm, raw dict).
+
+    ``identified``: the verb describes an identification (its uncertainty, its report), so a simulation
+    truth (``olti simulate``'s truth.json: the result format with a ``truth`` key) is refused; where only
+    the model is used (predict, compensate, design) a truth is a model like any other.
 
     The schema is checked where it is read (formats.md): link lengths > 0 mm, reflectors N x 2 and dead
     paths N mm, map grids ascending with forward/reverse deviations of the same length (deg), the
@@ -77,6 +81,9 @@ def load_result(path, outside: str = "error"):
     """
     name = os.fspath(path)
     data = read_json(path, FORMAT, "a SCARA result (olti identify)")
+    if identified and "truth" in data:
+        raise InputError(f"{name}: a simulation truth (olti simulate), not an identified result (olti identify); "
+                         f"a truth is given to olti report with --truth")
     kind = data.get("model")
     if kind not in ("dh", "errormap"):
         raise InputError(f"{name}: 'model' must be 'dh' or 'errormap', got {kind!r}")

@@ -199,6 +199,21 @@ def test_bad_truth_is_refused_by_report(result, tmp_path, capsys):
                    [str(bad), "'error_map.J1.forward_deg'[2]", "nan"], out)
 
 
+@pytest.mark.parametrize("verb", ["uncertainty", "report"])
+def test_a_truth_given_as_result_is_refused_where_an_identification_is_described(verb, tmp_path, capsys):
+    truth = os.path.join(DATA, "paper000", "truth.json")
+    out = tmp_path / "out"
+    argv = [verb, truth, CAMPAIGN, "--method", "linear"] if verb == "uncertainty" else [verb, truth]
+    assert_refused(argv + ["--out", out], capsys, [truth, "simulation truth", "--truth"], out)
+
+
+def test_a_truth_is_a_model_for_predict(tmp_path, capsys):
+    """Where only the model is used, truth.json (the result format) predicts the true positions."""
+    out = tmp_path / "pred.csv"
+    rc, err = run(["predict", os.path.join(DATA, "paper000", "truth.json"), CAMPAIGN, "--out", out], capsys)
+    assert rc == 0 and out.exists(), err
+
+
 def test_a_campaign_given_as_result_is_refused(tmp_path, capsys):
     out = tmp_path / "p.csv"
     line = assert_refused(["predict", CAMPAIGN, CAMPAIGN, "--out", out], capsys, [CAMPAIGN, "not valid JSON"], out)
