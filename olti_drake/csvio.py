@@ -162,6 +162,27 @@ def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], row
                              f"is beyond +-{bound:g} {unit}, outside any physical range (a unit or typing slip?)")
 
 
+def check_spread(values, groups, lines, source, column: str, max_span: float, group: str, why: str) -> None:
+    """Refuse a reading that cannot belong with the others of its group (e.g. one reflector's readings).
+
+    The readings of one fixed point lie in an interval of width at most ``max_span`` (mm: the size of
+    the region the moving point covers, ``why`` says it), so, while most of them are right, the median
+    lies in that interval and every right reading is within ``max_span`` of it. The one farthest beyond
+    is named by file line and column, before a solver turns it into "not identifiable". ``why`` completes
+    "the ... they can span (WHY)".
+    """
+    values, groups, lines = (np.asarray(a) for a in (values, groups, lines))
+    for g in np.unique(groups):
+        sel = np.flatnonzero(groups == g)
+        dev = np.abs(values[sel] - np.median(values[sel]))
+        k = sel[np.argmax(dev)]
+        if dev.max() > max_span:
+            unit = column.rsplit("_", 1)[-1]
+            raise InputError(f"{os.fspath(source)}:{lines[k]}: column '{column}': {values[k]:g} {unit} is "
+                             f"{dev.max():.6g} {unit} from the median of {group} {g:g}'s readings, more than the "
+                             f"{max_span:.6g} {unit} they can span ({why})")
+
+
 def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> None:
     """Raise naming file, line and column of the first value not in ``allowed``."""
     bad = np.flatnonzero(~np.isin(table[column], allowed))

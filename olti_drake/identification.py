@@ -23,7 +23,7 @@ from typing import List, Optional
 import numpy as np
 
 from .campaign_io import CampaignData
-from .csvio import InputError, unit_bound
+from .csvio import InputError, check_spread, unit_bound
 from .errormap import ErrorMap
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
@@ -78,6 +78,10 @@ class Identification:
     def uncertainty(self, name: str) -> float:
         return float(self.std[self.names.index(name)])
 
+
+#: Reach (L1 + L2) beyond that of any SCARA robot made (the largest reach about 1.2 m), mm: with the
+#: nominal lengths, the bound on the spread of one reflector's readings (csvio.check_spread).
+MAX_SCARA_REACH_MM = 2000.0
 
 #: Most nodes a map grid may have: the identification's dense matrices grow as the square of the
 #: 4 * nodes map parameters (2 maps x 2 directions); 2001 nodes (e.g. 0.1 deg over 200 deg) is 8004
@@ -167,9 +171,45 @@ class Identifier(LeastSquaresProgram):
         r, _, _ = self.residual_rows(np.asarray(x)[None])
         return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
+    def check_identifiability(self, x=None) -> float:
+        """As :meth:`LeastSquaresProgram.check_identifiability`; a map node no reading touches is also
+        named by the campaign lines that command that axis near it (often one mistyped angle)."""
+        try:
+            return super().check_identifiability(x)
+        except UnidentifiableError as e:
+            where = self._node_readings(e.names[0]) if e.names else ""
+            if not where:
+                raise
+            raise UnidentifiableError(f"{e}; {where}", e.names) from None
+
+    def _node_readings(self, name: str) -> str:
+        """Where the readings near a map-node parameter's node are (file lines, directions), or ''."""
+        import re
+
+        m = re.fullmatch(r"(J[12])_(forward|reverse)_deg\[(\d+)\]", name)
+        if m is None or not self.robot0.is_errormap:
+            return ""
+        axis, i = m.group(1), int(m.group(3))
+        grid = (self.robot0.map1 if axis == "J1" else self.robot0.map2).grid_deg
+        c = self.data.commands
+        cmd, dirs = (c.theta1_deg, c.dir1) if axis == "J1" else (c.theta2_deg, c.dir2)
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        near = np.flatnonzero((cmd > lo) & (cmd < hi) | (cmd == grid[i]))
+        if not near.size:
+            return f"no reading commands {axis} between {lo:g} and {hi:g} deg"
+        lines = ", ".join(f"{self.data.source}:{self.data.line[k]}" for k in near[:3]) + (" ..." if near.size > 3 else "")
+        sides = sorted({f"{d:+.0f}" for d in dirs[near]})
+        return (f"the only readings near the {axis} node {grid[i]:g} deg are at {lines} (direction "
+                f"{', '.join(sides)} only) -- check {'that command' if near.size == 1 else 'those commands'}")
+
     # -- model -------------------------------------------------------------------------------
     def _check_reflectors(self):
         o, d = self.options, self.data
+        # A reading far from its reflector's others (a typo, a unit slip) is named by line before the start
+        # values are built from it. The bound holds for any SCARA: none reaches beyond MAX_SCARA_REACH_MM.
+        reach = max(o.nominal_L1_mm + o.nominal_L2_mm, MAX_SCARA_REACH_MM)
+        check_spread(d.displacement_mm, d.reflector, d.line, d.source, "displacement_mm", 2 * reach, "reflector",
+                     f"twice the reach, at most {reach:g} mm for any SCARA")
         counts = np.bincount(d.reflector)
         if counts.size < 3 and not o.fix_reflectors:
             raise UnidentifiableError(

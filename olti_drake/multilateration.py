@@ -21,7 +21,8 @@ from typing import Optional
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_indices, check_values, json_numbers, read_json, read_table
+from .csvio import (InputError, check_finite, check_indices, check_spread, check_values, json_numbers, read_json,
+                    read_table)
 from .kinematics import rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
@@ -85,6 +86,9 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
         k = clash[0]
         raise InputError(f"{source}:{t['_line'][k]}: target {i[k]} has command ({xy[k, 0]:g}, {xy[k, 1]:g}) mm, "
                          f"but ({cmd[i[k], 0]:g}, {cmd[i[k], 1]:g}) mm elsewhere")
+    size = np.hypot(*np.ptp(cmd, axis=0))
+    check_spread(t["displacement_mm"], j, t["_line"], source, "displacement_mm", 1.5 * size + 10.0, "station",
+                 f"the {size:g} mm diagonal of the commands, with a margin")
     return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source)
 
 

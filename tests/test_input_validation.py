@@ -45,15 +45,16 @@ def run(argv, capsys):
     return rc, capsys.readouterr().err
 
 
-def assert_refused(argv, capsys, needles, out):
-    """Exit 2, exactly one ``error:`` line naming every needle, no traceback, the output not written."""
+def assert_refused(argv, capsys, needles, out, solver_words=False):
+    """Exit 2, exactly one ``error:`` line naming every needle, no traceback, the output not written;
+    unless ``solver_words``, no solver's words (the input was refused before it reached one)."""
     rc, err = run(argv, capsys)
     assert rc == 2, (rc, err)
     lines = [l for l in err.splitlines() if "error:" in l]
     assert len(lines) == 1 and "Traceback" not in err, err
     for n in needles:
         assert str(n) in lines[0], f"{n!r} not in {lines[0]!r}"
-    for bad in ("not identifiable", "SVD", "converge"):
+    for bad in ("not identifiable", "SVD", "converge") if not solver_words else ():
         assert bad not in lines[0]
     assert not os.path.exists(out), f"{out} was written"
     return lines[0]
@@ -352,6 +353,32 @@ def test_values_outside_any_physical_range_name_file_line_column(verb, kind, col
             "design": ["design", result[0], "--regions", REGIONS, "--plan", bad],
             "multilaterate": ["multilaterate", bad]}[verb]
     assert_refused(argv + ["--out", out], capsys, [f"{bad}:{line}:", f"'{column}'", needle], out)
+
+
+def test_a_reading_far_from_its_reflectors_others_is_named_before_the_solver(tmp_path, capsys):
+    """99999 mm is within the +-100 m bound, but no SCARA moves a reflector's distance by that much: it
+    used to end as "not identifiable: P0_x_mm, P0_y_mm, d0_0_mm"."""
+    line = _first_data_line(CAMPAIGN) + 10
+    bad = _edit_csv(CAMPAIGN, tmp_path / "bad.csv", line, "displacement_mm", "99999")
+    out = tmp_path / "r.json"
+    for model in ("errormap", "dh"):
+        assert_refused(["identify", bad, "--model", model, "--out", out], capsys,
+                       [f"{bad}:{line}:", "'displacement_mm'", "median of reflector 0", "4000 mm"], out)
+    machine = _machine_campaign(tmp_path)
+    line = _first_data_line(machine) + 5
+    bad = _edit_csv(machine, tmp_path / "bad_machine.csv", line, "displacement_mm", "500")
+    assert_refused(["multilaterate", bad, "--out", out], capsys, [f"{bad}:{line}:", "median of station 1"], out)
+
+
+def test_an_unidentifiable_map_node_names_the_lines_commanding_it(tmp_path, capsys):
+    """A mistyped angle within +-720 deg makes its own default-grid node: the error names its line."""
+    line = _first_data_line(CAMPAIGN) + 10
+    bad = _edit_csv(CAMPAIGN, tmp_path / "bad.csv", line, "theta1_deg", "700")
+    out = tmp_path / "r.json"
+    msg = assert_refused(["identify", bad, "--model", "errormap", "--out", out], capsys,
+                         ["J1_reverse_deg[11]", "node 700 deg", f"{bad}:{line} ", "check that command"], out,
+                         solver_words=True)
+    assert msg.count(f"{bad}:") == 1
 
 
 def test_physical_bounds_are_stated_and_shared():
