@@ -212,7 +212,7 @@ def read_json(path, fmt, what: str = "") -> dict:
     import json
 
     name = os.fspath(path)
-    text = read_text(path, what.split()[-1] if what else "")
+    text = read_text(path)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
