@@ -94,7 +94,8 @@ def _meshcat_view(args):
 def _add_meshcat_options(p):
     p.add_argument("--meshcat", action="store_true",
                    help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
-    p.add_argument("--meshcat-port", type=cliargs.port, default=None, help="Meshcat port (default: first free from 7000)")
+    p.add_argument("--meshcat-port", type=cliargs.port, default=None,
+                   help="Meshcat port (default: first free from 7000)")
     p.add_argument("--realtime-rate", type=cliargs.nonnegative, default=None,
                    help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
     p.add_argument("--error-scale", type=cliargs.real(0, 1e6, lo_open=True), default=500.0,
@@ -678,8 +679,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="result JSON to write")
     p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
     p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
-    p.add_argument("--nominal-mm", type=cliargs.pairs_mm(2, positive=True), help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
-    p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2), help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
+    p.add_argument("--nominal-mm", type=cliargs.pairs_mm(2, positive=True),
+                   help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
+    p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
+                   help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     _add_solver_options(p)
     p.set_defaults(func=cmd_identify)
@@ -700,8 +703,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "RESULT.json (formats.md). mm.")
     p.add_argument("campaign", help="machine-tool campaign CSV (formats.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
-    p.add_argument("--stations-mm", type=cliargs.pairs_mm(2), help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; "
-                                         "default: from the data)")
+    p.add_argument("--stations-mm", type=cliargs.pairs_mm(2),
+                   help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; default: from the data)")
     p.add_argument("--gauge", choices=("best-fit", "first-two"), default="best-fit",
                    help="best-fit: no mean translation/rotation of the targets from their commands (default); "
                         "first-two: target 0 at its command, target 1 on its command direction")
@@ -756,7 +759,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--criterion", choices=("max", "mean"), default="max",
                    help="minimize the worst (default) or the mean predicted-position u over the workspace")
     p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
-    p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0, help="candidate grid step in the regions (default 50)")
+    p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
+                   help="candidate grid step in the regions (default 50)")
     p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
                    help="step of the workspace XY grid the cost is evaluated on (default 50)")
     p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the random starts (default 0)")

@@ -216,9 +216,8 @@ def read_json(path, fmt, what: str = "") -> dict:
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
-        hint = f" -- a CSV file? expected {what or 'JSON'}" if e.lineno == 1 and e.colno == 1 else ""
+        hint = f"; expected {what}, is it another kind of file?" if what and (e.lineno, e.colno) == (1, 1) else ""
         raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg}){hint}") from None
-
     if not isinstance(data, dict):
         raise InputError(f"{name}: not a JSON object")
     allowed = (fmt,) if isinstance(fmt, str) else tuple(fmt or ())
@@ -241,12 +240,12 @@ def json_numbers(obj: dict, name, key: str, shape=(), positive: bool = False, la
     raw = obj[key]
     try:
         v = np.asarray(raw, dtype=float)
-        if isinstance(raw, (str, bool)) or any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(raw, object))):
+        if any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(raw, object))):  # float() takes "3", True
             raise TypeError
     except (TypeError, ValueError):
         raise InputError(f"{where}: expected {_shape_text(shape)}, got {_short(raw)}") from None
     if v.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, v.shape)):
-        raise InputError(f"{where}: expected {_shape_text(shape)}, got {_shape_text(v.shape) if v.ndim else 'a number'}")
+        raise InputError(f"{where}: expected {_shape_text(shape)}, got {_shape_text(v.shape)}")
     bad = np.flatnonzero(~np.isfinite(v.ravel()) | (np.abs(v.ravel()) > unit_bound(key))
                          | ((v.ravel() <= 0) if positive else False))
     if bad.size:

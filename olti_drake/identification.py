@@ -107,7 +107,8 @@ def parse_grid(text: str, name: str) -> np.ndarray:
             raise InputError(form)
         n = (b - a) / s
         if n + 1 > MAX_GRID_NODES:
-            raise InputError(f"{name}: {text!r} has {n + 1:.3g} nodes, more than {MAX_GRID_NODES} (use a coarser step)")
+            raise InputError(f"{name}: {text!r} has {n + 1:.3g} nodes, more than {MAX_GRID_NODES} "
+                             f"(use a coarser step)")
         n = int(round(n))
         if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
             raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
@@ -197,7 +198,8 @@ class Identifier(LeastSquaresProgram):
         near = np.flatnonzero((cmd > lo) & (cmd < hi) | (cmd == grid[i]))
         if not near.size:
             return f"no reading commands {axis} between {lo:g} and {hi:g} deg"
-        lines = ", ".join(f"{self.data.source}:{self.data.line[k]}" for k in near[:3]) + (" ..." if near.size > 3 else "")
+        lines = ", ".join(f"{self.data.source}:{self.data.line[k]}" for k in near[:3])
+        lines += " ..." if near.size > 3 else ""
         sides = sorted({f"{d:+.0f}" for d in dirs[near]})
         return (f"the only readings near the {axis} node {grid[i]:g} deg are at {lines} (direction "
                 f"{', '.join(sides)} only) -- check {'that command' if near.size == 1 else 'those commands'}")

@@ -110,7 +110,7 @@ def _load_map(data, name, axis, outside) -> ErrorMap:
     values = [json_numbers(m, name, k, (len(grid),), label=label + k) for k in ("forward_deg", "reverse_deg")]
     try:
         return ErrorMap(grid, *values, axis=axis, outside=outside)
-    except ValueError as e:  # e.g. a grid that is not ascending
+    except ValueError as e:  # anything else ErrorMap refuses
         raise InputError(f"{name}: {e}") from None
 
 

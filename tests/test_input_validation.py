@@ -106,7 +106,8 @@ BUDGET_CASES = {
     "distribution": (lambda t: t.replace("acts_on: pose}", "acts_on: pose, distribution: gauss}", 1),
                      ["contributors[3] (u14)", "gauss"]),
     "acts_on": (lambda t: t.replace("acts_on: pose}", "acts_on: tool}", 1), ["contributors[3] (u14)", "tool"]),
-    "duplicate key": (lambda t: t.replace("name: paper 000 Table 2", "name: a\nname: b"), [":7:", "duplicate key 'name'"]),
+    "duplicate key": (lambda t: t.replace("name: paper 000 Table 2", "name: a\nname: b"),
+                      [":7:", "duplicate key 'name'"]),
     "duplicate nested key": (lambda t: t.replace("{symbol: u11,", "{symbol: u11, symbol: x,"), [":10:", "'symbol'"]),
 }
 
@@ -149,7 +150,8 @@ RESULT_CASES = {
     "string length": (_set(["L1_mm"], "325"), ["'L1_mm'", "expected a number"]),
     "short forward map": (_set(["error_map", "J1", "forward_deg"], lambda v: v[:-1]),
                           ["'error_map.J1.forward_deg'", "list of 11"]),
-    "descending grid": (_set(["error_map", "J2", "grid_deg"], lambda v: v[::-1]), ["'error_map.J2.grid_deg'", "ascending"]),
+    "descending grid": (_set(["error_map", "J2", "grid_deg"], lambda v: v[::-1]),
+                        ["'error_map.J2.grid_deg'", "ascending"]),
     "inf in map": (_set(["error_map", "J2", "reverse_deg"], lambda v: v[:3] + [float("inf")] + v[4:]),
                    ["'error_map.J2.reverse_deg'[3]", "inf"]),
     "reflectors N x 3": (_set(["reflectors_mm"], lambda v: [p + [0.0] for p in v]), ["'reflectors_mm'", "N x 2"]),
@@ -218,7 +220,7 @@ def test_a_truth_is_a_model_for_predict(tmp_path, capsys):
 def test_a_campaign_given_as_result_is_refused(tmp_path, capsys):
     out = tmp_path / "p.csv"
     line = assert_refused(["predict", CAMPAIGN, CAMPAIGN, "--out", out], capsys, [CAMPAIGN, "not valid JSON"], out)
-    assert "a CSV file?" in line
+    assert "expected a SCARA result (olti identify)" in line
 
 
 MACHINE = {"format": "olti-multilateration/1", "targets_mm": [[0, 0], [20, 0], [0, 20], [20, 20]],
