@@ -10,6 +10,8 @@ import os
 import sys
 import time
 
+from . import cliargs
+
 EXIT_BAD_INPUT = 2
 
 
@@ -47,9 +49,7 @@ def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None,
     if isinstance(scenario.station, Hardware):
         raise ValueError(f"scenario {scenario_path}: station !Hardware: olti {args.verb} runs the simulated "
                          f"station; drive the hardware with: olti run {scenario_path} --out DIR")
-    if seed is not None:
-        if seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {seed}")
+    if seed is not None:  # checked by argparse (cliargs.seed)
         scenario.seed = seed
     inputs = [scenario_path]
     if scenario.budget:
@@ -90,9 +90,7 @@ def _summary(setup, campaign, elapsed_s: float) -> str:
 
 def _meshcat_view(args):
     """(extend, realtime rate) of the --meshcat options: the live view's systems, or none."""
-    extend, rate = None, args.realtime_rate
-    if rate is not None and not rate >= 0:
-        raise ValueError(f"--realtime-rate must be >= 0, got {rate}")
+    extend, rate = None, args.realtime_rate  # >= 0, checked by argparse (cliargs.nonnegative)
     if args.meshcat:
         from .meshcat_view import campaign_view, start_meshcat
 
@@ -105,10 +103,11 @@ def _meshcat_view(args):
 def _add_meshcat_options(p):
     p.add_argument("--meshcat", action="store_true",
                    help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
-    p.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: first free from 7000)")
-    p.add_argument("--realtime-rate", type=float, default=None,
+    p.add_argument("--meshcat-port", type=cliargs.port, default=None,
+                   help="Meshcat port (default: first free from 7000)")
+    p.add_argument("--realtime-rate", type=cliargs.nonnegative, default=None,
                    help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
-    p.add_argument("--error-scale", type=float, default=500.0,
+    p.add_argument("--error-scale", type=cliargs.real(0, 1e6, lo_open=True), default=500.0,
                    help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
 
 
@@ -152,16 +151,6 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def _pairs(text: str, name: str, size: int):
-    try:
-        rows = [[float(v) for v in part.split(",")] for part in text.replace(";", " ").split()]
-    except ValueError:
-        rows = []
-    if not rows or any(len(r) != size for r in rows):
-        raise ValueError(f"{name}: expected {'x,y;x,y;...' if size == 2 else 'L1,L2'} in mm, got {text!r}")
-    return rows
-
-
 def identification_summary(ident) -> str:
     """Parameters ± standard uncertainty (k = 1), residual RMS, iterations, conditioning."""
     import numpy as np
@@ -200,12 +189,12 @@ def cmd_identify(args) -> int:
     from .result import write_result
 
     _check_outputs(args, [args.out], [args.campaign])
-    nominal = _pairs(args.nominal_mm, "--nominal-mm", 2)[0] if args.nominal_mm else (325.0, 225.0)
+    nominal = args.nominal_mm[0] if args.nominal_mm else (325.0, 225.0)
     options = IdentificationOptions(
         model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
         grid1_deg=parse_grid(args.grid1_deg, "--grid1-deg") if args.grid1_deg else None,
         grid2_deg=parse_grid(args.grid2_deg, "--grid2-deg") if args.grid2_deg else None,
-        reflectors_mm=_pairs(args.reflectors_mm, "--reflectors-mm", 2) if args.reflectors_mm else None,
+        reflectors_mm=args.reflectors_mm,
         fix_reflectors=args.fix_reflectors, loss=args.loss, huber_k=args.huber_k,
         outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
     if options.fix_reflectors and options.reflectors_mm is None:
@@ -226,7 +215,7 @@ def cmd_multilaterate(args) -> int:
 
     _check_outputs(args, [args.out], [args.campaign, args.budget])
     options = MultilaterationOptions(
-        stations_mm=_pairs(args.stations_mm, "--stations-mm", 2) if args.stations_mm else None, gauge=args.gauge,
+        stations_mm=args.stations_mm, gauge=args.gauge,
         loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
         solver=args.solver)
     data = load_machine_campaign(args.campaign)
@@ -266,8 +255,8 @@ def _add_force(p):
 def _add_solver_options(p):
     """The solver options every identification verb shares (leastsquares.SolverOptions)."""
     p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
-    p.add_argument("--huber-k", type=float, default=3.0, help="Huber threshold in robust sigmas (default 3)")
-    p.add_argument("--outlier-threshold", type=float, default=4.0,
+    p.add_argument("--huber-k", type=cliargs.positive, default=3.0, help="Huber threshold in robust sigmas (default 3)")
+    p.add_argument("--outlier-threshold", type=cliargs.positive, default=4.0,
                    help="report readings whose normalized residual exceeds this (default 4)")
     p.add_argument("--regularize", action="store_true",
                    help="regularize unidentifiable parameters (and say so) instead of stopping")
@@ -393,16 +382,6 @@ def cmd_uncertainty(args) -> int:
     from .uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
 
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
-    if args.trials < 2:
-        raise ValueError(f"--trials must be >= 2, got {args.trials}")
-    if not (np.isfinite(args.k) and args.k > 0):
-        raise ValueError(f"--k must be > 0, got {args.k:g}")
-    if not 0 < args.coverage < 1:
-        raise ValueError(f"--coverage must be a probability in (0, 1), got {args.coverage:g}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = load_budget(args.budget) if args.budget else paper000_budget()
@@ -478,8 +457,6 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
-    import numpy as np
-
     from .budget import load_budget, paper000_budget
     from .design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
                          workspace_commands)
@@ -489,18 +466,6 @@ def cmd_design(args) -> int:
     from .result import load_result
 
     _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
-    for name in ("step_mm", "workspace_step_mm"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0 mm, got {v:g}")
-    for name in ("min_separation_mm", "clearance_mm", "base_radius_mm"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v >= 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 0 mm, got {v:g}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if args.starts < 1 or args.max_sweeps < 1:
-        raise ValueError(f"--starts and --max-sweeps must be >= 1, got {args.starts} and {args.max_sweeps}")
     model, P, _, _ = load_result(args.result, outside="clamp")
     plan = load_plan(args.plan) if args.plan else bidirectional_grid()
     plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
@@ -512,10 +477,11 @@ def cmd_design(args) -> int:
                          + ("" if args.reflectors is not None else f" (the result {args.result} has {len(P)})"))
     cmd = measured_commands(plan)
     if model.is_errormap:
-        ws = workspace_commands(model, args.workspace_step_mm)
+        ws = workspace_commands(model, args.workspace_step_mm, option="--workspace-step-mm")
     else:  # a D-H model has no map range: the plan's angle ranges
-        ws = workspace_commands((cmd.theta1_deg, cmd.theta2_deg), args.workspace_step_mm, model.L1_mm, model.L2_mm)
-    candidates = candidate_grid(regions, args.step_mm)
+        ws = workspace_commands((cmd.theta1_deg, cmd.theta2_deg), args.workspace_step_mm, model.L1_mm, model.L2_mm,
+                                option="--workspace-step-mm")
+    candidates = candidate_grid(regions, args.step_mm, option="--step-mm")
 
     def costs(u):
         return {"max_u_mm": float(u.max()), "mean_u_mm": float(u.mean()), "max_U_k2_mm": float(2 * u.max()),
@@ -718,7 +684,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Without a scenario: the paper-000 SCARA experiment (diagrams/).")
     p.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument("--seed", type=cliargs.seed, default=None, help="override the scenario's seed")
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
@@ -730,8 +696,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="result JSON to write")
     p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
     p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
-    p.add_argument("--nominal-mm", help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
-    p.add_argument("--reflectors-mm", help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
+    p.add_argument("--nominal-mm", type=cliargs.pairs_mm(2, positive=True),
+                   help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
+    p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
+                   help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     _add_solver_options(p)
     _add_force(p)
@@ -754,8 +722,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "RESULT.json (formats.md). mm.")
     p.add_argument("campaign", help="machine-tool campaign CSV (formats.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
-    p.add_argument("--stations-mm", help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; "
-                                         "default: from the data)")
+    p.add_argument("--stations-mm", type=cliargs.pairs_mm(2),
+                   help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; default: from the data)")
     p.add_argument("--gauge", choices=("best-fit", "first-two"), default="best-fit",
                    help="best-fit: no mean translation/rotation of the targets from their commands (default); "
                         "first-two: target 0 at its command, target 1 on its command direction")
@@ -777,13 +745,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("mc", "linear"), required=True,
                    help="mc: Monte Carlo (JCGM 101); linear: Jacobian propagation (JCGM 100)")
     p.add_argument("--budget", help="budget YAML (e.g. data/budget_paper001.yaml; default: 000 Table 2)")
-    p.add_argument("--trials", type=int, default=1000, help="Monte Carlo trials (default 1000; "
+    p.add_argument("--trials", type=cliargs.integer(2), default=1000, help="Monte Carlo trials (default 1000; "
                                                             "ignored with --adaptive)")
-    p.add_argument("--k", type=float, default=2.0, help="coverage factor of 'expanded' (default 2)")
-    p.add_argument("--coverage", type=float, default=0.95,
+    p.add_argument("--k", type=cliargs.coverage_factor, default=2.0, help="coverage factor of 'expanded' (default 2)")
+    p.add_argument("--coverage", type=cliargs.probability, default=0.95,
                    help="probability of the Monte Carlo coverage intervals (default 0.95)")
-    p.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--seed", type=cliargs.seed, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--workers", type=cliargs.workers, default=None,
                    help="Monte Carlo worker processes (default: up to 2 cores; results do not depend on it)")
     p.add_argument("--adaptive", action="store_true",
                    help="Monte Carlo until every standard uncertainty is stable to 2 significant digits "
@@ -807,22 +775,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plan", help="plan CSV or YAML (default: the paper 000 plan, Eq. 11-12)")
     p.add_argument("--regions", required=True, help="regions YAML: rectangles {x_mm: [lo, hi], y_mm: [lo, hi]} "
                                                     "(e.g. data/regions_paper000.yaml)")
-    p.add_argument("--reflectors", type=int, default=None,
+    p.add_argument("--reflectors", type=cliargs.integer(3, 1000), default=None,
                    help="number of reflectors to place (default: as many as the result has)")
     p.add_argument("--criterion", choices=("max", "mean"), default="max",
                    help="minimize the worst (default) or the mean predicted-position u over the workspace")
     p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
-    p.add_argument("--step-mm", type=float, default=50.0, help="candidate grid step in the regions (default 50)")
-    p.add_argument("--workspace-step-mm", type=float, default=50.0,
+    p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
+                   help="candidate grid step in the regions (default 50)")
+    p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
                    help="step of the workspace XY grid the cost is evaluated on (default 50)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
-    p.add_argument("--starts", type=int, default=3, help="random starts (default 3)")
-    p.add_argument("--max-sweeps", type=int, default=5, help="exchange sweeps per start at most (default 5)")
-    p.add_argument("--min-separation-mm", type=float, default=100.0,
+    p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--starts", type=cliargs.count, default=3, help="random starts (default 3)")
+    p.add_argument("--max-sweeps", type=cliargs.count, default=5, help="exchange sweeps per start at most (default 5)")
+    p.add_argument("--min-separation-mm", type=cliargs.distance_mm, default=100.0,
                    help="minimum distance between reflectors (default 100)")
-    p.add_argument("--clearance-mm", type=float, default=50.0,
+    p.add_argument("--clearance-mm", type=cliargs.distance_mm, default=50.0,
                    help="minimum distance of a reflector from every end-effector position (default 50)")
-    p.add_argument("--base-radius-mm", type=float, default=40.0,
+    p.add_argument("--base-radius-mm", type=cliargs.distance_mm, default=40.0,
                    help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
     p.add_argument("--out", required=True, help="design JSON to write")
     _add_force(p)

@@ -18,6 +18,78 @@ class InputError(ValueError):
     """Bad input file or parameter; the message is one line, ready for the user."""
 
 
+#: Physical bounds of the values the tool reads, by the unit suffix of the column or key: a commanded
+#: angle beyond two turns either way (+-720 deg) or a length, coordinate or displacement beyond +-100 m
+#: (1e5 mm) is not a measurement of a robot or a machine tool but a unit or typing slip; it is refused
+#: where it is read, naming the file, line and column, before it reaches a solver (where it would end as
+#: "not identifiable" or "SVD did not converge").
+UNIT_BOUNDS = {"_deg": 720.0, "_mm": 1e5}
+
+
+def unit_bound(column: str) -> float:
+    """The largest plausible magnitude of a value by its column's unit suffix (inf without one)."""
+    for suffix, bound in UNIT_BOUNDS.items():
+        if column.endswith(suffix):
+            return bound
+    return np.inf
+
+
+def read_text(path, what: str = "") -> str:
+    """The text of a UTF-8 file (a leading BOM dropped); one-line errors name the file, and for bytes that
+    are not UTF-8 the 1-based line of the first one (``what`` names the file's role if it is missing)."""
+    name = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except FileNotFoundError:
+        raise InputError(f"{name}: {what + ' ' if what else ''}file not found") from None
+    except OSError as e:
+        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        raise InputError(f"{name}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x}); "
+                         f"save the file as UTF-8") from None
+
+
+def read_yaml(path, what: str = ""):
+    """Plain data of a YAML file (tags such as ``!Simulated`` read as their plain mapping), refusing what
+    a YAML parser silently accepts: a key given twice in one mapping (the last would win), and bytes that
+    are not UTF-8. Every YAML reader calls this first; errors are one line naming the file and line."""
+    import yaml
+
+    name = os.fspath(path)
+    text = read_text(path, what)
+
+    class Loader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                if key != "<<" and isinstance(key, (str, int, float, bool)) and key in seen:
+                    raise InputError(f"{name}:{line}: duplicate key {key!r} (first on line {seen[key]}); "
+                                     f"a key may appear once per mapping")
+                seen.setdefault(key, line)
+            return super().construct_mapping(node, deep=deep)
+
+    def tagged(loader, suffix, node):  # a typed scenario node (!Emulated {...}): check it as plain data
+        if isinstance(node, yaml.MappingNode):
+            return loader.construct_mapping(node, deep=True)
+        if isinstance(node, yaml.SequenceNode):
+            return loader.construct_sequence(node, deep=True)
+        return loader.construct_scalar(node)
+
+    Loader.add_multi_constructor("!", tagged)
+    try:
+        return yaml.load(text, Loader=Loader)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        at = f":{mark.line + 1}" if mark is not None else ""
+        raise InputError(f"{name}{at}: not valid YAML ({getattr(e, 'problem', None) or e})") from None
+
+
 def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
                integer: Iterable[str] = ()) -> Dict[str, np.ndarray]:
     """Read numeric columns of a CSV file.
@@ -33,11 +105,7 @@ def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
         every data row (for row-numbered errors later).
     """
     name = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8-sig", newline="") as f:
-            text = f.read()
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+    text = read_text(path)
     rows = [(i + 1, line) for i, line in enumerate(text.splitlines())
             if line.strip() and not line.lstrip().startswith("#")]
     if not rows:
@@ -77,13 +145,42 @@ def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
 
 
 def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], rows=None) -> None:
-    """Raise naming file, line and column of the first non-finite value (in ``rows`` if given)."""
+    """Raise naming file, line and column of the first value (in ``rows`` if given) that is not finite or
+    lies beyond the physical bound of its column's unit (:data:`UNIT_BOUNDS`: +-720 deg, +-1e5 mm)."""
     sel = np.arange(len(table["_line"])) if rows is None else np.flatnonzero(rows)
     for c in columns:
-        bad = sel[~np.isfinite(table[c][sel])]
+        v = table[c][sel]
+        bad = sel[~np.isfinite(v)]
         if bad.size:
             raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{c}': "
                              f"{table[c][bad[0]]:g} is not finite")
+        bound = unit_bound(c)
+        bad = sel[np.abs(v) > bound]
+        if bad.size:
+            unit = "deg" if c.endswith("_deg") else "mm"
+            raise InputError(f"{os.fspath(path)}:{table['_line'][bad[0]]}: column '{c}': {table[c][bad[0]]:g} "
+                             f"is beyond +-{bound:g} {unit}, outside any physical range (a unit or typing slip?)")
+
+
+def check_spread(values, groups, lines, source, column: str, max_span: float, group: str, why: str) -> None:
+    """Refuse a reading that cannot belong with the others of its group (e.g. one reflector's readings).
+
+    The readings of one fixed point lie in an interval of width at most ``max_span`` (mm: the size of
+    the region the moving point covers, ``why`` says it), so, while most of them are right, the median
+    lies in that interval and every right reading is within ``max_span`` of it. The one farthest beyond
+    is named by file line and column, before a solver turns it into "not identifiable". ``why`` completes
+    "the ... they can span (WHY)".
+    """
+    values, groups, lines = (np.asarray(a) for a in (values, groups, lines))
+    for g in np.unique(groups):
+        sel = np.flatnonzero(groups == g)
+        dev = np.abs(values[sel] - np.median(values[sel]))
+        k = sel[np.argmax(dev)]
+        if dev.max() > max_span:
+            unit = column.rsplit("_", 1)[-1]
+            raise InputError(f"{os.fspath(source)}:{lines[k]}: column '{column}': {values[k]:g} {unit} is "
+                             f"{dev.max():.6g} {unit} from the median of {group} {g:g}'s readings, more than the "
+                             f"{max_span:.6g} {unit} they can span ({why})")
 
 
 def check_values(table: Dict[str, np.ndarray], path, column: str, allowed) -> None:
@@ -115,13 +212,12 @@ def read_json(path, fmt, what: str = "") -> dict:
     import json
 
     name = os.fspath(path)
+    text = read_text(path)
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
+        data = json.loads(text)
     except json.JSONDecodeError as e:
-        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg})") from None
+        hint = f"; expected {what}, is it another kind of file?" if what and (e.lineno, e.colno) == (1, 1) else ""
+        raise InputError(f"{name}:{e.lineno}: not valid JSON ({e.msg}){hint}") from None
     if not isinstance(data, dict):
         raise InputError(f"{name}: not a JSON object")
     allowed = (fmt,) if isinstance(fmt, str) else tuple(fmt or ())
@@ -130,6 +226,47 @@ def read_json(path, fmt, what: str = "") -> dict:
         raise InputError(f"{name}: 'format' must be {want}{' for ' + what if what else ''}, "
                          f"got {data.get('format')!r}")
     return data
+
+
+def json_numbers(obj: dict, name, key: str, shape=(), positive: bool = False, label: str = "") -> np.ndarray:
+    """The numbers under ``obj[key]`` of a JSON file as a float array, checked: present, numeric, of
+    ``shape`` (a tuple, None for any length: ``(None, 2)`` is N x 2), every value finite, within the
+    bound of the key's unit suffix (:data:`UNIT_BOUNDS`) and, if ``positive``, > 0. One-line errors name
+    the file and the key (``label``: its dotted path, default ``key``)."""
+    label = label or key
+    where = f"{os.fspath(name)}: key '{label}'"
+    if key not in obj:
+        raise InputError(f"{os.fspath(name)}: missing key '{label}'")
+    raw = obj[key]
+    try:
+        v = np.asarray(raw, dtype=float)
+        if any(isinstance(x, (str, bool)) for x in np.ravel(np.asarray(raw, object))):  # float() takes "3", True
+            raise TypeError
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: expected {_shape_text(shape)}, got {_short(raw)}") from None
+    if v.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, v.shape)):
+        raise InputError(f"{where}: expected {_shape_text(shape)}, got {_shape_text(v.shape)}")
+    bad = np.flatnonzero(~np.isfinite(v.ravel()) | (np.abs(v.ravel()) > unit_bound(key))
+                         | ((v.ravel() <= 0) if positive else False))
+    if bad.size:
+        at = f"[{', '.join(str(i) for i in np.unravel_index(bad[0], v.shape))}]" if v.ndim else ""
+        bound = unit_bound(key)
+        need = ", ".join(["finite"] + ["> 0"] * positive
+                         + [f"within +-{bound:g} {key.rsplit('_', 1)[-1]}"] * bool(np.isfinite(bound)))
+        raise InputError(f"{where}{at}: {float(v.ravel()[bad[0]]):g} is not a plausible value (must be {need})")
+    return v
+
+
+def _shape_text(shape) -> str:
+    if not len(shape):
+        return "a number"
+    return ("a list of " if len(shape) == 1 else "an array of ") + " x ".join("N" if n is None else str(n)
+                                                                            for n in shape) + " numbers"
+
+
+def _short(raw) -> str:
+    text = repr(raw)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def write_table(path, columns: Dict[str, Sequence], formats: Dict[str, str],

@@ -45,7 +45,7 @@ import numpy as np
 
 from .budget import Budget
 from .campaign_io import CampaignData
-from .csvio import InputError
+from .csvio import InputError, read_yaml, unit_bound
 from .identification import UnidentifiableError
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid
 from .plan import Plan
@@ -105,10 +105,11 @@ def parse_regions(data, where: str = "regions") -> List[Region]:
             v = item[key]
             try:
                 lo, hi = (float(a) for a in v)
-                if isinstance(v, (str, bytes)) or not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+                if (isinstance(v, (str, bytes)) or not np.all(np.abs([lo, hi]) <= unit_bound(key)) or lo > hi):
                     raise ValueError
             except (TypeError, ValueError):
-                raise InputError(f"{label}.{key}: expected [lo, hi] in mm, finite, lo <= hi, got {v!r}") from None
+                raise InputError(f"{label}.{key}: expected [lo, hi] in mm, finite, within +-{unit_bound(key):g} mm, "
+                                 f"lo <= hi, got {v!r}") from None
             ranges.append((lo, hi))
         name = item.get("name", "")
         out.append(Region(ranges[0], ranges[1], str(name) if name is not None else ""))
@@ -116,31 +117,31 @@ def parse_regions(data, where: str = "regions") -> List[Region]:
 
 
 def load_regions(path) -> List[Region]:
-    """Load a regions YAML (see :func:`parse_regions`); errors name the file and the field."""
-    import yaml
-
-    name = os.fspath(path)
-    try:
-        with open(name, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise InputError(f"{name}: cannot read ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        at = f":{mark.line + 1}" if mark is not None else ""
-        raise InputError(f"{name}{at}: not valid YAML ({getattr(e, 'problem', None) or e})") from None
-    return parse_regions(data, name)
+    """Load a regions YAML (see :func:`parse_regions`); errors name the file and the field (duplicate keys
+    and non-UTF-8 bytes by line: :func:`~olti_drake.csvio.read_yaml`)."""
+    return parse_regions(read_yaml(path, "regions"), os.fspath(path))
 
 
-def candidate_grid(regions: Sequence[Region], step_mm: float) -> np.ndarray:
+#: Most candidate positions: the coordinate exchange evaluates every candidate for every reflector in
+#: every sweep; a finer step is a slip (that would also allocate gigabytes), refused before allocating.
+MAX_CANDIDATES = 100_000
+
+
+def candidate_grid(regions: Sequence[Region], step_mm: float, option: str = "step_mm") -> np.ndarray:
     """Candidate reflector positions (C, 2) mm on a square grid of ``step_mm`` inside the rectangles.
 
     Each rectangle gets floor(span/step) + 1 points per axis, centred in it (a
     zero-width range gives one line of points); points shared by overlapping
-    rectangles appear once. Order: by rectangle, then x, then y.
+    rectangles appear once. Order: by rectangle, then x, then y. At most
+    :data:`MAX_CANDIDATES` points; errors name ``option`` (the step's parameter).
     """
     if not (np.isfinite(step_mm) and step_mm > 0):
-        raise InputError(f"step_mm must be finite and > 0, got {step_mm!r}")
+        raise InputError(f"{option} must be finite and > 0, got {step_mm!r}")
+    count = sum((np.floor((r.x_mm[1] - r.x_mm[0]) / step_mm) + 1) * (np.floor((r.y_mm[1] - r.y_mm[0]) / step_mm) + 1)
+                for r in regions)
+    if count > MAX_CANDIDATES:
+        raise InputError(f"{option} {step_mm:g} mm gives {count:.3g} candidate positions in the regions, more than "
+                         f"{MAX_CANDIDATES:,} (use a coarser step)")
     pts = []
     for r in regions:
         axes = []
@@ -166,7 +167,7 @@ def measured_commands(plan_or_commands: Union[Plan, JointCommands]) -> JointComm
 
 
 def workspace_commands(model_or_grids, step_mm: float = WORKSPACE_STEP_MM, L1_mm: Optional[float] = None,
-                       L2_mm: Optional[float] = None) -> JointCommands:
+                       L2_mm: Optional[float] = None, option: str = "step_mm") -> JointCommands:
     """Commands reaching an XY grid (step ``step_mm``, mm) of the workspace inside the map range.
 
     ``model_or_grids``: an error-map :class:`ScaraModel` (its grids give the
@@ -176,7 +177,7 @@ def workspace_commands(model_or_grids, step_mm: float = WORKSPACE_STEP_MM, L1_mm
     (x, y) whose nominal inverse kinematics (either elbow) lies in both ranges
     gives four commands: approach directions (dir1, dir2) = (+1, +1), (+1, −1),
     (−1, +1), (−1, −1) -- the bidirectional map (000 Eq. 7) differs by
-    direction. Order: by point, then direction.
+    direction. Order: by point, then direction. Errors name ``option`` (the step's parameter).
     """
     if isinstance(model_or_grids, ScaraModel):
         if not model_or_grids.is_errormap:
@@ -193,7 +194,7 @@ def workspace_commands(model_or_grids, step_mm: float = WORKSPACE_STEP_MM, L1_mm
         L1 = PAPER_L1_MM if L1_mm is None else L1_mm
         L2 = PAPER_L2_MM if L2_mm is None else L2_mm
     try:
-        _, _, t1, t2 = workspace_grid(L1, L2, g1, g2, step_mm)
+        _, _, t1, t2 = workspace_grid(L1, L2, g1, g2, step_mm, option)
     except ValueError as e:
         raise InputError(str(e)) from None
     if not t1.size:

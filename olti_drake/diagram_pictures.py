@@ -22,7 +22,6 @@ import re
 import shutil
 import subprocess
 from contextlib import contextmanager
-from pathlib import Path
 
 from .csvio import InputError
 from .resources import shipped

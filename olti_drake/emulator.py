@@ -42,6 +42,7 @@ from typing import Optional
 
 import numpy as np
 
+from . import cliargs
 from .errormap import approach_directions
 from .interferometer import beam_geometry, simulate_readings
 from .protocol import (ChecksumError, Frame, FrameParser, Joints, NakError, Responder, alm_fields,
@@ -659,7 +660,7 @@ def main(argv=None) -> int:
     p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario)")
     p.add_argument("--speed", choices=("fast", "realistic"), default="fast",
                    help="fast: moves complete at once; realistic: distance/speed + settle time")
-    p.add_argument("--seed", type=int, default=None, help="noise and fault seed (default: the scenario's)")
+    p.add_argument("--seed", type=cliargs.seed, default=None, help="noise and fault seed (default: the scenario's)")
     p.add_argument("--link", metavar="PREFIX", help="make symlinks PREFIX-robot and PREFIX-counter")
     p.add_argument("--reflector", type=int, default=0, help="reflector position set up at start (0-based)")
     g = p.add_argument_group("faults (probabilities per frame, 0..1)")

@@ -23,7 +23,7 @@ from typing import List, Optional
 import numpy as np
 
 from .campaign_io import CampaignData
-from .csvio import InputError
+from .csvio import InputError, check_spread, unit_bound
 from .errormap import ErrorMap
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
@@ -79,25 +79,46 @@ class Identification:
         return float(self.std[self.names.index(name)])
 
 
+#: Reach (L1 + L2) beyond that of any SCARA robot made (the largest reach about 1.2 m), mm: with the
+#: nominal lengths, the bound on the spread of one reflector's readings (csvio.check_spread).
+MAX_SCARA_REACH_MM = 2000.0
+
+#: Most nodes a map grid may have: the identification's dense matrices grow as the square of the
+#: 4 * nodes map parameters (2 maps x 2 directions); 2001 nodes (e.g. 0.1 deg over 200 deg) is 8004
+#: parameters, a 0.5 GB covariance -- a finer grid is a slip (a step in the wrong unit), not a plan.
+MAX_GRID_NODES = 2001
+
+
 def parse_grid(text: str, name: str) -> np.ndarray:
-    """``start:stop:step`` (inclusive) or a comma list, degrees, e.g. ``-140:60:10``."""
+    """``start:stop:step`` (inclusive) or a comma list, degrees, e.g. ``-140:60:10``: finite, strictly
+    ascending, within +-720 deg (``csvio.UNIT_BOUNDS``), at most :data:`MAX_GRID_NODES` nodes. Errors are
+    one line naming the option ``name``."""
+    form = (f"{name}: expected START:STOP:STEP (degrees, STOP >= START, STEP > 0) or a comma list, "
+            f"got {text!r}")
     try:
         if ":" in text:
             a, b, s = (float(v) for v in text.split(":"))
-            if not s > 0 or b < a:
-                raise ValueError
-            n = int(round((b - a) / s))
-            if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
-                raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
-            return a + s * np.arange(n + 1)
-        g = np.array([float(v) for v in text.split(",")])
-    except InputError:
-        raise
+        else:
+            g = np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise InputError(f"{name}: expected START:STOP:STEP (degrees, STOP >= START, STEP > 0) "
-                         f"or a comma list, got {text!r}") from None
+        raise InputError(form) from None
+    if ":" in text:
+        if not (np.isfinite([a, b, s]).all() and s > 0 and b >= a):
+            raise InputError(form)
+        n = (b - a) / s
+        if n + 1 > MAX_GRID_NODES:
+            raise InputError(f"{name}: {text!r} has {n + 1:.3g} nodes, more than {MAX_GRID_NODES} "
+                             f"(use a coarser step)")
+        n = int(round(n))
+        if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
+            raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
+        g = a + s * np.arange(n + 1)
     if g.size == 0 or np.any(np.diff(g) <= 0) or not np.all(np.isfinite(g)):
         raise InputError(f"{name}: grid must be finite and strictly ascending, got {text!r}")
+    if g.size > MAX_GRID_NODES:
+        raise InputError(f"{name}: {g.size} nodes, more than {MAX_GRID_NODES}")
+    if np.abs(g).max() > unit_bound("_deg"):
+        raise InputError(f"{name}: nodes beyond +-{unit_bound('_deg'):g} deg, outside any physical range")
     return g
 
 
@@ -151,9 +172,46 @@ class Identifier(LeastSquaresProgram):
         r, _, _ = self.residual_rows(np.asarray(x)[None])
         return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
+    def check_identifiability(self, x=None) -> float:
+        """As :meth:`LeastSquaresProgram.check_identifiability`; a map node no reading touches is also
+        named by the campaign lines that command that axis near it (often one mistyped angle)."""
+        try:
+            return super().check_identifiability(x)
+        except UnidentifiableError as e:
+            where = self._node_readings(e.names[0]) if e.names else ""
+            if not where:
+                raise
+            raise UnidentifiableError(f"{e}; {where}", e.names) from None
+
+    def _node_readings(self, name: str) -> str:
+        """Where the readings near a map-node parameter's node are (file lines, directions), or ''."""
+        import re
+
+        m = re.fullmatch(r"(J[12])_(forward|reverse)_deg\[(\d+)\]", name)
+        if m is None or not self.robot0.is_errormap:
+            return ""
+        axis, i = m.group(1), int(m.group(3))
+        grid = (self.robot0.map1 if axis == "J1" else self.robot0.map2).grid_deg
+        c = self.data.commands
+        cmd, dirs = (c.theta1_deg, c.dir1) if axis == "J1" else (c.theta2_deg, c.dir2)
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        near = np.flatnonzero((cmd > lo) & (cmd < hi) | (cmd == grid[i]))
+        if not near.size:
+            return f"no reading commands {axis} between {lo:g} and {hi:g} deg"
+        lines = ", ".join(f"{self.data.source}:{self.data.line[k]}" for k in near[:3])
+        lines += " ..." if near.size > 3 else ""
+        sides = sorted({f"{d:+.0f}" for d in dirs[near]})
+        return (f"the only readings near the {axis} node {grid[i]:g} deg are at {lines} (direction "
+                f"{', '.join(sides)} only) -- check {'that command' if near.size == 1 else 'those commands'}")
+
     # -- model -------------------------------------------------------------------------------
     def _check_reflectors(self):
         o, d = self.options, self.data
+        # A reading far from its reflector's others (a typo, a unit slip) is named by line before the start
+        # values are built from it. The bound holds for any SCARA: none reaches beyond MAX_SCARA_REACH_MM.
+        reach = max(o.nominal_L1_mm + o.nominal_L2_mm, MAX_SCARA_REACH_MM)
+        check_spread(d.displacement_mm, d.reflector, d.line, d.source, "displacement_mm", 2 * reach, "reflector",
+                     f"twice the reach, at most {reach:g} mm for any SCARA")
         counts = np.bincount(d.reflector)
         if counts.size < 3 and not o.fix_reflectors:
             raise UnidentifiableError(
@@ -174,6 +232,9 @@ class Identifier(LeastSquaresProgram):
         for axis, grid, cmd in (("J1", o.grid1_deg, c.theta1_deg), ("J2", o.grid2_deg, c.theta2_deg)):
             # Distinct commanded angles; files written elsewhere may carry 1e-12 deg of float noise.
             g = np.unique(np.round(cmd, 9)) if grid is None else np.asarray(grid, dtype=float)
+            if grid is None and g.size > MAX_GRID_NODES:
+                raise InputError(f"{self.data.source}: {g.size} distinct {axis} commands would be {g.size} map nodes, "
+                                 f"more than {MAX_GRID_NODES}; give the {axis} map grid (--grid{axis[1]}-deg)")
             out = (cmd < g[0] - 1e-9) | (cmd > g[-1] + 1e-9)
             if out.any():
                 k = np.flatnonzero(out)[0]

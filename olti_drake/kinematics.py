@@ -100,17 +100,26 @@ def inverse_kinematics(x_mm, y_mm, L1_mm, L2_mm, elbow: int = 1):
     return t1 / DEG, t2 / DEG
 
 
-def workspace_grid(L1_mm, L2_mm, theta1_range_deg, theta2_range_deg, step_mm: float):
+#: Most XY points of a workspace grid (a 1000 x 1000 square: ~0.6 mm steps over the paper robot's reach);
+#: a finer step is a slip that would allocate gigabytes, refused before allocating.
+MAX_WORKSPACE_POINTS = 1_000_000
+
+
+def workspace_grid(L1_mm, L2_mm, theta1_range_deg, theta2_range_deg, step_mm: float, option: str = "step_mm"):
     """The XY grid points (step mm) the arm reaches with commands inside the given angle ranges.
 
     Inverse of Eq. (3) of 000 with either elbow (elbow +1 preferred where both
     fit). Returns (axis_mm (n,), inside (n, n) bool indexed [iy, ix],
-    theta1_deg, theta2_deg of the inside points in row-major order).
+    theta1_deg, theta2_deg of the inside points in row-major order). At most
+    :data:`MAX_WORKSPACE_POINTS` grid points; errors name ``option`` (the step's parameter).
     """
     if not (np.isfinite(step_mm) and step_mm > 0):
-        raise ValueError(f"workspace step_mm must be finite and > 0, got {step_mm!r}")
+        raise ValueError(f"workspace {option} must be finite and > 0, got {step_mm!r}")
     (a1, b1), (a2, b2) = (sorted((float(np.min(r)), float(np.max(r)))) for r in (theta1_range_deg, theta2_range_deg))
     reach = L1_mm + L2_mm
+    if (2 * reach / step_mm + 1) ** 2 > MAX_WORKSPACE_POINTS:
+        raise ValueError(f"{option} {step_mm:g} mm gives {(2 * reach / step_mm + 1) ** 2:.3g} workspace grid points "
+                         f"over the {reach:g} mm reach, more than {MAX_WORKSPACE_POINTS:,} (use a coarser step)")
     n = int(np.floor(reach / step_mm))
     axis = step_mm * np.arange(-n, n + 1)
     X, Y = np.meshgrid(axis, axis)

@@ -21,7 +21,8 @@ from typing import Optional
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_indices, check_values, read_json, read_table
+from .csvio import (InputError, check_finite, check_indices, check_spread, check_values, json_numbers, read_json,
+                    read_table)
 from .kinematics import rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
@@ -85,6 +86,9 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
         k = clash[0]
         raise InputError(f"{source}:{t['_line'][k]}: target {i[k]} has command ({xy[k, 0]:g}, {xy[k, 1]:g}) mm, "
                          f"but ({cmd[i[k], 0]:g}, {cmd[i[k], 1]:g}) mm elsewhere")
+    size = np.hypot(*np.ptp(cmd, axis=0))
+    check_spread(t["displacement_mm"], j, t["_line"], source, "displacement_mm", 1.5 * size + 10.0, "station",
+                 f"the {size:g} mm diagonal of the commands, with a margin")
     return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source)
 
 
@@ -316,13 +320,27 @@ class Multilateration(LeastSquaresProgram):
 
 
 def load_result(path) -> dict:
-    """Read a machine-tool result.json (formats.md); errors name the file and the missing key."""
+    """Read a machine-tool result.json (formats.md), its schema checked where it is read: targets N x 2,
+    stations M x 2 and dead paths M (mm; commands N x 2 and standard uncertainties of the same shapes,
+    >= 0, when present), every number finite and within +-1e5 mm, ``gauge`` a sentence; a SCARA result
+    or a campaign is refused by its ``format``. Errors are one line naming the file and the key."""
     name = os.fspath(path)
-    data = read_json(path, FORMAT)
-    for key in ("targets_mm", "stations_mm", "dead_paths_mm", "gauge"):
-        if key not in data:
-            raise InputError(f"{name}: missing key '{key}'")
+    data = read_json(path, FORMAT, "a machine-tool result (olti multilaterate)")
+    T = json_numbers(data, name, "targets_mm", (None, 2))
+    S = json_numbers(data, name, "stations_mm", (None, 2))
+    json_numbers(data, name, "dead_paths_mm", (len(S),))
+    if "commands_mm" in data:
+        json_numbers(data, name, "commands_mm", T.shape)
+    if not isinstance(data.get("gauge"), str):
+        raise InputError(f"{name}: key 'gauge': expected the sentence stating the gauge, got {data.get('gauge')!r}")
+    unc = data.get("uncertainty")
+    for key, shape in (("targets_mm", T.shape), ("stations_mm", S.shape), ("dead_paths_mm", (len(S),))):
+        if isinstance(unc, dict) and key in unc:
+            if np.any(json_numbers(unc, name, key, shape, label=f"uncertainty.{key}") < 0):
+                raise InputError(f"{name}: key 'uncertainty.{key}': a standard uncertainty is < 0")
     data.setdefault("gauge_kind", "first-two" if "target 0" in data["gauge"] else "best-fit")
+    if data["gauge_kind"] not in GAUGES:
+        raise InputError(f"{name}: key 'gauge_kind' must be one of {', '.join(GAUGES)}, got {data['gauge_kind']!r}")
     return data
 
 

@@ -23,11 +23,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .csvio import check_finite, check_values, read_table
+from .csvio import check_finite, check_values, read_table, read_yaml, unit_bound
 from .errormap import MOTION_TOLERANCE_DEG, approach_directions
 
 #: Tolerance (deg) for "step divides the range".
 STEP_TOLERANCE_DEG = 1e-9
+#: Most measured poses of a generated plan (1000 x 1000): beyond it a step is a slip (a step in the wrong
+#: unit) that would build a plan of gigabytes; refused, naming the step, before anything is allocated.
+MAX_PLAN_POSES = 1_000_000
 
 COLUMNS = ("theta1_deg", "theta2_deg", "measure")
 
@@ -108,11 +111,14 @@ class Plan:
 def _sweep(start: float, stop: float, step: float, name: str):
     """Out-and-back values start..stop..start (deg) and their directions of travel."""
     for key, v in ((f"{name}_start", start), (f"{name}_stop", stop), (f"{name}_step", step)):
-        if not math.isfinite(v):
-            raise ValueError(f"{key} must be finite, got {v!r}")
+        if not (math.isfinite(v) and abs(v) <= unit_bound("_deg")):
+            raise ValueError(f"{key} must be finite and within +-{unit_bound('_deg'):g} deg, got {v!r}")
     if step <= 0:
         raise ValueError(f"{name}_step must be > 0 deg, got {step:g}")
     span = abs(stop - start)
+    if span / step + 1 > MAX_PLAN_POSES:
+        raise ValueError(f"{name}_step = {step:g} deg gives {span / step + 1:.3g} values over {span:g} deg, "
+                         f"more than {MAX_PLAN_POSES:,} (use a coarser step)")
     n = round(span / step)
     if abs(span - n * step) > STEP_TOLERANCE_DEG:
         raise ValueError(f"{name}_step = {step:g} deg does not divide "
@@ -144,6 +150,9 @@ def bidirectional_grid(theta1_start: float = -140.0, theta1_stop: float = 60.0,
         raise ValueError(f"overrun_deg must be > 0 deg, got {overrun_deg!r}")
     a, da = _sweep(theta1_start, theta1_stop, theta1_step, "theta1")
     b, db = _sweep(theta2_start, theta2_stop, theta2_step, "theta2")
+    if a.size * b.size > 4 * MAX_PLAN_POSES:  # out and back on both axes
+        raise ValueError(f"theta1_step = {theta1_step:g} and theta2_step = {theta2_step:g} deg give "
+                         f"{a.size * b.size // 4:,} poses, more than {MAX_PLAN_POSES:,} (use coarser steps)")
     rows, meas = [], []
     cur = last = None  # current command and last motion direction, (2,)
     for t1, e1 in zip(a, da):
@@ -218,6 +227,7 @@ def save_plan(plan: Plan, path) -> None:
 def _load_yaml(path: Path) -> Plan:
     from pydrake.common.yaml import yaml_load_typed
 
+    read_yaml(path, "plan")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
     try:
         grid = yaml_load_typed(schema=BidirectionalGrid, filename=str(path))
         return grid.plan()

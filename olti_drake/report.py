@@ -361,7 +361,7 @@ def _iso_section(page, stats, truth_stats, k, u_note, truth_note):
 def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, truth_path, k):
     from .result import load_result
 
-    model, P, d0, _ = load_result(result_path, outside="clamp")
+    model, P, d0, _ = load_result(result_path, outside="clamp", identified=True)
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None and unc is None:
         try:
@@ -728,7 +728,9 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     if truth_path:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
-        truth = read_json(truth_path, SCARA_FORMAT, "a truth")
+        from .result import load_result
+
+        truth = load_result(truth_path, outside="clamp")[3]  # a truth is a result-format file: same schema check
     if unc is not None:
         _check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)

@@ -4,12 +4,11 @@ Units: mm and degrees. Standard uncertainties (k = 1) go in ``uncertainty``
 with the same keys and shapes as the values.
 """
 
-import json
 import os
 
 import numpy as np
 
-from .csvio import InputError, read_json
+from .csvio import InputError, json_numbers, read_json
 from .errormap import ErrorMap
 from .kinematics import ScaraModel
 
@@ -66,32 +65,62 @@ def write_result(ident, path) -> None:
     write_json(path, result_dict(ident))
 
 
-def load_result(path, outside: str = "error"):
+def load_result(path, outside: str = "error", identified: bool = False):
     """Read a result.json -> (ScaraModel, reflectors (Nt, 2) mm, dead paths (Nt,) mm, raw dict).
 
-    Errors name the file and the missing or bad key.
+    ``identified``: the verb describes an identification (its uncertainty, its report), so a simulation
+    truth (``olti simulate``'s truth.json: the result format with a ``truth`` key) is refused; where only
+    the model is used (predict, compensate, design) a truth is a model like any other.
+
+    The schema is checked where it is read (formats.md): link lengths > 0 mm, reflectors N x 2 and dead
+    paths N mm, map grids ascending with forward/reverse deviations of the same length (deg), the
+    standard uncertainties (if any) of the same shapes and >= 0, and every number finite and within the
+    bound of its unit (``csvio.UNIT_BOUNDS``). A file of another kind (a machine-tool result, a campaign)
+    is refused by its ``format``. Errors are one line naming the file and the key.
     """
     name = os.fspath(path)
-    data = read_json(path, FORMAT)
+    data = read_json(path, FORMAT, "a SCARA result (olti identify)")
+    if identified and "truth" in data:
+        raise InputError(f"{name}: a simulation truth (olti simulate), not an identified result (olti identify); "
+                         f"a truth is given to olti report with --truth")
     kind = data.get("model")
-    need = ["L1_mm", "L2_mm"] + (["theta20_deg"] if kind == "dh" else ["error_map"])
     if kind not in ("dh", "errormap"):
         raise InputError(f"{name}: 'model' must be 'dh' or 'errormap', got {kind!r}")
-    missing = [k for k in need if k not in data]
-    if missing:
-        raise InputError(f"{name}: missing key '{missing[0]}' (model {kind})")
-    try:
-        if kind == "dh":
-            model = ScaraModel(float(data["L1_mm"]), float(data["L2_mm"]), float(data["theta20_deg"]))
-        else:
-            maps = []
-            for axis in ("J1", "J2"):
-                if axis not in data["error_map"]:
-                    raise InputError(f"{name}: missing key 'error_map.{axis}'")
-                maps.append(ErrorMap.from_dict(data["error_map"][axis], axis, outside))
-            model = ScaraModel(float(data["L1_mm"]), float(data["L2_mm"]), None, *maps)
-    except (TypeError, ValueError) as e:
-        raise InputError(f"{name}: {e}") from None
-    P = np.asarray(data.get("reflectors_mm", []), dtype=float).reshape(-1, 2)
-    d0 = np.asarray(data.get("dead_paths_mm", []), dtype=float)
+    L1, L2 = (float(json_numbers(data, name, k, positive=True)) for k in ("L1_mm", "L2_mm"))
+    maps = [_load_map(data, name, axis, outside) for axis in ("J1", "J2")] if kind == "errormap" else [None, None]
+    theta20 = float(json_numbers(data, name, "theta20_deg")) if kind == "dh" else None
+    P = json_numbers(data, name, "reflectors_mm", (None, 2)) if "reflectors_mm" in data else np.zeros((0, 2))
+    d0 = json_numbers(data, name, "dead_paths_mm", (len(P),)) if "dead_paths_mm" in data or len(P) else np.zeros(0)
+    model = ScaraModel(L1, L2, theta20, *maps)
+    if isinstance(data.get("uncertainty"), dict):
+        _check_uncertainty(data["uncertainty"], uncertainty_layout(model, np.zeros(
+            len(model.parameter_names()) + 3 * len(P))), name, "uncertainty")
     return model, P, d0, data
+
+
+def _load_map(data, name, axis, outside) -> ErrorMap:
+    maps = data.get("error_map")
+    if not isinstance(maps, dict) or not isinstance(maps.get(axis), dict):
+        raise InputError(f"{name}: missing key 'error_map.{axis}' (model errormap)")
+    m, label = maps[axis], f"error_map.{axis}."
+    grid = json_numbers(m, name, "grid_deg", (None,), label=label + "grid_deg")
+    if np.any(np.diff(grid) <= 0) or not grid.size:
+        raise InputError(f"{name}: key '{label}grid_deg': the map nodes must be strictly ascending")
+    values = [json_numbers(m, name, k, (len(grid),), label=label + k) for k in ("forward_deg", "reverse_deg")]
+    try:
+        return ErrorMap(grid, *values, axis=axis, outside=outside)
+    except ValueError as e:  # anything else ErrorMap refuses
+        raise InputError(f"{name}: {e}") from None
+
+
+def _check_uncertainty(unc: dict, layout: dict, name, prefix: str) -> None:
+    """Standard uncertainties with the keys and shapes of the values (``layout``), finite and >= 0."""
+    for key, like in layout.items():
+        label = f"{prefix}.{key}"
+        if isinstance(like, dict):
+            if isinstance(unc.get(key), dict):
+                _check_uncertainty(unc[key], like, name, label)
+        elif key in unc:
+            v = json_numbers(unc, name, key, np.shape(like), label=label)
+            if np.any(v < 0):
+                raise InputError(f"{name}: key '{label}': a standard uncertainty is < 0")

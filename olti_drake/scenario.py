@@ -19,7 +19,7 @@ from typing import List, Optional, Union
 
 import numpy as np
 
-from .csvio import InputError
+from .csvio import InputError, read_yaml
 from .errormap import ErrorMap, Harmonic, HarmonicDeviation, NoDeviation
 from .interferometer import InterferometerOptions
 from .kinematics import PAPER_L1_MM, PAPER_L2_MM
@@ -333,6 +333,7 @@ def load_scenario(path=None) -> Scenario:
     if not os.path.isfile(name):
         raise InputError(f"{name}: " + ("is a directory, expected a scenario YAML file" if os.path.isdir(name)
                                         else "scenario file not found"))
+    read_yaml(name, "scenario")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=name)
     except Exception as e:  # pydrake's messages are multi-line and may not name the key

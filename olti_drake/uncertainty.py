@@ -43,6 +43,9 @@ class ReadingErrors:
 
     budget: Budget
 
+    def __post_init__(self):  # a constructed budget is checked before it is propagated, as a loaded one is
+        self.budget.validate()
+
     def _terms(self, acts_on):
         return [c for c in self.budget.contributors if c.acts_on == acts_on]
 
@@ -84,7 +87,7 @@ def identifier_at_result(result_path, data):
     from .identification import IdentificationOptions, Identifier
     from .result import load_result
 
-    model, P, d0, raw = load_result(result_path, outside="clamp")
+    model, P, d0, raw = load_result(result_path, outside="clamp", identified=True)
     opts = IdentificationOptions(model=raw["model"], nominal_L1_mm=model.L1_mm, nominal_L2_mm=model.L2_mm)
     if model.is_errormap:
         opts.grid1_deg, opts.grid2_deg = model.map1.grid_deg, model.map2.grid_deg

@@ -104,3 +104,47 @@ def test_typo_in_top_level_key_and_missing_file(tmp_path):
     with pytest.raises(InputError, match="not found") as e:
         load_budget(missing)
     assert str(missing) in str(e.value) and "\n" not in str(e.value)
+
+
+# -- a budget that cannot be right is refused (issue 11, item 4) ------------------------------------------
+def test_budget_without_a_nonzero_contributor_is_refused_where_built_and_where_propagated():
+    from olti_drake.uncertainty import ReadingErrors
+
+    with pytest.raises(InputError, match="no contributors"):
+        Budget("empty").validate()
+    zero = Budget("zeros", "", [Contributor("a", "x", 0.0, "um"), Contributor("b", "y", 0.0, "rad", 1.0, "B",
+                                                                               "beam_direction")])
+    with pytest.raises(InputError, match="budget 'zeros': every contributor is 0"):
+        zero.validate()
+    # A constructed budget is checked before it is propagated: no uncertainty of 0 (design divided by it).
+    for bad in (Budget("empty"), zero):
+        with pytest.raises(InputError):
+            ReadingErrors(bad)
+    ReadingErrors(Budget("one", "", [Contributor("a", "x", 0.0, "um"), Contributor("b", "y", 1.0, "um")]))
+
+
+@pytest.mark.parametrize("value, unit, k, acts_on, ok", [
+    (1000.0, "mm", 1.0, "reading", True),        # 1 m standard uncertainty: the stated bound
+    (1000.1, "mm", 1.0, "reading", False),
+    (1.5, "m", 2.0, "pose", True),               # value / k = 0.75 m
+    (1.5, "m", 1.0, "pose", False),
+    (1e300, "um", 1.0, "reading", False),        # used to overflow in the root-sum-square
+    (10.0, "deg", 1.0, "beam_direction", True),  # 10 deg: the stated bound
+    (10.5, "deg", 1.0, "beam_direction", False),
+    (0.2, "rad", 1.0, "beam_direction", False),  # 11.5 deg
+    (1.0, "um", 11.0, "reading", False),         # coverage factor beyond 10
+    (float("inf"), "um", 1.0, "reading", False),
+    (float("nan"), "um", 1.0, "reading", False),
+])
+def test_contributor_values_within_physical_bounds(value, unit, k, acts_on, ok):
+    from olti_drake.budget import MAX_ANGLE_RAD, MAX_LENGTH_MM
+
+    assert (MAX_LENGTH_MM, MAX_ANGLE_RAD) == (1000.0, pytest.approx(np.radians(10)))
+    b = Budget("t", "", [Contributor("u1", "base", 1.0, "um"), Contributor("u9", "tested", value, unit, k, "B",
+                                                                           acts_on)])
+    if ok:
+        assert b.validate() is b and np.isfinite(b.combined(acts_on))
+    else:
+        with pytest.raises(InputError) as e:
+            b.validate("b.yaml")
+        assert str(e.value).startswith("b.yaml: contributors[1] (u9): ") and "\n" not in str(e.value)

@@ -195,7 +195,7 @@ def test_regions_yaml_errors_name_the_field(tmp_path, text, needle):
 
 
 def test_regions_file_missing_names_the_file(tmp_path):
-    with pytest.raises(InputError, match="nope.yaml: cannot read"):
+    with pytest.raises(InputError, match="nope.yaml: regions file not found"):
         D.load_regions(tmp_path / "nope.yaml")
 
 

@@ -147,7 +147,7 @@ def test_shipped_file_matches_generator():
 
 
 def test_round_trip_exact(tmp_path):
-    t1 = np.array([-140.0, 0.1, 1 / 3, -0.0, 1e-17, 123456.789012345678])
+    t1 = np.array([-140.0, 0.1, 1 / 3, -0.0, 1e-17, 123.456789012345678])  # within the +-720 deg physical bound
     plan = Plan(t1, t1[::-1] * np.pi, [0, 1, 1, 0, 1, 1])
     f = tmp_path / "p.csv"
     save_plan(plan, f)
