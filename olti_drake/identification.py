@@ -67,6 +67,10 @@ class Identification:
     outliers: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     n_readings: int = 0
+    converged_by: str = ""
+    warnings: list = field(default_factory=list)
+    #: The campaign identified from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    campaign: dict = field(default_factory=dict)
 
     @property
     def residual_rms_mm(self) -> float:
@@ -132,10 +136,42 @@ class Identifier(LeastSquaresProgram):
 
     def solve(self) -> "Identification":
         """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
+        from .campaign_io import campaign_digest
+
         f = self.fit()
         model, P, d0 = self.split(f.x)
         return Identification(model, P, d0, f.names, f.x, f.std, f.covariance, f.residuals, f.iterations,
-                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals))
+                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
+                              f.converged_by, f.warnings, campaign_digest(self.data))
+
+    #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
+    LENGTH_FACTOR = 2.0
+    #: A joint deviation (map node, theta20) beyond this is no positioning deviation, deg.
+    MAX_DEVIATION_DEG = 10.0
+
+    def implausible(self, x) -> list:
+        """Link lengths not positive or outside [1/f, f] x nominal (f = :attr:`LENGTH_FACTOR`); joint deviations
+        beyond :attr:`MAX_DEVIATION_DEG`; non-finite reflectors or dead paths."""
+        o, out = self.options, []
+        for name, nominal in (("L1", o.nominal_L1_mm), ("L2", o.nominal_L2_mm)):
+            v = x[self.names.index(f"{name}_mm")]
+            if not v > 0:
+                out.append(f"{name} = {v:.6g} mm is not a positive length")
+            elif nominal > 0 and not nominal / self.LENGTH_FACTOR <= v <= nominal * self.LENGTH_FACTOR:
+                out.append(f"{name} = {v:.6g} mm is more than {self.LENGTH_FACTOR:g} x off its nominal "
+                           f"{nominal:g} mm (readings in mm? the right --nominal-mm?)")
+        dev = np.abs(x[2:self.n_robot])
+        if dev.size and dev.max() > self.MAX_DEVIATION_DEG:
+            i = 2 + int(np.argmax(dev))
+            out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no positioning "
+                       f"deviation")
+        return out
+
+    def default_budget(self):
+        """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
+        from .budget import paper000_budget
+
+        return paper000_budget()
 
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}

@@ -55,6 +55,10 @@ def result_dict(ident) -> dict:
     out["condition_number"] = ident.condition_number
     out["solver"] = ident.solver
     out["outliers"] = ident.outliers
+    out["converged"] = ident.converged_by
+    out["warnings"] = list(ident.warnings)
+    if ident.campaign:
+        out["campaign"] = ident.campaign
     if ident.notes:
         out["notes"] = ident.notes
     return out
