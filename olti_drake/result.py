@@ -59,6 +59,8 @@ def result_dict(ident) -> dict:
     out["warnings"] = list(ident.warnings)
     if ident.campaign:
         out["campaign"] = ident.campaign
+    if getattr(ident, "resolution", None):
+        out["resolution_check"] = ident.resolution
     if ident.notes:
         out["notes"] = ident.notes
     return out

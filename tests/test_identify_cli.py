@@ -374,8 +374,13 @@ def test_residual_far_above_the_budget_is_a_stated_warning(work):
     assert r.returncode == 0, r.stderr
     tight = json.loads((d / "tight.json").read_text())
     ratio = res["residual_rms_mm"] / 1e-3
-    assert len(tight["warnings"]) == 1 and f"{ratio:.1f} x the reading uncertainty 1.00 um" in tight["warnings"][0]
+    residual = [w for w in tight["warnings"] if w.startswith("residual RMS")]
+    assert len(residual) == 1 and f"{ratio:.1f} x the reading uncertainty 1.00 um" in residual[0]
     assert "warning: residual RMS" in r.stdout and "'tight'" in r.stdout
+    # The under-resolution check is stated in the summary and the result, warning or not.
+    check = res["resolution_check"]
+    assert check["done"] and 0 < check["ratio"] < 3 and "every second node" in check["method"]
+    assert "resolution check: held-out readings" in work[1].stdout
 
 
 def test_campaign_glued_twice_is_refused_naming_both_lines(work):
