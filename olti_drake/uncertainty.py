@@ -167,16 +167,22 @@ def _mc_batch(seed, size: int):
 def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
     """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
 
-    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B.
+    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
+    step is not below the tolerance after ``max_iter`` iterations (or not finite) did not converge: its
+    row is NaN, for :func:`monte_carlo` to refuse.
     """
     X = np.tile(x, (len(D), 1))
-    for _ in range(max_iter):
-        r, _, vals = ident.residual_rows(X, D)
-        G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
-        step = G @ B
-        X -= step
-        if np.max(np.abs(step)) < 1e-13 * max(1.0, np.max(np.abs(x))):
-            break
+    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial is caught below, not warned about
+        for _ in range(max_iter):
+            r, _, vals = ident.residual_rows(X, D)
+            G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
+            step = G @ B
+            X -= step
+            last = np.max(np.abs(step), axis=1)
+            if np.max(last) < tol:
+                break
+    X[~(last < tol)] = np.nan  # also catches NaN steps
     return X
 
 
@@ -237,6 +243,13 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
                 break
     samples = np.vstack(out)
     _WORK.clear()
+    failed = int(np.isnan(samples).any(axis=1).sum())
+    if failed:
+        from .leastsquares import FitRefused
+
+        raise FitRefused(f"{ident.source}: Monte Carlo refused, nothing written -- {failed} of {len(samples)} trials "
+                         f"did not converge to their own least-squares solution (the budget's errors drive the "
+                         f"problem beyond where it can be re-solved from the estimate: check the budget's units)")
     notes = []
     if adaptive:
         notes.append(f"adaptive (JCGM 101 §7.9): {done} trials in {len(history)} rounds; " + (

@@ -255,8 +255,9 @@ def test_coarser_custom_grid_converges(paper0):
     assert 0.5 * (m1([0.0], 1.0)[0] + m1([0.0], -1.0)[0]) == pytest.approx(0.0, abs=1e-12)
     # Fewer nodes fit worse than the full map, still far better than D-H.
     assert full.residual_rms_mm < res.residual_rms_mm < dh.residual_rms_mm
-    assert res.model.L1_mm == pytest.approx(paper0["scenario"].robot.L1_mm, abs=0.02)
-    assert res.model.L2_mm == pytest.approx(paper0["scenario"].robot.L2_mm, abs=0.02)
+    # L1, L2 within 3 reported u of the truth (the former +-0.02 mm window nearly let the nominal pass). Not the
+    # reflectors: with 0 deg no node, the coarse map's gauge interpolates a curved truth, a frame of its own.
+    assert_within(zscores(res, paper0["scenario"].robot, paper0["setup"].reflectors_mm), groups=("L1", "L2"))
 
 
 def test_negative_elbow_with_coarser_grid_converges(negative_elbow):
@@ -265,8 +266,9 @@ def test_negative_elbow_with_coarser_grid_converges(negative_elbow):
                                                grid1_deg=np.arange(-140.0, 61.0, 40.0),
                                                grid2_deg=np.array([-140.0, -100.0, -60.0, -20.0, 0.0])))
     assert res.iterations < IdentificationOptions().max_iterations
-    assert res.model.L1_mm == pytest.approx(s.robot.L1_mm, abs=0.02)
-    assert res.model.L2_mm == pytest.approx(s.robot.L2_mm, abs=0.02)
+    # Within 3 reported u of the truth (u ~ 3..6 um; the former +-0.02 mm window let the nominal pass).
+    assert abs(res.model.L1_mm - s.robot.L1_mm) <= K * res.uncertainty("L1_mm")
+    assert abs(res.model.L2_mm - s.robot.L2_mm) <= K * res.uncertainty("L2_mm")
     assert res.residual_rms_mm < 0.04
 
 
@@ -546,3 +548,37 @@ def test_short_period_truth_is_flagged_by_the_resolution_check(paper0):
     assert res.residual_rms_mm < 1.1 * noise  # the residual looks perfect
     assert res.resolution["ratio"] > 4, res.resolution
     assert len(res.warnings) == 1 and "under-resolution check" in res.warnings[0]
+
+
+def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
+    """The acceptance of the shared least squares on a two-parameter line fit: accepted as solved, then each
+    refusal path (a covariance singular within the gauge at the solution, a non-finite estimate) by name."""
+    import scipy.sparse as sp
+
+    from olti_drake.leastsquares import FitRefused, LeastSquaresProgram, SolverOptions
+
+    class Line(LeastSquaresProgram):
+        t = np.linspace(0.0, 1.0, 20)
+
+        def __init__(self):
+            self._declare(["a_mm", "b_mm"], SolverOptions())
+            self.x0 = np.zeros(2)
+            self.d = 2.0 + 3.0 * self.t + 0.01 * np.sin(40 * self.t)
+
+        def residuals(self, x):
+            return x[0] + x[1] * self.t - self.d, sp.csr_matrix(np.column_stack([np.ones_like(self.t), self.t]))
+
+    line = Line()
+    fit = line.fit()
+    assert fit.converged_by and fit.x == pytest.approx([2.0, 3.0], abs=0.02) and fit.warnings == []
+    line._weak = ["b_mm"]  # as if the normal matrix had lost rank at the solution
+    with pytest.raises(FitRefused, match="covariance is singular within the gauge.*b_mm not determined"):
+        line.accept(fit)
+    line._weak = []
+    fit.x[1] = np.nan
+    with pytest.raises(FitRefused, match="non-finite estimate or uncertainty of b_mm"):
+        line.accept(fit)
+    line._stop = None
+    fit.converged_by = ""
+    with pytest.raises(FitRefused, match="did not converge: iteration cap 100 reached"):
+        line.accept(fit)

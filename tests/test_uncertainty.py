@@ -398,3 +398,15 @@ def test_each_contributor_is_drawn_with_its_own_distribution():
 
     assert abs(kurtosis("normal")) < 0.06
     assert abs(kurtosis("uniform") + 1.2) < 0.06
+
+
+def test_monte_carlo_refuses_trials_that_do_not_converge(small):
+    """Reading errors of 10 mm (a budget in the wrong unit) drive trials beyond where the chord iteration
+    re-solves them: before, their NaN or unconverged rows went into the standard uncertainties silently."""
+    from olti_drake.budget import Contributor
+    from olti_drake.leastsquares import FitRefused
+
+    ident, x, _ = small
+    wrong = Budget(name="mm", contributors=[Contributor("u", "", 10.0, "mm", 1.0, "B", "reading")])
+    with pytest.raises(FitRefused, match=r"Monte Carlo refused, nothing written -- \d+ of 50 trials did not"):
+        monte_carlo(ident, x, ReadingErrors(wrong), trials=50, seed=1, workers=1)
