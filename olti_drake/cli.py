@@ -179,7 +179,7 @@ def identification_summary(ident) -> str:
         lines.append(f"  note: {note}")
     res = getattr(ident, "resolution", None)
     if res and res.get("done"):
-        lines.append(f"  resolution check: held-out readings between every second node missed by RMS "
+        lines.append(f"  resolution check: held-out readings at alternate nodes missed by the map on the others by RMS "
                      f"{1e3 * res['held_out_rms_mm']:.1f} um ({res['ratio']:.1f} x the budget's reading u)")
     elif res:
         lines.append(f"  resolution check not possible: {res['why']}")
