@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_indices, check_no_duplicate_rows, check_values, data_digest, read_table
+from .csvio import (InputError, check_finite, check_indices, check_no_duplicate_rows, check_values, data_digest,
+                    read_table)
 from .kinematics import JointCommands
 
 REQUIRED = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm")
