@@ -287,6 +287,10 @@ def truth_result(setup: Setup, columns: dict) -> dict:
     """
     r = setup.scenario.robot
     grids = {a: np.unique(columns[f"theta{a[1]}_deg"]) for a in ("J1", "J2")}
+    # The identifier's frame (formats.md): X along the arm at theta1* = 0, both approach directions averaged.
+    # The truth's base frame has X along the arm at the actual theta1 = 0, i.e. rotated from it by -g.
+    at = float(np.clip(0.0, grids["J1"][0], grids["J1"][-1]))
+    g = float(0.5 * (r.J1(np.array([at]), 1.0)[0] + r.J1(np.array([at]), -1.0)[0]))
     return {
         "format": "olti-result/1",
         "model": "errormap",
@@ -295,8 +299,11 @@ def truth_result(setup: Setup, columns: dict) -> dict:
         "reflectors_mm": setup.reflectors_mm.tolist(),
         "dead_paths_mm": setup.dead_paths_mm.tolist(),
         "error_map": {a: sample_map(getattr(r, a), g, a).to_dict() for a, g in grids.items()},
-        "gauge": "simulation truth: the robot base frame itself (J1 axis origin, X along the arm at "
-                 "theta1* = theta2* = 0); no freedom to fix",
+        "gauge": (f"simulation truth in the robot base frame: origin on the J1 axis, X along the arm at the actual "
+                  f"theta1 = theta2 = 0, not at the commanded theta1* = 0. The frame of formats.md and of identified "
+                  f"results (X along the arm at theta1* = {at:g} deg, mean of both approach directions) is this one "
+                  f"rotated by the J1 deviation there, {1e3 * g:.3f} mdeg, about J1: subtract it from the J1 map "
+                  f"and rotate the reflectors by minus it to compare (truth.formats_frame_rotation_deg)"),
         "residual_rms_mm": 0.0,
         "n_readings": int(np.sum(columns["valid"] > 0)),
         "truth": {
@@ -304,6 +311,7 @@ def truth_result(setup: Setup, columns: dict) -> dict:
             "reflectors_estimate_mm": setup.reflectors_estimate_mm.tolist(),
             "theta40_estimate_deg": setup.theta40_estimate_deg,
             "seed": setup.scenario.seed,
+            "formats_frame_rotation_deg": g,
         },
     }
 

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .csvio import InputError, check_finite, check_indices, check_values, read_table
+from .csvio import (InputError, check_finite, check_indices, check_no_duplicate_rows, check_values, data_digest,
+                    read_table)
 from .kinematics import JointCommands
 
 REQUIRED = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm")
@@ -57,12 +58,37 @@ def load_campaign(path) -> CampaignData:
     if not keep.any():
         raise InputError(f"{name}: no valid readings (every row has valid = 0)")
     t = {k: v[keep] for k, v in t.items()}
+    check_no_duplicate_rows(t, path)
     check_finite(t, path, REQUIRED)
     for c in ("dir1", "dir2"):
         check_values(t, path, c, (-1.0, 1.0))
     j = check_indices(t, path, "reflector")
     return CampaignData(j, JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]),
                         t["displacement_mm"], t["_line"], name, int((~keep).sum()))
+
+
+def campaign_digest(data) -> dict:
+    """{"readings", "sha256"} of the valid readings a result was identified from (SCARA or machine campaign)."""
+    if hasattr(data, "commands_mm"):  # MachineCampaign
+        return data_digest(data.station, data.target, data.commands_mm[data.target, 0],
+                           data.commands_mm[data.target, 1], data.displacement_mm)
+    c = data.commands
+    return data_digest(data.reflector, c.theta1_deg, c.theta2_deg, c.dir1, c.dir2, data.displacement_mm)
+
+
+def check_campaign_matches(result: dict, data, result_path) -> str:
+    """Refuse a campaign that is not the one the result was identified from (count and digest, naming both);
+    return a note ('' when matched) -- results written before the digest existed are accepted with a note."""
+    stored = result.get("campaign")
+    here = campaign_digest(data)
+    if not isinstance(stored, dict) or "sha256" not in stored:
+        return (f"{os.fspath(result_path)} carries no campaign digest (written by an older version): not checked "
+                f"that {data.source} is its campaign")
+    if stored.get("sha256") != here["sha256"] or stored.get("readings") != here["readings"]:
+        raise InputError(f"{data.source}: not the campaign {os.fspath(result_path)} was identified from: "
+                         f"{here['readings']} valid readings, sha256 {here['sha256'][:12]}..., but the result's "
+                         f"campaign has {stored.get('readings')} readings, sha256 {str(stored.get('sha256'))[:12]}...")
+    return ""
 
 
 def load_commands(path):

@@ -176,6 +176,14 @@ def identification_summary(ident) -> str:
     lines.append(f"  gauge: {ident.gauge}")
     for note in ident.notes:
         lines.append(f"  note: {note}")
+    res = getattr(ident, "resolution", None)
+    if res and res.get("done"):
+        lines.append(f"  resolution check: held-out readings at alternate nodes missed by the map on the others by RMS "
+                     f"{1e3 * res['held_out_rms_mm']:.1f} um ({res['ratio']:.1f} x the budget's reading u)")
+    elif res:
+        lines.append(f"  resolution check not possible: {res['why']}")
+    for warning in getattr(ident, "warnings", []):
+        lines.append(f"  warning: {warning}")
     if ident.outliers:
         shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in ident.outliers[:10])
         more = f" and {len(ident.outliers) - 10} more" if len(ident.outliers) > 10 else ""
@@ -188,7 +196,7 @@ def cmd_identify(args) -> int:
     from .identification import IdentificationOptions, identify, parse_grid
     from .result import write_result
 
-    _check_outputs(args, [args.out], [args.campaign])
+    _check_outputs(args, [args.out], [args.campaign, args.budget])
     nominal = args.nominal_mm[0] if args.nominal_mm else (325.0, 225.0)
     options = IdentificationOptions(
         model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
@@ -197,6 +205,10 @@ def cmd_identify(args) -> int:
         reflectors_mm=args.reflectors_mm,
         fix_reflectors=args.fix_reflectors, loss=args.loss, huber_k=args.huber_k,
         outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+    if args.budget:
+        from .budget import load_budget
+
+        options.budget = load_budget(args.budget)
     if options.fix_reflectors and options.reflectors_mm is None:
         raise ValueError("--fix-reflectors needs --reflectors-mm")
     data = load_campaign(args.campaign)
@@ -239,6 +251,8 @@ def cmd_multilaterate(args) -> int:
     print(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
           f"condition number {res.fit.condition_number:.3g}")
     print(f"  gauge: {res.gauge}")
+    for warning in res.fit.warnings:
+        print(f"  warning: {warning}")
     if res.fit.outliers:
         print(f"  {len(res.fit.outliers)} suspect reading(s): "
               + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
@@ -298,16 +312,17 @@ def _result_format(path) -> str:
 
 
 def _propagate(ident, x, errors, args):
-    """(std, cov or None, samples or None, extra dict) by the method of ``args`` (linear or mc)."""
+    """(std, cov or None, samples for coverage intervals or None, extra dict, all samples or None) by the
+    method of ``args`` (linear or mc); the intervals only when enough trials make them reliable."""
     import numpy as np
 
-    from .uncertainty import linear_covariance, monte_carlo
+    from .uncertainty import linear_covariance, monte_carlo, trials_for_intervals
 
     if args.method == "linear":
         cov = linear_covariance(ident, x, errors)
         return (np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, None,
                 {"method_detail": "linear propagation through the identification Jacobian (JCGM 100), "
-                                  "budget reading errors"})
+                                  "budget reading errors"}, None)
     tty = sys.stderr.isatty()
 
     def report(done, total):
@@ -316,13 +331,21 @@ def _propagate(ident, x, errors, args):
         sys.stderr.flush()
 
     mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
-                     adaptive=args.adaptive, progress=report if tty else None)
+                     adaptive=args.adaptive, max_trials=args.max_trials, coverage=args.coverage,
+                     progress=report if tty else None)
     if tty:
         sys.stderr.write("\n")
-    return (mc.samples.std(axis=0, ddof=1), None, mc.samples,
+    notes = list(mc.notes)
+    if not mc.intervals_adequate:
+        notes.append(f"coverage intervals not reported: {len(mc.samples)} trials "
+                     + ("did not stabilize them (JCGM 101 §7.9)" if args.adaptive else
+                        f"are fewer than the 10^4/(1 - p) = {trials_for_intervals(args.coverage)} JCGM 101 §7.2.2 "
+                        f"asks for p = {args.coverage:g} (use --adaptive or more --trials)"))
+    return (mc.samples.std(axis=0, ddof=1), None, mc.samples if mc.intervals_adequate else None,
             {"method_detail": "Monte Carlo (JCGM 101): budget errors drawn for every reading, the problem "
                               "re-solved per trial", "trials": int(len(mc.samples)), "seed": args.seed,
-             "adaptive": bool(args.adaptive), "converged": bool(mc.converged), "notes": list(mc.notes)})
+             "adaptive": bool(args.adaptive), "converged": bool(mc.converged), "notes": notes,
+             **({"max_trials": args.max_trials} if args.adaptive else {})}, mc.samples)
 
 
 def _uncertainty_multilateration(args, t0) -> int:
@@ -332,6 +355,7 @@ def _uncertainty_multilateration(args, t0) -> int:
     from .budget import load_budget
     from .figures import plot_target_uncertainty
     from .machine import paper001_budget
+    from .campaign_io import check_campaign_matches
     from .multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
     from .outputs import write_json
     from .uncertainty import ReadingErrors, uncertainty_dict
@@ -341,11 +365,13 @@ def _uncertainty_multilateration(args, t0) -> int:
     res = load_result(args.result)
     budget = load_budget(args.budget) if args.budget else paper001_budget()
     data = load_machine_campaign(args.campaign)
+    campaign_note = check_campaign_matches(res, data, args.result)
     ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
     x = np.concatenate([np.ravel(res["targets_mm"]), np.ravel(res["stations_mm"]), res["dead_paths_mm"]])
     if len(x) != len(ident.names):
         raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
-    std, _, samples, extra = _propagate(ident, x, ReadingErrors(budget), args)
+    std, _, samples, extra, every = _propagate(ident, x, ReadingErrors(budget), args)
+    _campaign_note(extra, campaign_note)
     U = 1e3 * args.k * np.hypot(*std[:2 * data.n_targets].reshape(-1, 2).T)
     extra.update(gauge=res["gauge"], elapsed_s=round(time.perf_counter() - t0, 3),
                  target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
@@ -354,14 +380,26 @@ def _uncertainty_multilateration(args, t0) -> int:
                            extra=extra)
     write_json(args.out, out)
     print(f"uncertainty ({args.method}) of the multilateration {args.result} on {len(data)} readings; budget "
-          f"{budget.name!r}" + (f"; {len(samples)} trials, seed {args.seed}" if samples is not None else ""))
+          f"{budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None else ""))
     print(f"  targets: U (k = {args.k:g}) of the 2-norm max {U.max():.2f} um, mean {U.mean():.2f} um")
+    _print_notes(extra)
     print(f"wrote {args.out}")
     if args.map:
         plot_target_uncertainty(data.commands_mm, U, args.map, args.k,
-                                f"{'Monte Carlo' if samples is not None else 'linear'}, budget {budget.name}")
+                                f"{'Monte Carlo' if every is not None else 'linear'}, budget {budget.name}")
         print(f"wrote {args.map}")
     return 0
+
+
+def _campaign_note(extra: dict, note: str) -> None:
+    """Add the campaign-digest note (older results carry no digest) to the uncertainty file's notes."""
+    if note:
+        extra["notes"] = list(extra.get("notes", [])) + [note]
+
+
+def _print_notes(extra: dict) -> None:
+    for note in extra.get("notes", []):
+        print(f"  note: {note}")
 
 
 def cmd_uncertainty(args) -> int:
@@ -376,16 +414,23 @@ def cmd_uncertainty(args) -> int:
     import numpy as np
 
     from .budget import load_budget, paper000_budget
-    from .campaign_io import load_campaign
+    from .campaign_io import check_campaign_matches, load_campaign
+    from .csvio import read_json
     from .figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
     from .outputs import write_json
     from .uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
 
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
+    from .uncertainty import round_trials
+
+    if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
+        raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
+                         f"--coverage {args.coverage:g}), got {args.max_trials}")
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = load_budget(args.budget) if args.budget else paper000_budget()
     data = load_campaign(args.campaign)
+    campaign_note = check_campaign_matches(read_json(args.result, None), data, args.result)
     ident, x = identifier_at_result(args.result, data)
     model = ident.split(x)[0]
     if (args.map or args.maps) and not model.is_errormap:
@@ -394,8 +439,9 @@ def cmd_uncertainty(args) -> int:
     t0 = time.perf_counter()
     errors = ReadingErrors(budget)
     u_reading = errors.std(ident.beam_lengths(x))
-    std, cov, samples, extra = _propagate(ident, x, errors, args)
-    pmap = prediction_uncertainty_map(ident, x, cov, samples) if model.is_errormap else None
+    std, cov, samples, extra, every = _propagate(ident, x, errors, args)
+    _campaign_note(extra, campaign_note)
+    pmap = prediction_uncertainty_map(ident, x, cov, every) if model.is_errormap else None
     elapsed = time.perf_counter() - t0
     extra.update(budget_file=args.budget or "built-in paper 000 Table 2",
                  result=args.result, campaign=args.campaign, elapsed_s=round(elapsed, 3),
@@ -414,7 +460,7 @@ def cmd_uncertainty(args) -> int:
     u = dict(zip(ident.names, std))
     print(f"uncertainty ({args.method}) of {args.result} ({'errormap' if model.is_errormap else 'dh'}, "
           f"{len(ident.names)} parameters) on {len(data)} readings of {args.campaign}; budget {budget.name!r}"
-          + (f"; {len(samples)} trials, seed {args.seed}" if samples is not None else "")
+          + (f"; {len(every)} trials, seed {args.seed}" if every is not None else "")
           + f"; {elapsed:.2f} s")
     print(f"  reading standard uncertainty (k = 1): median {1e3 * np.median(u_reading):.2f} um, "
           f"max {1e3 * np.max(u_reading):.2f} um")
@@ -436,8 +482,9 @@ def cmd_uncertainty(args) -> int:
         p = extra["prediction_expanded_mm"]
         print(f"  predicted positions over the workspace map ({p['points']} points x 2 approach directions): "
               f"U (k = {args.k:g}) max {1e3 * p['max']:.2f} um, mean {1e3 * p['mean']:.2f} um")
+    _print_notes(extra)
     print(f"wrote {args.out}")
-    label = "Monte Carlo" if samples is not None else "linear"
+    label = "Monte Carlo" if every is not None else "linear"
     if args.map:
         plot_prediction_uncertainty_map(pmap, args.map, args.k, f"{label}, budget {budget.name}")
         print(f"wrote {args.map}")
@@ -701,6 +748,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
                    help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
+    p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
+                                    "against (warning above 3 x; default: 000 Table 2)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
@@ -754,8 +803,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=cliargs.workers, default=None,
                    help="Monte Carlo worker processes (default: up to 2 cores; results do not depend on it)")
     p.add_argument("--adaptive", action="store_true",
-                   help="Monte Carlo until every standard uncertainty is stable to 2 significant digits "
-                        "(JCGM 101 §7.9)")
+                   help="Monte Carlo until every estimate, standard uncertainty and coverage-interval endpoint "
+                        "is stable to 2 significant digits of u (JCGM 101 §7.9), at most --max-trials")
+    p.add_argument("--max-trials", type=cliargs.integer(2), default=50_000,
+                   help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
+                        "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
     p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
     p.add_argument("--out", required=True, help="uncertainty JSON to write")

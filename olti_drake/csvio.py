@@ -125,11 +125,13 @@ def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
     integer = set(integer)
     out = {c: np.empty(len(rows) - 1) for c in index}
     lines = np.empty(len(rows) - 1, dtype=int)
+    first_seen, same_as = {}, np.empty(len(rows) - 1, dtype=int)
     for r, (lineno, line) in enumerate(rows[1:]):
         fields = [f.strip() for f in next(csv.reader([line]))]
         if len(fields) != len(cols):
             raise InputError(f"{name}:{lineno}: expected {len(cols)} fields as in the header, got {len(fields)}")
         lines[r] = lineno
+        same_as[r] = first_seen.setdefault(tuple(fields), lineno)
         for c, j in index.items():
             raw = fields[j]
             try:
@@ -141,7 +143,30 @@ def read_table(path, required: Sequence[str], optional: Iterable[str] = (),
                 raise InputError(f"{name}:{lineno}: column '{c}': {raw!r} is not a whole number")
             out[c][r] = v
     out["_line"] = lines
+    out["_same_as"] = same_as  # the first line identical in every column (its own line if none)
     return out
+
+
+def check_no_duplicate_rows(table: Dict[str, np.ndarray], path) -> None:
+    """Refuse a row identical in every column to an earlier one (e.g. a campaign glued twice), naming both
+    lines: the same reading twice would count twice and shrink every uncertainty by sqrt(2)."""
+    if "_same_as" not in table:
+        return
+    dup = np.flatnonzero(np.asarray(table["_same_as"]) != table["_line"])
+    if dup.size:
+        k = dup[0]
+        raise InputError(f"{os.fspath(path)}:{table['_line'][k]}: row identical in every column to line "
+                         f"{int(table['_same_as'][k])} ({dup.size} such row(s); a file appended twice?) -- "
+                         f"a reading counted twice would shrink the uncertainties; remove the copies")
+
+
+def data_digest(*columns) -> dict:
+    """{"readings": N, "sha256": hex} of the data rows used (float64 columns, little-endian, in order): the
+    identity of a campaign whatever its comments, column order or number formatting."""
+    import hashlib
+
+    a = np.column_stack([np.asarray(c, dtype="<f8") for c in columns])
+    return {"readings": int(len(a)), "sha256": hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()}
 
 
 def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], rows=None) -> None:

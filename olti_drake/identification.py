@@ -17,6 +17,7 @@ machinery of :mod:`olti_drake.leastsquares`.
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -46,6 +47,8 @@ class IdentificationOptions(SolverOptions):
     nominal_L2_mm: float = PAPER_L2_MM
     reflectors_mm: Optional[np.ndarray] = None
     fix_reflectors: bool = False
+    #: Run :meth:`Identifier.resolution_check` after an error-map fit (one more fit on a third of the readings).
+    check_resolution: bool = True
 
 
 @dataclass
@@ -67,6 +70,12 @@ class Identification:
     outliers: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     n_readings: int = 0
+    converged_by: str = ""
+    warnings: list = field(default_factory=list)
+    #: The campaign identified from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    campaign: dict = field(default_factory=dict)
+    #: Error-map models: the under-resolution check (:meth:`Identifier.resolution_check`), None if not possible.
+    resolution: Optional[dict] = None
 
     @property
     def residual_rms_mm(self) -> float:
@@ -153,10 +162,89 @@ class Identifier(LeastSquaresProgram):
 
     def solve(self) -> "Identification":
         """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
+        from .campaign_io import campaign_digest
+
         f = self.fit()
         model, P, d0 = self.split(f.x)
+        resolution = self.resolution_check(P) if model.is_errormap and self.options.check_resolution else None
+        warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
         return Identification(model, P, d0, f.names, f.x, f.std, f.covariance, f.residuals, f.iterations,
-                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals))
+                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
+                              f.converged_by, warnings, campaign_digest(self.data), resolution)
+
+    def resolution_check(self, reflectors_mm) -> Optional[dict]:
+        """Is the map resolved between its nodes? Held-out readings at every second node (000 Eq. 8-9).
+
+        The residual cannot tell: at the default grid every reading sits on a node, so a deviation with a
+        period under ~2 node spacings is fitted perfectly at the nodes and wrong between them. Here the map
+        is fitted on every second node of each axis (ends kept) from the readings whose commands are all on
+        those nodes; the readings at the dropped nodes, held out, are predicted by it. Their RMS miss against
+        the budget's reading uncertainty (:data:`RESOLUTION_WARNING_RATIO`) says whether the true deviation
+        changes within two node spacings -- then the map may miss as much between its own nodes, and readings
+        between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
+        """
+        from .leastsquares import RESIDUAL_WARNING_RATIO, _rms
+        from .uncertainty import ReadingErrors
+
+        c = self.data.commands
+        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
+        on = [np.any(np.abs(cmd[:, None] - g[None, :]) <= 1e-9, axis=1)
+              for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
+        keep = on[0] & on[1]
+        if keep.all() or not keep.any():
+            return None
+        spacing = [float(np.diff(g).max()) if g.size > 1 else 0.0 for g in coarse]
+        how = (f"map on every second node (J1 {spacing[0]:g} deg, J2 {spacing[1]:g} deg spacing) from the "
+               f"{int(keep.sum())} readings on them; {int((~keep).sum())} readings at the dropped nodes held out "
+               f"and predicted")
+        o = dataclasses.replace(self.options, grid1_deg=coarse[0], grid2_deg=coarse[1], reflectors_mm=reflectors_mm,
+                                check_resolution=False, regularize=False)
+        try:
+            x = Identifier(self.data.subset(keep), o).fit().x
+            full = Identifier(self.data, o)
+        except InputError as e:  # too few readings left, or the coarse fit refused: say so, do not fail
+            return {"method": how, "done": False, "why": str(e)}
+        r = full.residuals(x)[0]
+        budget = self.options.budget if self.options.budget is not None else self.default_budget()
+        u = _rms(ReadingErrors(budget).std(full.beam_lengths(x)))
+        out = {"method": how, "done": True, "held_out_rms_mm": _rms(r[~keep]), "fitted_rms_mm": _rms(r[keep]),
+               "reading_u_mm": u, "ratio": _rms(r[~keep]) / u}
+        if out["ratio"] > RESIDUAL_WARNING_RATIO:
+            out["warning"] = (
+                f"under-resolution check: readings at the dropped nodes, held out, miss the map fitted on every "
+                f"second node by RMS {1e3 * out['held_out_rms_mm']:.1f} um = {out['ratio']:.1f} x the budget's "
+                f"reading uncertainty: the true deviation changes within two node spacings, so the map may miss "
+                f"as much between its own nodes, where no reading looks -- measure between the nodes (finer plan)")
+        return out
+
+    #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
+    LENGTH_FACTOR = 2.0
+    #: A joint deviation (map node, theta20) beyond this is no positioning deviation, deg.
+    MAX_DEVIATION_DEG = 10.0
+
+    def implausible(self, x) -> list:
+        """Link lengths not positive or outside [1/f, f] x nominal (f = :attr:`LENGTH_FACTOR`); joint deviations
+        beyond :attr:`MAX_DEVIATION_DEG`; non-finite reflectors or dead paths."""
+        o, out = self.options, []
+        for name, nominal in (("L1", o.nominal_L1_mm), ("L2", o.nominal_L2_mm)):
+            v = x[self.names.index(f"{name}_mm")]
+            if not v > 0:
+                out.append(f"{name} = {v:.6g} mm is not a positive length")
+            elif nominal > 0 and not nominal / self.LENGTH_FACTOR <= v <= nominal * self.LENGTH_FACTOR:
+                out.append(f"{name} = {v:.6g} mm is more than {self.LENGTH_FACTOR:g} x off its nominal "
+                           f"{nominal:g} mm (readings in mm? the right --nominal-mm?)")
+        dev = np.abs(x[2:self.n_robot])
+        if dev.size and dev.max() > self.MAX_DEVIATION_DEG:
+            i = 2 + int(np.argmax(dev))
+            out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no positioning "
+                       f"deviation")
+        return out
+
+    def default_budget(self):
+        """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
+        from .budget import paper000_budget
+
+        return paper000_budget()
 
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}

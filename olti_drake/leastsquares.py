@@ -33,6 +33,8 @@ from .threads import single_thread_blas
 RANK_TOLERANCE = 1e-12
 #: Up to this many unknowns the dense algebra runs on one BLAS thread.
 SMALL_PROBLEM = 300
+#: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
+RESIDUAL_WARNING_RATIO = 3.0
 
 
 class UnidentifiableError(InputError):
@@ -41,6 +43,12 @@ class UnidentifiableError(InputError):
     def __init__(self, message: str, names=()):
         super().__init__(message)
         self.names = list(names)
+
+
+class FitRefused(InputError):
+    """The solution is not one to trust -- not converged, singular or non-finite covariance, or physically
+    impossible parameters. Raised before anything is written; the message is one line."""
+
 
 @dataclass
 class SolverOptions:
@@ -59,6 +67,8 @@ class SolverOptions:
     regularize: bool = False
     solver: str = "lm"
     max_iterations: int = 100
+    #: Budget whose predicted reading uncertainty the residual RMS is checked against (None: the model's default).
+    budget: object = None
 
 
 @dataclass
@@ -75,6 +85,10 @@ class Fit:
     solver: str
     outliers: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    #: By which criterion the solver stopped (the fit is refused when it did not converge).
+    converged_by: str = ""
+    #: Stated doubts that do not refuse the fit (e.g. a residual far above the budget's reading uncertainty).
+    warnings: list = field(default_factory=list)
 
 
 class LeastSquaresProgram:
@@ -116,6 +130,18 @@ class LeastSquaresProgram:
     def layout(self, v) -> dict:
         """A parameter-shaped vector (e.g. uncertainties) in the model's result keys and shapes."""
         raise NotImplementedError
+
+    def implausible(self, x) -> list:
+        """Physically impossible values of a solution x, one phrase each (empty: plausible). Model-specific."""
+        return []
+
+    def default_budget(self):
+        """The budget whose reading uncertainty the residual is compared with when the options name none."""
+        return None
+
+    @property
+    def source(self) -> str:
+        return getattr(getattr(self, "data", None), "source", "") or "campaign"
 
     def _equality_rows(self):
         """(A, b) of every linear equality in the program (gauge, fixed values), over all variables."""
@@ -161,14 +187,12 @@ class LeastSquaresProgram:
                                       f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})",
                                       untouched)
         M, N, s = self.reduced_hessian(H)
-        lam, vec = np.linalg.eigh(M)
-        weak = lam < RANK_TOLERANCE * lam[-1]
-        if weak.any():
-            v = (N @ vec[:, np.flatnonzero(weak)]) / s[:, None]
-            mag = np.max(np.abs(v * s[:, None]), axis=1)
-            names = [self.names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
+        lam = np.linalg.eigvalsh(M)
+        names = _weak_names(self.names, M, N, s)
+        if names:
+            weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
             raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
-                                      f"reading unchanged (rank deficient by {int(weak.sum())}; {self.rank_hint})", names)
+                                      f"reading unchanged (rank deficient by {weak}; {self.rank_hint})", names)
         return float(np.sqrt(lam[-1] / lam[0]))
 
     def _regularize(self, error: UnidentifiableError):
@@ -189,7 +213,52 @@ class LeastSquaresProgram:
             raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
         # Small dense algebra: BLAS threads cost more than they give (measured 5.7 -> 4.4 ms at paper scale).
         with single_thread_blas() if len(self.names) <= SMALL_PROBLEM else contextlib.nullcontext():
-            return self._fit()
+            fit = self._fit()
+        self.accept(fit)
+        fit.warnings.extend(self.residual_warnings(fit))
+        return fit
+
+    # -- acceptance: refuse what is not to be trusted, state what is doubtful ---------------------
+    def accept(self, fit: "Fit") -> None:
+        """Raise :class:`FitRefused` (one line) unless the fit converged, its covariance is finite and
+        positive definite within the gauge, and :meth:`implausible` finds nothing."""
+        where = f"{self.source}: refused, nothing written --"
+        if not fit.converged_by:
+            raise FitRefused(f"{where} the solver did not converge: {self._stop_text()} after {fit.iterations} "
+                             f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um); check the units "
+                             f"(mm), the nominal values and the start")
+        bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~np.isfinite(fit.std))]
+        if bad:
+            raise FitRefused(f"{where} non-finite estimate or uncertainty of {_listing(bad)}")
+        if self._weak:
+            raise FitRefused(f"{where} the covariance is singular within the gauge (condition number "
+                             f"{fit.condition_number:.3g}): {_listing(self._weak)} not determined by the readings "
+                             f"at the solution")
+        problems = self.implausible(fit.x)
+        if problems:
+            raise FitRefused(f"{where} physically impossible solution: {'; '.join(problems)}")
+
+    def _stop_text(self) -> str:
+        stop = getattr(self, "_stop", None)
+        return f"iteration cap {self.options.max_iterations} reached" if stop is None else stop[1]
+
+    def residual_warnings(self, fit: "Fit") -> list:
+        """A warning when the residual RMS exceeds :data:`RESIDUAL_WARNING_RATIO` times the reading
+        uncertainty the budget predicts (RMS over the readings, at each reading's beam length), mm."""
+        from .uncertainty import ReadingErrors  # lazy: uncertainty builds on this module's programs
+
+        budget = self.options.budget if self.options.budget is not None else self.default_budget()
+        if budget is None or not len(fit.residuals):
+            return []
+        u = _rms(ReadingErrors(budget).std(self.beam_lengths(fit.x)))
+        rms = _rms(fit.residuals)
+        ratio = rms / max(u, 1e-300)
+        self.residual_ratio = (float(ratio), float(u), getattr(budget, "name", ""))
+        if ratio <= RESIDUAL_WARNING_RATIO:
+            return []
+        return [f"residual RMS {1e3 * rms:.2f} um is {ratio:.1f} x the reading uncertainty {1e3 * u:.2f} um that "
+                f"the budget '{budget.name}' predicts (warning above {RESIDUAL_WARNING_RATIO:g} x): a model error "
+                f"(e.g. a map too coarse), a budget that does not fit the instrument, or readings in other units"]
 
     def _fit(self) -> "Fit":
         o = self.options
@@ -220,11 +289,14 @@ class LeastSquaresProgram:
         checked = getattr(self, "_checked", None)
         r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x) else self.residuals(x)
         lam, steps = 1e-6, 0
+        self._stop = None  # None after the loop: the iteration cap ended it
         for _ in range(self.options.max_iterations):
             w = self._weights(r)
             H = _normal_matrix(J, w)
             g = J.T @ (w * r)
             cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
+            # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
+            tol = 1e-12 * abs(cost)
             while True:
                 delta = self._step(x, H + lam * np.diag(np.diag(H)), g)
                 x_new = x + delta
@@ -232,14 +304,20 @@ class LeastSquaresProgram:
                 cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
                 # What the quadratic model promised: below rounding level, we are at the minimum.
                 predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
-                if cost_new <= cost or predicted <= 1e-12 * cost or lam > 1e12:
+                if cost_new <= cost or predicted <= tol or lam > 1e12:
                     break
                 lam *= 8.0
             if cost_new > cost:
+                # No step lowers the cost: at the minimum if the quadratic model promised nothing more.
+                at_minimum = predicted <= tol + 1e-300
+                self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost") if at_minimum else (
+                    False, f"no step lowers the cost (damping {lam:.0e}) though the model predicts "
+                           f"{predicted / max(abs(cost), 1e-300):.1e} of it")
                 break
             x, r, J, steps = x_new, r_new, J_new, steps + 1
             lam = max(lam / 4.0, 1e-9)
-            if cost - cost_new <= 1e-12 * cost:
+            if cost - cost_new <= tol:
+                self._stop = (True, "the relative cost decrease of the last step is below 1e-12")
                 break
         self._final = (x, r, J)
         return x, steps, self._weights(r)
@@ -288,6 +366,7 @@ class LeastSquaresProgram:
             x = result.GetSolution(self.variables)
             weights[:] = self._weights(self.residuals(x)[0])
         self._solver_used = f"nlp: {result.get_solver_id().name()}"
+        self._stop = (True, f"{result.get_solver_id().name()} reports {result.get_solution_result().name}")
         return x, rounds, weights
 
     def quadratic_costs(self):
@@ -312,20 +391,24 @@ class LeastSquaresProgram:
         M_data, N, s = self.reduced_hessian(H)
         lam = np.linalg.eigvalsh(M_data)
         cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
+        self._stop = getattr(self, "_stop", (True, "solved"))
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
         if prior.any():
             M, N, s = self.reduced_hessian(H + prior)
         else:
             M = M_data
+        self._weak = _weak_names(self.names, M, N, s)  # what the covariance (with priors) cannot determine
         dof = max(len(r) - N.shape[1], 1)
         sigma2 = np.sum(weights * r * r) / dof
         cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
         z = r / _robust_sigma(r)
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(z[k]))
                for k in np.argsort(-np.abs(z)) if abs(z[k]) > self.options.outlier_threshold]
+        stop = self._stop
         return Fit(list(self.names), x, np.sqrt(np.maximum(np.diag(cov), 0)), cov, r, iterations, cond,
-                   f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes))
+                   f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
+                   stop[1] if stop is not None and stop[0] else "")
 
 
 # -- helpers -------------------------------------------------------------------------------------
@@ -364,6 +447,22 @@ def _normal_matrix(J, w) -> np.ndarray:
         Jd = J.toarray()
         return Jd.T @ (w[:, None] * Jd)
     return (J.T @ sp.diags(w) @ J).toarray()
+
+
+def _weak_names(names, M, N, s) -> list:
+    """Parameters in the near-null space of the reduced (scaled, within the constraints) normal matrix M."""
+    if not np.all(np.isfinite(M)):
+        return list(names)
+    lam, vec = np.linalg.eigh(M)
+    weak = lam < RANK_TOLERANCE * lam[-1]
+    if not weak.any():
+        return []
+    mag = np.max(np.abs(N @ vec[:, np.flatnonzero(weak)]), axis=1)
+    return [names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
+
+
+def _rms(v) -> float:
+    return float(np.sqrt(np.mean(np.square(v)))) if len(v) else 0.0
 
 
 def _null_space(A, rtol=1e-12):

@@ -21,7 +21,8 @@ from typing import Optional
 
 import numpy as np
 
-from .csvio import (InputError, check_finite, check_indices, check_spread, check_values, json_numbers, read_json,
+from .csvio import (InputError, check_finite, check_indices, check_no_duplicate_rows, check_spread, check_values,
+                    json_numbers, read_json,
                     read_table)
 from .kinematics import rows_to_csr
 from .leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
@@ -76,6 +77,9 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
         t = {k: v[t["valid"] == 1] for k, v in t.items()}
     if not len(t["_line"]):
         raise InputError(f"{source}: no valid readings")
+    if "_same_as" in columns:
+        t["_same_as"] = t["_same_as"].astype(int)
+        check_no_duplicate_rows(t, source)
     check_finite(t, source, REQUIRED)
     i, j = check_indices(t, source, "target"), check_indices(t, source, "station")
     xy = np.column_stack([t["x_cmd_mm"], t["y_cmd_mm"]])
@@ -143,6 +147,8 @@ class MultilaterationResult:
     gauge: str
     commands_mm: np.ndarray = field(default=None)
     gauge_kind: str = "best-fit"
+    #: The campaign solved from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    campaign: dict = field(default_factory=dict)
 
     @property
     def residual_rms_mm(self) -> float:
@@ -164,7 +170,8 @@ class MultilaterationResult:
                                     "of the budget" if any("budget" in n for n in f.notes)
                                     else "of the residual variance")},
                 "iterations": f.iterations, "condition_number": f.condition_number, "solver": f.solver,
-                "outliers": f.outliers, **({"notes": f.notes} if f.notes else {})}
+                "outliers": f.outliers, "converged": f.converged_by, "warnings": list(f.warnings),
+                **({"campaign": self.campaign} if self.campaign else {}), **({"notes": f.notes} if f.notes else {})}
 
 
 class Multilateration(LeastSquaresProgram):
@@ -187,6 +194,36 @@ class Multilateration(LeastSquaresProgram):
                       + [f"P{j}_{c}_mm" for j in range(n_j) for c in "xy"] + [f"L0_{j}_mm" for j in range(n_j)], o)
         self.x0 = self._initial_guess()
         self.gauge = self._add_gauge()
+
+    #: A station farther than this many command spans from the command centroid is absurd.
+    STATION_SPANS = 100.0
+    #: A target estimated farther than this fraction of the command span from its command is absurd.
+    TARGET_SPAN_FRACTION = 0.1
+
+    def implausible(self, x) -> list:
+        """Stations beyond :attr:`STATION_SPANS` command spans from the command centroid, or targets more than
+        :attr:`TARGET_SPAN_FRACTION` of the span off their commands (a machine's errors are far smaller)."""
+        c = self.data.commands_mm
+        n_i, n_j = self.data.n_targets, self.data.n_stations
+        span = max(float(np.ptp(c, axis=0).max()), 1e-9)
+        out = []
+        far = np.hypot(*(x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2) - c.mean(axis=0)).T)
+        if far.max() > self.STATION_SPANS * span:
+            j = int(np.argmax(far))
+            out.append(f"station {j} lies {far[j]:.6g} mm from the command centroid, over {self.STATION_SPANS:g} "
+                       f"x the command span {span:g} mm")
+        off = np.hypot(*(x[:2 * n_i].reshape(-1, 2) - c).T)
+        if off.max() > self.TARGET_SPAN_FRACTION * span:
+            i = int(np.argmax(off))
+            out.append(f"target {i} is estimated {off[i]:.6g} mm from its command, over "
+                       f"{self.TARGET_SPAN_FRACTION:g} x the command span {span:g} mm")
+        return out
+
+    def default_budget(self):
+        """The budget given to :meth:`solve`, else 001 Table 4: the residual is compared with its reading u."""
+        from .machine import paper001_budget
+
+        return getattr(self, "_solve_budget", None) or paper001_budget()
 
     def _check_counts(self):
         d = self.data
@@ -306,6 +343,9 @@ class Multilateration(LeastSquaresProgram):
         stations: N_i − 6 degrees of freedom) the residuals alone estimate the
         reading noise poorly; without one, the residual-based propagation.
         """
+        from .campaign_io import campaign_digest
+
+        self._solve_budget = budget
         f = self.fit()
         if budget is not None:
             from .uncertainty import ReadingErrors, linear_covariance
@@ -316,7 +356,7 @@ class Multilateration(LeastSquaresProgram):
         n_i, n_j = self.data.n_targets, self.data.n_stations
         return MultilaterationResult(f.x[:2 * n_i].reshape(-1, 2), f.x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2),
                                      f.x[2 * n_i + 2 * n_j:], f.std[:2 * n_i].reshape(-1, 2), f, self.gauge,
-                                     self.data.commands_mm, self.options.gauge)
+                                     self.data.commands_mm, self.options.gauge, campaign_digest(self.data))
 
 
 def load_result(path) -> dict:

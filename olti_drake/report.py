@@ -377,13 +377,14 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
 
     # -- campaign: identifier, covariance, residuals -------------------------------------------------------
     ident = x = cov = data = None
-    budget_note = ""
+    budget_note = campaign_note = ""
     if campaign_path is not None:
         from .budget import paper000_budget
-        from .campaign_io import load_campaign
+        from .campaign_io import check_campaign_matches, load_campaign
         from .uncertainty import ReadingErrors, identifier_at_result, linear_covariance
 
         data = load_campaign(campaign_path)
+        campaign_note = check_campaign_matches(raw, data, result_path)
         ident, x = identifier_at_result(result_path, data)
         budget, budget_note = _budget_of(unc, unc_path, paper000_budget)
         cov = linear_covariance(ident, x, ReadingErrors(budget))
@@ -397,8 +398,10 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     info += _fit_rows(raw)
     if raw.get("outliers"):
         info.append(("suspect readings", f"{len(raw['outliers'])} beyond the outlier threshold"))
-    for note in raw.get("notes", []):
+    for note in raw.get("notes", []) + ([campaign_note] if campaign_note else []):
         info.append(("note", note))
+    for warning in raw.get("warnings", []):
+        info.append(("warning", warning))
     info += [("uncertainty file", os.fspath(unc_path) if unc_path else "— (the result's own uncertainties)"),
              ("campaign", os.fspath(campaign_path) if campaign_path else "—"),
              ("truth", os.fspath(truth_path) if truth_path else "—")]
@@ -608,11 +611,14 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     T = np.asarray(raw["targets_mm"], dtype=float).reshape(-1, 2)
     S = np.asarray(raw["stations_mm"], dtype=float).reshape(-1, 2)
     L0 = np.asarray(raw["dead_paths_mm"], dtype=float).ravel()
-    data = None
+    data, campaign_note = None, ""
     if campaign_path is not None:
         from .multilateration import load_machine_campaign
 
+        from .campaign_io import check_campaign_matches
+
         data = load_machine_campaign(campaign_path)
+        campaign_note = check_campaign_matches(raw, data, result_path)
         if data.n_targets != len(T) or data.n_stations != len(S):
             raise InputError(f"{os.fspath(result_path)}: {len(T)} targets and {len(S)} stations, but the campaign "
                              f"{os.fspath(campaign_path)} has {data.n_targets} and {data.n_stations}")
@@ -625,6 +631,8 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
             ("residual RMS", f"{1e3 * float(raw['residual_rms_mm']):.3f} µm" if "residual_rms_mm" in raw else "—"),
             ("targets / stations", f"{len(T)} / {len(S)}")]
     info += _fit_rows(raw)
+    info += [("note", n) for n in ([campaign_note] if campaign_note else [])]
+    info += [("warning", w) for w in raw.get("warnings", [])]
     info += [("uncertainty file", os.fspath(unc_path) if unc_path else "— (the result's own uncertainties)"),
              ("campaign", os.fspath(campaign_path) if campaign_path else "—")]
     page.header_rows = info

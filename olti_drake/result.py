@@ -54,6 +54,12 @@ def result_dict(ident) -> dict:
     out["condition_number"] = ident.condition_number
     out["solver"] = ident.solver
     out["outliers"] = ident.outliers
+    out["converged"] = ident.converged_by
+    out["warnings"] = list(ident.warnings)
+    if ident.campaign:
+        out["campaign"] = ident.campaign
+    if getattr(ident, "resolution", None):
+        out["resolution_check"] = ident.resolution
     if ident.notes:
         out["notes"] = ident.notes
     return out

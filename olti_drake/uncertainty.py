@@ -33,8 +33,24 @@ from .threads import single_thread_blas
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
 BATCH = 250
-#: Batches per round of the adaptive procedure: fixed, so adaptive results do not depend on the workers.
+#: Batches per round of the adaptive procedure (at least; more when the coverage probability needs them):
+#: fixed, so adaptive results do not depend on the workers.
 ROUND_BATCHES = 4
+#: Default cap on the trials of the adaptive procedure (``olti uncertainty --max-trials``).
+MAX_TRIALS = 50_000
+
+
+def trials_for_intervals(coverage: float) -> int:
+    """JCGM 101 §7.2.2: M large compared with 1/(1 − p), e.g. 10^4/(1 − p) trials for a coverage interval
+    (200 000 for p = 0.95); fewer give intervals whose endpoints are not reliable."""
+    return int(np.ceil(1e4 / (1.0 - coverage) - 1e-6))
+
+
+def round_trials(coverage: float) -> int:
+    """Trials per adaptive round: at least :data:`ROUND_BATCHES` batches and J = 100/(1 − p) (JCGM 101 §7.9.4 b),
+    in whole batches."""
+    need = max(ROUND_BATCHES * BATCH, int(np.ceil(100.0 / (1.0 - coverage) - 1e-6)))
+    return BATCH * int(np.ceil(need / BATCH))
 
 
 @dataclass
@@ -128,9 +144,14 @@ class MonteCarlo:
 
     samples: np.ndarray
     seed: int
+    #: Adaptive: every estimate, standard uncertainty and coverage-interval endpoint stable (JCGM 101 §7.9.4),
+    #: whether or not the run also reached the cap. Fixed trials: True (nothing to converge).
     converged: bool = True
     batches: int = 0
     notes: list = field(default_factory=list)
+    #: The coverage intervals of probability ``coverage`` are reliable: enough trials (§7.2.2) or stable (§7.9).
+    intervals_adequate: bool = False
+    coverage: float = 0.95
 
 
 # Worker processes inherit the problem through fork: the Identifier holds Drake objects that do not pickle.
@@ -149,22 +170,28 @@ def _mc_batch(seed, size: int):
 def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
     """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
 
-    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B.
+    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
+    step is not below the tolerance after ``max_iter`` iterations (or not finite) did not converge: its
+    row is NaN, for :func:`monte_carlo` to refuse.
     """
     X = np.tile(x, (len(D), 1))
-    for _ in range(max_iter):
-        r, _, vals = ident.residual_rows(X, D)
-        G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
-        step = G @ B
-        X -= step
-        if np.max(np.abs(step)) < 1e-13 * max(1.0, np.max(np.abs(x))):
-            break
+    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial is caught below, not warned about
+        for _ in range(max_iter):
+            r, _, vals = ident.residual_rows(X, D)
+            G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
+            step = G @ B
+            X -= step
+            last = np.max(np.abs(step), axis=1)
+            if np.max(last) < tol:
+                break
+    X[~(last < tol)] = np.nan  # also catches NaN steps
     return X
 
 
 def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int = 0, workers: Optional[int] = None,
-                adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = 100_000,
-                progress: Optional[Callable[[int, int], None]] = None) -> MonteCarlo:
+                adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = MAX_TRIALS,
+                progress: Optional[Callable[[int, int], None]] = None, coverage: float = 0.95) -> MonteCarlo:
     """JCGM 101 Monte Carlo of a least-squares estimate (000 §5; 001 §4.4).
 
     ``ident``: any :class:`~olti_drake.leastsquares.LeastSquaresProgram` with
@@ -175,13 +202,17 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
 
     Readings are the model's own at x plus errors drawn from the budget, so
     the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
-    of :data:`ROUND_BATCHES` batches until every standard uncertainty is stable
-    to ``tolerance_digits`` significant digits (JCGM 101 §7.9). Batches of
-    :data:`BATCH` trials have their own seeds (from ``seed``): results do not
-    depend on ``workers``.
+    of :func:`round_trials` trials until, for every parameter, the estimate, the
+    standard uncertainty and both endpoints of the ``coverage`` interval are
+    stable to the tolerance of ``tolerance_digits`` significant digits of the
+    standard uncertainty (JCGM 101 §7.9.4), or ``max_trials`` are done
+    (then not converged, said in the notes). Batches of :data:`BATCH` trials
+    have their own seeds (from ``seed``): results do not depend on ``workers``.
     """
     if trials < 2:
         raise InputError(f"trials must be >= 2, got {trials}")
+    if adaptive and max_trials < 2 * round_trials(coverage):
+        raise InputError(f"max_trials must be >= {2 * round_trials(coverage)} (two adaptive rounds), got {max_trials}")
     B, J = _solution_map(ident, x)
     distance = ident.beam_lengths(x)
     # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
@@ -194,10 +225,10 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)
     seeds = np.random.SeedSequence(seed)
     out, batches, done = [], 0, 0
-    history = []
+    history, stable = [], False
     with _pool(workers) as pool:
         while True:
-            n = trials if not adaptive else BATCH * ROUND_BATCHES
+            n = trials if not adaptive else round_trials(coverage)
             sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
             children = seeds.spawn(len(sizes))
             results = pool.map(_mc_batch, children, sizes) if pool else map(_mc_batch, children, sizes)
@@ -209,13 +240,28 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
             batches += len(sizes)
             if not adaptive:
                 break
-            history.append(np.std(np.vstack(out[-len(sizes):]), axis=0, ddof=1))
-            if len(history) >= 2 and _stable(history, tolerance_digits) or done >= max_trials:
+            history.append(_round_summary(np.vstack(out[-len(sizes):]), coverage))
+            stable = len(history) >= 2 and _stable(history, tolerance_digits)
+            if stable or done + n > max_trials:
                 break
     samples = np.vstack(out)
     _WORK.clear()
-    notes = [] if not adaptive else [f"adaptive (JCGM 101 §7.9): {done} trials in {len(history)} rounds"]
-    return MonteCarlo(samples, seed, not adaptive or done < max_trials, batches, notes)
+    failed = int(np.isnan(samples).any(axis=1).sum())
+    if failed:
+        from .leastsquares import FitRefused
+
+        raise FitRefused(f"{ident.source}: Monte Carlo refused, nothing written -- {failed} of {len(samples)} trials "
+                         f"did not converge to their own least-squares solution (the budget's errors drive the "
+                         f"problem beyond where it can be re-solved from the estimate: check the budget's units)")
+    notes = []
+    if adaptive:
+        notes.append(f"adaptive (JCGM 101 §7.9): {done} trials in {len(history)} rounds; " + (
+            f"estimates, standard uncertainties and {coverage:g} coverage-interval endpoints stable to "
+            f"{tolerance_digits} significant digit(s) of u" if stable else
+            f"NOT stable to {tolerance_digits} significant digit(s) of u when the cap of {max_trials} trials "
+            f"was reached"))
+    adequate = stable if adaptive else done >= trials_for_intervals(coverage)
+    return MonteCarlo(samples, seed, stable or not adaptive, batches, notes, adequate, coverage)
 
 
 def _pool(workers):
@@ -227,10 +273,18 @@ def _pool(workers):
     return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
 
 
+def _round_summary(samples, coverage) -> np.ndarray:
+    """(4, n) of one adaptive round: estimate (mean), standard uncertainty, low and high coverage endpoints."""
+    lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
+    return np.array([samples.mean(axis=0), samples.std(axis=0, ddof=1), lo, hi])
+
+
 def _stable(history, digits) -> bool:
-    """JCGM 101 §7.9.4 on the standard uncertainties: 2·s(u) of the round values ≤ δ = ½·10^l."""
-    H = np.array(history)
-    u = H.mean(axis=0)
+    """JCGM 101 §7.9.4: for the estimate, u and both interval endpoints, 2·s of the round values (standard
+    deviation of their mean over h rounds) ≤ δ = ½·10^l, δ the numerical tolerance of ``digits``
+    significant digits of u."""
+    H = np.array(history)  # (h, 4, n)
+    u = H[:, 1].mean(axis=0)
     s = H.std(axis=0, ddof=1) / np.sqrt(len(H))
     l = np.floor(np.log10(np.maximum(u, 1e-300))) - (digits - 1)
     return bool(np.all(2 * s <= 0.5 * 10.0 ** l))
@@ -251,17 +305,18 @@ def prediction_std(ident, cov, x, commands) -> np.ndarray:
 
 
 def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, samples=None,
-                     coverage: float = 0.95, extra=None) -> dict:
+                     coverage: float = 0.95, extra=None, intervals: bool = True) -> dict:
     """The ``uncertainty`` object of formats.md: result keys and shapes, standard uncertainties (k = 1).
 
     ``ident``: the program the uncertainties belong to (its :meth:`layout` gives the keys).
-    Adds ``expanded`` (the same layout times ``k``) and, for Monte Carlo, the
+    Adds ``expanded`` (the same layout times ``k``) and, for Monte Carlo with
+    ``intervals`` (enough trials, :attr:`MonteCarlo.intervals_adequate`), the
     probabilistically symmetric ``coverage_interval`` of probability ``coverage``.
     """
     out = {"format": "olti-uncertainty/1", "method": method, "k": 1}
     out.update(ident.layout(std))
     out["expanded"] = dict(k=k, **ident.layout(k * std))
-    if samples is not None:
+    if samples is not None and intervals:
         lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
         out["coverage_interval"] = {"p": coverage, "low": ident.layout(lo), "high": ident.layout(hi)}
     out["budget"] = budget.name

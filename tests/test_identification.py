@@ -255,8 +255,9 @@ def test_coarser_custom_grid_converges(paper0):
     assert 0.5 * (m1([0.0], 1.0)[0] + m1([0.0], -1.0)[0]) == pytest.approx(0.0, abs=1e-12)
     # Fewer nodes fit worse than the full map, still far better than D-H.
     assert full.residual_rms_mm < res.residual_rms_mm < dh.residual_rms_mm
-    assert res.model.L1_mm == pytest.approx(paper0["scenario"].robot.L1_mm, abs=0.02)
-    assert res.model.L2_mm == pytest.approx(paper0["scenario"].robot.L2_mm, abs=0.02)
+    # L1, L2 within 3 reported u of the truth (the former +-0.02 mm window nearly let the nominal pass). Not the
+    # reflectors: with 0 deg no node, the coarse map's gauge interpolates a curved truth, a frame of its own.
+    assert_within(zscores(res, paper0["scenario"].robot, paper0["setup"].reflectors_mm), groups=("L1", "L2"))
 
 
 def test_negative_elbow_with_coarser_grid_converges(negative_elbow):
@@ -265,8 +266,9 @@ def test_negative_elbow_with_coarser_grid_converges(negative_elbow):
                                                grid1_deg=np.arange(-140.0, 61.0, 40.0),
                                                grid2_deg=np.array([-140.0, -100.0, -60.0, -20.0, 0.0])))
     assert res.iterations < IdentificationOptions().max_iterations
-    assert res.model.L1_mm == pytest.approx(s.robot.L1_mm, abs=0.02)
-    assert res.model.L2_mm == pytest.approx(s.robot.L2_mm, abs=0.02)
+    # Within 3 reported u of the truth (u ~ 3..6 um; the former +-0.02 mm window let the nominal pass).
+    assert abs(res.model.L1_mm - s.robot.L1_mm) <= K * res.uncertainty("L1_mm")
+    assert abs(res.model.L2_mm - s.robot.L2_mm) <= K * res.uncertainty("L2_mm")
     assert res.residual_rms_mm < 0.04
 
 
@@ -488,3 +490,95 @@ def test_regularize_an_untouched_node(truth_model):
     assert "J1_forward_deg[1]" in " ".join(res.notes)
     assert res.value("J1_forward_deg[1]") == pytest.approx(0.0, abs=1e-9)
     assert res.model.L1_mm == pytest.approx(324.97, abs=1e-8)
+
+
+# -- model error: nodes between the commands; under-resolved truths ----------------------------------
+#: Map nodes that are no commanded angle (commands every 20 deg): every reading is interpolated (Eq. 8-9), so
+#: the continuous truth and the piecewise-linear model differ at the readings (~10 um RMS noise-free).
+BETWEEN_G1 = np.array([-140.0, -115.0, -85.0, -55.0, -25.0, 5.0, 35.0, 60.0])
+BETWEEN_G2 = np.array([0.0, 30.0, 70.0, 110.0, 140.0])
+M_BETWEEN = 40
+
+
+def test_nodes_between_commands_recover_truth_and_state_honest_uncertainty():
+    """Model error present: the lengths and reflectors still come out within 3 u of the truth, the model error
+    biases the lengths by less than u/2 (mean of 40 campaigns), and the reported u matches the spread over
+    independent campaigns once scaled by noise/residual (the residual-based u carries the model error too:
+    u_reported = u_noise * rms_residual / u_budget).
+
+    Tolerances: M = 40 campaigns give a sample std with relative standard error 1/sqrt(78) = 0.11 per parameter;
+    the median over 37 parameters is within ~0.05 -- we allow 0.15, a doubled variance (x1.41) is 0.29 off."""
+    from olti_drake.campaign import simulate_vectorized
+    from olti_drake.validation import campaign_data
+
+    setup = prepare(Scenario())
+    r, opts = setup.scenario.robot, IdentificationOptions(grid1_deg=BETWEEN_G1, grid2_deg=BETWEEN_G2)
+    runs = [identify(campaign_data(simulate_vectorized(setup, np.random.default_rng([77, i]))), opts)
+            for i in range(M_BETWEEN)]
+    first = runs[0]
+    z = zscores(first, r, setup.reflectors_mm, setup.dead_paths_mm)
+    assert_within(z, groups=("L1", "L2", "P", "d0"))
+    X, U = np.array([res.x for res in runs]), np.array([res.std for res in runs])
+    bias = (X[:, :2].mean(axis=0) - [r.L1_mm, r.L2_mm]) / U[:, :2].mean(axis=0)
+    assert np.all(np.abs(bias) < 0.5), bias
+    noise = np.hypot(setup.budget.combined("pose"), setup.budget.combined("reading"))
+    scale = np.mean([res.residual_rms_mm for res in runs]) / noise  # > 1: the model error in the residual
+    ratio = X.std(axis=0, ddof=1) / U.mean(axis=0) * scale
+    print(f"\nnodes between commands: residual/noise {scale:.3f}, spread/u x scale median {np.median(ratio):.3f}, "
+          f"range {ratio.min():.3f}..{ratio.max():.3f}; L bias/u {np.round(bias, 3)}")
+    assert scale > 1.05  # the model error is really there
+    assert abs(np.median(ratio) - 1) < 0.15
+    assert np.all(np.abs(ratio - 1) < 3.5 / np.sqrt(2 * (M_BETWEEN - 1)))
+
+
+def test_short_period_truth_is_flagged_by_the_resolution_check(paper0):
+    """A deviation of period 30 deg (1.5 node spacings of 20 deg) is fitted perfectly at the nodes -- the
+    residual matches the noise -- and wrong between them; the held-out readings at alternate nodes show it."""
+    from olti_drake.campaign import simulate_vectorized
+    from olti_drake.errormap import Harmonic
+    from olti_drake.validation import campaign_data
+
+    default = paper0["errormap"].resolution
+    assert default["done"] and default["ratio"] < 3 and not paper0["errormap"].warnings
+    short = Robot(J1=HarmonicDeviation(harmonics=[Harmonic(15.0, 30.0, 0.0)], backlash_mdeg=5.0),
+                  J2=HarmonicDeviation(harmonics=[Harmonic(15.0, 30.0, 30.0)], backlash_mdeg=5.0))
+    setup = prepare(Scenario(robot=short))
+    res = identify(campaign_data(simulate_vectorized(setup, np.random.default_rng(3))))
+    noise = np.hypot(setup.budget.combined("pose"), setup.budget.combined("reading"))
+    assert res.residual_rms_mm < 1.1 * noise  # the residual looks perfect
+    assert res.resolution["ratio"] > 4, res.resolution
+    assert len(res.warnings) == 1 and "under-resolution check" in res.warnings[0]
+
+
+def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
+    """The acceptance of the shared least squares on a two-parameter line fit: accepted as solved, then each
+    refusal path (a covariance singular within the gauge at the solution, a non-finite estimate) by name."""
+    import scipy.sparse as sp
+
+    from olti_drake.leastsquares import FitRefused, LeastSquaresProgram, SolverOptions
+
+    class Line(LeastSquaresProgram):
+        t = np.linspace(0.0, 1.0, 20)
+
+        def __init__(self):
+            self._declare(["a_mm", "b_mm"], SolverOptions())
+            self.x0 = np.zeros(2)
+            self.d = 2.0 + 3.0 * self.t + 0.01 * np.sin(40 * self.t)
+
+        def residuals(self, x):
+            return x[0] + x[1] * self.t - self.d, sp.csr_matrix(np.column_stack([np.ones_like(self.t), self.t]))
+
+    line = Line()
+    fit = line.fit()
+    assert fit.converged_by and fit.x == pytest.approx([2.0, 3.0], abs=0.02) and fit.warnings == []
+    line._weak = ["b_mm"]  # as if the normal matrix had lost rank at the solution
+    with pytest.raises(FitRefused, match="covariance is singular within the gauge.*b_mm not determined"):
+        line.accept(fit)
+    line._weak = []
+    fit.x[1] = np.nan
+    with pytest.raises(FitRefused, match="non-finite estimate or uncertainty of b_mm"):
+        line.accept(fit)
+    line._stop = None
+    fit.converged_by = ""
+    with pytest.raises(FitRefused, match="did not converge: iteration cap 100 reached"):
+        line.accept(fit)
