@@ -596,10 +596,11 @@ class Gauge:
     constraints: Tuple[GaugeConstraint, ...]
     null_dimension: int
     sentence: str
+    n_params: int
 
     @property
     def A(self) -> np.ndarray:
-        return np.array([c.row for c in self.constraints]).reshape(len(self.constraints), -1)
+        return np.array([c.row for c in self.constraints]).reshape(len(self.constraints), self.n_params)
 
     @property
     def b(self) -> np.ndarray:
@@ -715,7 +716,8 @@ def _gauge_from(problem, probe, null, chosen, x) -> Gauge:
                                            f"{label} = {value:g} fixes {what}"))
         groups.setdefault(what, []).append(f"{label} = {value:g}")
     sentence = "; ".join(f"{what[:1].upper()}{what[1:]}: fixed by {', '.join(fixes)}" for what, fixes in groups.items())
-    return Gauge(tuple(constraints), len(chosen), sentence or "none needed: every parameter is seen")
+    return Gauge(tuple(constraints), len(chosen), sentence or "none needed: every parameter is seen",
+                 len(names))
 
 
 def _what(problem, probe, direction, chosen, n_model) -> str:
@@ -801,10 +803,14 @@ class SyntheticCampaign:
     points_mm: np.ndarray
 
 
-def synthetic_campaign(truth, n_poses: int, seed: int, *, ranges_deg=None, directions: bool = True,
+def synthetic_campaign(truth, n_poses: int, seed: int, *, ranges_deg=None, directions="random",
                        noise_mm: float = 0.0) -> SyntheticCampaign:
     """Seeded random poses within ``ranges_deg`` (N, 2) (default the joint limits, ±180° where
-    unlimited), the approach directions of that sequence (formats.md rule), and the readings of
+    unlimited) and their approach directions: ``"random"`` — each joint of each pose approached
+    from a random side (a bidirectional plan's approach move before the pose: every map node sees
+    both directions), ``"sequence"`` — the directions of the poses' own sequence (formats.md rule;
+    near a range end most approaches come from inside), ``False`` — none (one-directional);
+    and the readings of
     ``truth`` (anything with ``positions(commands, dirs)``, ``stations_mm``, ``dead_paths_mm``,
     ``frame``) with Gaussian noise of ``noise_mm`` (standard deviation, mm)."""
     rng = np.random.default_rng(seed)
@@ -815,7 +821,13 @@ def synthetic_campaign(truth, n_poses: int, seed: int, *, ranges_deg=None, direc
         ranges_deg = np.column_stack([lo, hi])
     ranges_deg = np.asarray(ranges_deg, float)
     commands = rng.uniform(ranges_deg[:, 0], ranges_deg[:, 1], size=(n_poses, chain.n_joints))
-    dirs = approach_directions(commands, last_direction=1.0) if directions else None
+    if directions not in ("random", "sequence", False, None):
+        raise ValueError(f"directions: 'random', 'sequence' or False, not {directions!r}")
+    dirs = None
+    if directions == "random":
+        dirs = rng.choice([-1.0, 1.0], size=commands.shape)
+    elif directions == "sequence":
+        dirs = approach_directions(commands, last_direction=1.0)
     p = truth.positions(commands, dirs)
     nt = len(truth.stations_mm)
     station = np.repeat(np.arange(nt), n_poses)
