@@ -159,6 +159,11 @@ class PositionJacobian:
         map_cols = [start + cols for start, _, cols, _ in self.maps]
         return _rows_csr(dense, map_vals, map_cols, extra_vals, extra_cols, n_cols or self.n_params)
 
+    def take(self, index) -> "PositionJacobian":
+        """The Jacobian of the points ``index`` (rows of readings that repeat a pose)."""
+        return PositionJacobian(self.dense[index], self.angle[index],
+                                tuple((s, j, c[index], w[index]) for s, j, c, w in self.maps), self.n_params)
+
     def rotated(self, rot) -> "PositionJacobian":
         """The Jacobian of R·p for a constant rotation R (3×3)."""
         return PositionJacobian(np.einsum("ij,mjd->mid", rot, self.dense),
@@ -412,6 +417,10 @@ class _Measurement:
         self.model = model
         self.commands, self.dirs = model._commands(commands, dirs)
         self.own_names: Tuple[str, ...] = ()
+        # A pose read from several stations is evaluated once (the FK is most of the time).
+        key = self.commands if self.dirs is None else np.hstack([self.commands, self.dirs])
+        unique, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        self._poses = None if len(unique) == len(key) else (first, inverse.ravel())
 
     @property
     def names(self) -> Tuple[str, ...]:
@@ -427,7 +436,13 @@ class _Measurement:
         return x[:self.model.n_params], x[self.model.n_params:]
 
     def _position_jacobian(self, x_model):
-        return self.model.jacobian(self.commands, self.dirs, x_model)
+        """Tool points (M, 3) and their :class:`PositionJacobian`, each distinct pose evaluated once."""
+        if self._poses is None:
+            return self.model.jacobian(self.commands, self.dirs, x_model)
+        first, inverse = self._poses
+        p, jac = self.model.jacobian(self.commands[first], None if self.dirs is None else self.dirs[first],
+                                     x_model)
+        return p[inverse], jac.take(inverse)
 
 
 class DistanceMeasurement(_Measurement):
