@@ -233,7 +233,8 @@ def test_gauge_fixes_exactly_what_the_readings_cannot_see(chain, campaign, truth
         assert "rigid motion" in gauge.sentence
     if kind == "errormap":
         assert names[-1] == "gauge: (wrist_3_joint map at 0 deg, mean of +1 and -1)"
-        assert "wrist_3_joint's zero, which trades with tool_" in gauge.constraints[-1].text
+        assert "the zero of wrist_3_joint, which trades with tool_" in gauge.constraints[-1].text
+        assert "The zero of wrist_3_joint" in gauge.sentence
     np.testing.assert_allclose(gauge.A @ prob.start_vector(), gauge.b, atol=1e-12)
 
 
@@ -312,3 +313,24 @@ def test_synthetic_truth_is_seeded_and_off_the_model_family(chain, truth):
     np.testing.assert_allclose(clean.displacement_mm, np.linalg.norm(p - truth.stations_mm[clean.station], axis=1)
                                - truth.dead_paths_mm[clean.station], atol=1e-9)
     assert 0 < np.std(a.displacement_mm - clean.displacement_mm) < 0.01
+
+
+@pytest.mark.parametrize("path,frame,tool,height", [
+    (UR5.parent / "scara.sdf", "link2", (225.0, 0.0, 0.0), "tool_z_mm"),
+    (Path(__file__).parent / "data" / "arm7_floating.urdf", "tcp", (30.0, -20.0, 50.0), "j2_dy_mm")])
+@pytest.mark.parametrize("kind", ["dh", "errormap"])
+def test_gauge_of_other_chains(path, frame, tool, height, kind):
+    """The SCARA chain (J1, J2, parallel axes) and the 7-joint arm: the same 6 rigid freedoms,
+    plus the last joint's zero with maps (it trades with the tool offset)."""
+    chain = load_serial_chain(path, frame)
+    truth = synthetic_truth(chain, seed=1, tool_offset_mm=tool)
+    camp = synthetic_campaign(truth, 200, seed=2)
+    model = build_position_model(chain, camp.commands, camp.dirs, kind=kind, grid_step_deg=30.0,
+                                 tool_offset_mm=tool)
+    gauge = find_gauge(problem("distance", model, camp, truth))
+    first = chain.joint_names[0]
+    assert gauge.null_dimension == (6 if kind == "dh" else 7)
+    assert gauge.names[:4] == tuple(f"gauge: {first}_{s}" for s in ("dx_mm", "dy_mm", "drx_deg", "dry_deg"))
+    assert f"gauge: {height}" in gauge.names
+    if kind == "errormap":
+        assert f"gauge: ({chain.joint_names[-1]} map at 0 deg, mean of +1 and -1)" in gauge.names

@@ -743,7 +743,8 @@ def _what(problem, probe, direction, chosen, n_model) -> str:
     if problem.kind == "point" and np.any(scaled[n_model:] > 1e-6):
         return "a rigid motion of the robot relative to the unknown tracker frame (6 freedoms)"
     partners = [probe.names[i] for i in np.argsort(-scaled) if i != chosen and scaled[i] > 0.1][:4]
-    subject = probe.names[chosen].replace("_offset_deg", "'s zero")
+    name = probe.names[chosen]
+    subject = f"the zero of {name[:-len('_offset_deg')]}" if name.endswith("_offset_deg") else name
     return f"{subject}, which trades with {', '.join(partners)}"
 
 
