@@ -231,10 +231,16 @@ def test_gauge_fixes_exactly_what_the_readings_cannot_see(chain, campaign, truth
                              "gauge: shoulder_pan_joint_drx_deg", "gauge: shoulder_pan_joint_dry_deg")
         assert "gauge: shoulder_lift_joint_dy_mm" in names  # the height along J1 (J1 dz was dropped for it)
         assert "rigid motion" in gauge.sentence
+        texts = [c.text for c in gauge.constraints]
+        assert texts[0].startswith("shoulder_pan_joint_dx_mm = 0 fixes the translation along x of a rigid motion")
+        assert "shoulder_pan_joint_drx_deg = 0 (rotation about x through the origin)" in gauge.sentence
+        assert "(shoulder_pan_joint map at 0 deg, mean of +1 and -1) = 0 (rotation about z through the origin)" \
+            in gauge.sentence or kind == "dh"
+        assert "shoulder_lift_joint_dy_mm = 0 (translation along z)" in gauge.sentence
     if kind == "errormap":
         assert names[-1] == "gauge: (wrist_3_joint map at 0 deg, mean of +1 and -1)"
         assert "the zero of wrist_3_joint, which trades with tool_" in gauge.constraints[-1].text
-        assert "The zero of wrist_3_joint" in gauge.sentence
+        assert "; the zero of wrist_3_joint, which trades with tool_" in gauge.sentence or measure == "root"
     np.testing.assert_allclose(gauge.A @ prob.start_vector(), gauge.b, atol=1e-12)
 
 
@@ -332,5 +338,6 @@ def test_gauge_of_other_chains(path, frame, tool, height, kind):
     assert gauge.null_dimension == (6 if kind == "dh" else 7)
     assert gauge.names[:4] == tuple(f"gauge: {first}_{s}" for s in ("dx_mm", "dy_mm", "drx_deg", "dry_deg"))
     assert f"gauge: {height}" in gauge.names
+    assert f"{height} = 0 (translation along z)" in gauge.sentence
     if kind == "errormap":
         assert f"gauge: ({chain.joint_names[-1]} map at 0 deg, mean of +1 and -1)" in gauge.names

@@ -714,38 +714,68 @@ def _gauge_from(problem, probe, null, chosen, x) -> Gauge:
     levels = model.level_rows()
     moved = null @ np.linalg.inv(null[chosen])  # column i: the direction only constraint i stops
     n_model = probe.model.n_params
+    p, pj = probe.model.jacobian(probe.commands, probe.dirs)
+    jp = pj.tocsr()
     constraints, groups = [], {}
     for i, c in enumerate(chosen):
         pname = probe.names[c]
         row = np.zeros(len(names))
-        joint = pname[:-len("_offset_deg")] if pname.endswith("_offset_deg") else None
-        if joint is not None:
-            local, label = levels[joint]
+        if pname.endswith("_offset_deg"):
+            local, label = levels[pname[:-len("_offset_deg")]]
             row[:model.n_params] = local
-            value, label = 0.0, label
+            value = 0.0
         else:
             row[names.index(pname)] = 1.0
             value, label = float(x[names.index(pname)]), pname
-        what = _what(problem, probe, moved[:, i], c, n_model)
-        constraints.append(GaugeConstraint(f"gauge: {label}", row, value,
-                                           f"{label} = {value:g} fixes {what}"))
-        groups.setdefault(what, []).append(f"{label} = {value:g}")
-    sentence = "; ".join(f"{what[:1].upper()}{what[1:]}: fixed by {', '.join(fixes)}" for what, fixes in groups.items())
-    return Gauge(tuple(constraints), len(chosen), sentence or "none needed: every parameter is seen",
-                 len(names))
+        what, detail = _what(problem, probe, moved[:, i], c, n_model, p, jp)
+        text = f"{label} = {value:g} fixes " + (f"the {detail} of {what}" if detail else what)
+        constraints.append(GaugeConstraint(f"gauge: {label}", row, value, text))
+        groups.setdefault(what, []).append(f"{label} = {value:g}" + (f" ({detail})" if detail else ""))
+    sentence = "; ".join(f"{what}: fixed by {', '.join(fixes)}" for what, fixes in groups.items())
+    sentence = sentence[:1].upper() + sentence[1:] + "." if sentence else "none needed: every parameter is seen"
+    return Gauge(tuple(constraints), len(chosen), sentence, len(names))
 
 
-def _what(problem, probe, direction, chosen, n_model) -> str:
-    """A phrase for the freedom a null direction is: a rigid motion, or a trade between named parameters."""
+def _what(problem, probe, direction, chosen, n_model, p, jp):
+    """(phrase, detail) for the freedom a null direction is: a rigid motion (detail: which
+    translation or rotation, in the root frame), or a trade between named parameters."""
     scaled = np.abs(direction) / max(np.abs(direction).max(), 1e-300)
-    if problem.kind == "distance" and np.any(scaled[n_model:] > 1e-6):
-        return "a rigid motion of the robot together with the stations, which distances cannot see (6 freedoms)"
-    if problem.kind == "point" and np.any(scaled[n_model:] > 1e-6):
-        return "a rigid motion of the robot relative to the unknown tracker frame (6 freedoms)"
+    if problem.kind in ("distance", "point") and np.any(scaled[n_model:] > 1e-6):
+        motion = _rigid_motion(p, (jp @ direction[:n_model]).reshape(-1, 3))
+        if problem.kind == "distance":
+            return "a rigid motion of the robot together with the stations, which distances cannot see", motion
+        return "a rigid motion of the robot relative to the unknown tracker frame", motion
     partners = [probe.names[i] for i in np.argsort(-scaled) if i != chosen and scaled[i] > 0.1][:4]
     name = probe.names[chosen]
     subject = f"the zero of {name[:-len('_offset_deg')]}" if name.endswith("_offset_deg") else name
-    return f"{subject}, which trades with {', '.join(partners)}"
+    return f"{subject}, which trades with {', '.join(partners)}", ""
+
+
+def _rigid_motion(p, dp) -> str:
+    """The small rigid motion dp = ω × p + v of the points p (M, 3) mm, in words (root frame)."""
+    m = len(p)
+    basis = np.zeros((m, 3, 6))
+    for k, e in enumerate(np.eye(3)):
+        basis[:, :, k] = _cross(np.broadcast_to(e, p.shape), p)
+        basis[:, :, 3 + k] = e
+    sol = np.linalg.lstsq(basis.reshape(3 * m, 6), dp.ravel(), rcond=None)[0]
+    w, v = sol[:3], sol[3:]
+    reach = np.abs(p).max()
+    if np.linalg.norm(w) * reach < 1e-6 * np.linalg.norm(v):
+        return f"translation along {_direction_words(v)}"
+    through = np.cross(w, v) / (w @ w)
+    through[np.abs(through) < 1e-6 * reach] = 0.0
+    where = ("through the origin" if np.linalg.norm(through) < 1e-6 * reach
+             else "through (" + ", ".join(f"{c:.6g}" for c in through) + ") mm")
+    return f"rotation about {_direction_words(w)} {where}"
+
+
+def _direction_words(vec) -> str:
+    unit = vec / np.linalg.norm(vec)
+    axis = int(np.argmax(np.abs(unit)))
+    if abs(abs(unit[axis]) - 1.0) < 1e-9:
+        return "xyz"[axis]
+    return "(" + ", ".join(f"{c:.4g}" for c in unit) + ")"
 
 
 # ------------------------------------------------------------ synthetic truth
