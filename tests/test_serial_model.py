@@ -341,3 +341,24 @@ def test_gauge_of_other_chains(path, frame, tool, height, kind):
     assert f"{height} = 0 (translation along z)" in gauge.sentence
     if kind == "errormap":
         assert f"gauge: ({chain.joint_names[-1]} map at 0 deg, mean of +1 and -1)" in gauge.names
+
+
+def test_layout_puts_values_under_result_keys(chain, campaign, truth):
+    em = problem("distance", build(chain, campaign, "errormap"), campaign, truth)
+    x = random_vector(em, 21)
+    out = em.layout(x)
+    assert out["shoulder_pan_joint_dx_mm"] == x[0]
+    assert out["tool_offset_mm"] == list(x[[em.names.index(f"tool_{c}_mm") for c in "xyz"]])
+    j2 = out["error_map"]["elbow_joint"]
+    assert j2["reverse_deg"][3] == x[em.names.index("elbow_joint_reverse_deg[3]")]
+    assert len(j2["grid_deg"]) == len(j2["forward_deg"])
+    assert out["stations_mm"][1] == list(x[em.names.index("P1_x_mm"):em.names.index("P1_x_mm") + 3])
+    assert out["dead_paths_mm"][3] == x[-1]
+    np.testing.assert_allclose(em.beam_lengths(x) - x[-4:][em.station] - em.displacement,
+                               em.residuals(x)[0], atol=1e-9)
+    one = problem("point", build(chain, campaign, "dh", directions=False), campaign, truth, directions=False)
+    out = one.layout(one.start_vector())
+    assert "error_map" not in out and out["shoulder_pan_joint_offset_deg"] == 0.0
+    np.testing.assert_allclose(out["tracker_frame"]["rotation_deg"], truth.frame[3:])
+    np.testing.assert_allclose(one.beam_lengths(one.start_vector()),
+                               np.linalg.norm(one.predict(one.start_vector()), axis=1))

@@ -341,6 +341,21 @@ class SerialPositionModel:
         maps = tuple((s, j, cols, w) for s, j, (cols, w) in zip(self.map_starts, self.map_joints, interps))
         return p, PositionJacobian(dense, jac[:, :, :n], maps, self.n_params)
 
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (values or uncertainties) in result.json's keys (formats.md,
+        serial robots): the location errors and ``dh`` offsets by name, ``tool_offset_mm`` [x, y,
+        z], ``error_map`` keyed by joint name (``grid_deg``, ``forward_deg``, and ``reverse_deg``
+        when bidirectional)."""
+        v = self._check(v)
+        out = {name: float(v[i]) for i, name in enumerate(self.names[:self.n_dense])
+               if name not in TOOL_NAMES}
+        k = len(self._chain_cols)
+        out["tool_offset_mm"] = v[k - 3:k].tolist()
+        if self.maps:
+            out["error_map"] = {m.joint: m.with_values(v[s:s + m.n_values]).to_dict()
+                                for s, m in zip(self.map_starts, self.maps)}
+        return out
+
     def level_rows(self) -> Dict[str, Tuple[np.ndarray, str]]:
         """Per joint with an offset or a map: (row on x, text) of its angle level —
         the offset itself (dh) or the map level of :meth:`JointMap.level_row`."""
@@ -435,6 +450,11 @@ class _Measurement:
             raise ValueError(f"parameter vector: {x.size} values, the problem has {len(self.names)}")
         return x[:self.model.n_params], x[self.model.n_params:]
 
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector in result.json's keys: the model's, then the measurement's."""
+        vm, own = self._split(v)
+        return {**self.model.layout(vm), **self._own_layout(own)}
+
     def _position_jacobian(self, x_model):
         """Tool points (M, 3) and their :class:`PositionJacobian`, each distinct pose evaluated once."""
         if self._poses is None:
@@ -475,6 +495,15 @@ class DistanceMeasurement(_Measurement):
         xm, own = self._split(x)
         nt = len(self.labels)
         return xm, own[:3 * nt].reshape(nt, 3), own[3 * nt:]
+
+    def _own_layout(self, own) -> dict:
+        nt = len(self.labels)
+        return {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:].tolist()}
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """‖p − P_j‖ of every reading at x, mm."""
+        xm, P, _ = self._parts(x)
+        return np.linalg.norm(self.model.positions(self.commands, self.dirs, xm) - P[self.station], axis=1)
 
     def predict(self, x) -> np.ndarray:
         """Expected readings ‖p − P_j‖ − d0_j (mm)."""
@@ -531,6 +560,14 @@ class PointMeasurement(_Measurement):
         xm, own = self._split(x)
         return xm, own
 
+    def _own_layout(self, own) -> dict:
+        return {"tracker_frame": {"translation_mm": own[:3].tolist(), "rotation_deg": own[3:].tolist(),
+                                  "convention": "tracker point = R p + t, R = Rx(rx) Ry(ry) Rz(rz)"}}
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """Distance from the tracker (its frame's origin) to every tool point at x, mm."""
+        return np.linalg.norm(self.predict(x), axis=1)
+
     def predict(self, x) -> np.ndarray:
         """Tool points in the tracker frame (M, 3) mm."""
         xm, frame = self._parts(x)
@@ -569,6 +606,9 @@ class RootPositionMeasurement(_Measurement):
         super().__init__(model, commands, dirs)
         self.points = np.asarray(points_mm, float).reshape(-1, 3)
         self._own_start = np.zeros(0)
+
+    def _own_layout(self, own) -> dict:
+        return {}
 
     def predict(self, x) -> np.ndarray:
         return self.model.positions(self.commands, self.dirs, self._split(x)[0])
