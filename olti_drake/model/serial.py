@@ -142,13 +142,15 @@ class PositionJacobian:
     maps: Tuple[tuple, ...]
     n_params: int
 
-    def tocsr(self) -> sp.csr_matrix:
-        """The (3M, P) sparse Jacobian, rows x, y, z of reading 0, then reading 1, ..."""
+    def tocsr(self, extra_vals=None, extra_cols=None, n_cols=None) -> sp.csr_matrix:
+        """The (3M, n_cols) sparse Jacobian, rows x, y, z of reading 0, then reading 1, ...,
+        plus per-row extra entries (measurement parameters: columns ≥ P)."""
         m = self.dense.shape[0]
         map_vals = [(self.angle[:, :, j][:, :, None] * w[:, None, :]).reshape(3 * m, 2)
                     for _, j, _, w in self.maps]
         map_cols = [np.repeat(start + cols, 3, axis=0) for start, _, cols, _ in self.maps]
-        return _rows_csr(self.dense.reshape(3 * m, -1), map_vals, map_cols, None, None, self.n_params)
+        return _rows_csr(self.dense.reshape(3 * m, -1), map_vals, map_cols, extra_vals, extra_cols,
+                         n_cols or self.n_params)
 
     def contract(self, u, extra_vals=None, extra_cols=None, n_cols=None) -> sp.csr_matrix:
         """(M, n_cols) sparse rows u_k · ∂p_k/∂x, plus per-row extra entries (measurement
@@ -243,6 +245,11 @@ class SerialPositionModel:
         return len(self.names)
 
     @property
+    def geometric_names(self) -> Tuple[str, ...]:
+        """The free location errors (the first block of ``names``)."""
+        return self.names[:len(self._chain_cols) - 3]
+
+    @property
     def bidirectional(self) -> bool:
         return any(m.bidirectional for m in self.maps)
 
@@ -268,7 +275,7 @@ class SerialPositionModel:
         x = self._check(x)
         maps = [m.with_values(x[s:s + m.n_values]) for s, m in zip(self.map_starts, self.maps)]
         joints = self.chain.joint_names
-        return SerialPositionModel(self.chain, self.kind, [self.names[i] for i in range(len(self._chain_cols) - 3)],
+        return SerialPositionModel(self.chain, self.kind, self.geometric_names,
                                    self.chain_parameters(x), [joints[j] for j in self.offset_joints],
                                    maps, self.dropped, x[len(self._chain_cols):self.n_dense])
 
@@ -585,11 +592,7 @@ class PointMeasurement(_Measurement):
         spin = np.stack([_cross(np.broadcast_to(a, q.shape), q) * DEG for a in axes], axis=2)  # (M, 3, 3)
         vals = np.concatenate([np.ones((m, 3, 1)), spin], axis=2).reshape(3 * m, 4)
         cols = np.column_stack([pm + np.tile(np.arange(3), m)] + [np.full(3 * m, pm + 3 + k) for k in range(3)])
-        jr = jp.rotated(rot)
-        dense = jr.dense.reshape(3 * m, -1)
-        map_vals = [(jr.angle[:, :, j][:, :, None] * w[:, None, :]).reshape(3 * m, 2) for _, j, _, w in jr.maps]
-        map_cols = [np.repeat(s + c, 3, axis=0) for s, _, c, _ in jr.maps]
-        return r, _rows_csr(dense, map_vals, map_cols, vals, cols, len(self.names))
+        return r, jp.rotated(rot).tocsr(vals, cols, len(self.names))
 
     def probe(self, model, commands, dirs, rng):
         frame = np.concatenate([rng.normal(0, 500.0, 3), rng.uniform(-30, 30, 3)])
@@ -712,8 +715,7 @@ def _level_model(model: SerialPositionModel, x_model) -> SerialPositionModel:
     location errors and tool, at the location errors and tool of x."""
     joints = model.chain.joint_names
     levels = sorted(set(model.offset_joints) | set(model.map_joints))
-    geo = [model.names[i] for i in range(len(model._chain_cols) - 3)]
-    return SerialPositionModel(model.chain, "dh", geo, model.chain_parameters(x_model),
+    return SerialPositionModel(model.chain, "dh", model.geometric_names, model.chain_parameters(x_model),
                                offsets=[joints[j] for j in levels])
 
 
@@ -722,7 +724,7 @@ def _candidates(reduced, probe):
     names = list(probe.names)
     order = []
     for joint in reduced.chain.joint_names:
-        order += [i for i, n in enumerate(names[:len(reduced._chain_cols) - 3]) if n.startswith(joint + "_")
+        order += [i for i, n in enumerate(reduced.geometric_names) if n.startswith(joint + "_")
                   and n[len(joint) + 1:] in GEOMETRIC_SUFFIXES]
         if f"{joint}_offset_deg" in names:
             order.append(names.index(f"{joint}_offset_deg"))
