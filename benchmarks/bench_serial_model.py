@@ -52,13 +52,19 @@ def problem(chain, truth, n_poses, step_deg, half_range_deg, seed):
 
 
 def dense_jacobian(prob, x, rows=None):
-    """The baseline: the same ∂r/∂x as a dense array (map columns through dense weight matrices)."""
+    """The baseline: the same ∂r/∂x as a dense array (map columns through dense weight matrices),
+    from the same FK of the distinct poses."""
     model = prob.model
     sel = slice(None) if rows is None else slice(0, rows)
     commands, dirs, station = prob.commands[sel], prob.dirs[sel], prob.station[sel]
     xm, P = x[:model.n_params], x[model.n_params:]
     nt = len(prob.labels)
-    p, jac = model.chain.jacobian(model.actual_angles(commands, dirs, xm), model.chain_parameters(xm))
+    # the same FK as the sparse path: each distinct pose once (the ratio is sparse vs dense only)
+    first, inverse = prob._poses
+    keep = inverse[sel]
+    p, jac = model.chain.jacobian(model.actual_angles(prob.commands[first], prob.dirs[first], xm),
+                                  model.chain_parameters(xm))
+    p, jac = p[keep], jac[keep]
     diff = p - P[:3 * nt].reshape(nt, 3)[station]
     u = diff / np.linalg.norm(diff, axis=1)[:, None]
     out = np.zeros((len(p), len(prob.names)))
