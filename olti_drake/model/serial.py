@@ -540,7 +540,8 @@ class DistanceMeasurement(_Measurement):
         P = rng.normal(size=(nt, 3))
         P *= (1.5 * reach / np.linalg.norm(P, axis=1))[:, None]
         m = len(commands)
-        return DistanceMeasurement(model, np.tile(commands, (nt, 1)), None if dirs is None else np.tile(dirs, (nt, 1)),
+        tiled_dirs = None if dirs is None else np.tile(dirs, (nt, 1))
+        return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
                                    np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt))
 
 
