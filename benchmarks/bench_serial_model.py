@@ -16,7 +16,9 @@ stations, directions on every joint (``olti_drake.model.serial``):
    ±170° (≈ 4 100 unknowns): the same, with the peak memory of the call
    (tracemalloc: numpy's allocations). The dense baseline would need a
    100 000 × P float64 array (printed); it is measured on the first 10 000
-   readings and scaled by 10 (time is linear in the readings).
+   readings and scaled by 10 (time is linear in the readings). For the solver
+   integration, what one Gauss-Newton step would cost on top (J^T J, a dense
+   KKT solve with the gauge rows) is printed for information.
 
 Both Jacobians must agree (1e-9); exits 1 when they do not, or the targets
 (2800 readings < 0.1 s; 100 000 readings < 10 s and < 2 GiB; identification
@@ -80,6 +82,26 @@ def dense_jacobian(prob, x, rows=None):
     return out
 
 
+def gauss_newton_step(prob, x):
+    """Seconds for J^T J (sparse product), the dense KKT solve of one step with the gauge rows,
+    and the gauge analysis: what the solver integration will pay per iteration."""
+    import time
+
+    import scipy.linalg
+
+    r, jac = prob.residuals(x)
+    t0 = time.perf_counter()
+    normal = (jac.T @ jac).toarray()
+    t1 = time.perf_counter()
+    gauge = find_gauge(prob)
+    t2 = time.perf_counter()
+    k = len(gauge.b)
+    kkt = np.block([[normal, gauge.A.T], [gauge.A, np.zeros((k, k))]])
+    scipy.linalg.solve(kkt, np.concatenate([-(jac.T @ r), np.zeros(k)]), assume_a="sym")
+    t3 = time.perf_counter()
+    return t1 - t0, t3 - t2, t2 - t1
+
+
 def peak_memory(fn):
     """(peak bytes allocated during fn(), result), by tracemalloc."""
     tracemalloc.start()
@@ -126,6 +148,9 @@ def main() -> int:
     print(f"  dense baseline (10 000 rows x {scale:.0f}) : {t_dense * scale:8.2f} s   "
           f"({t_dense * scale / t_big:.1f}x), its matrix alone {dense_bytes / 2**30:.2f} GiB")
     print(f"  largest difference sparse - dense: {err:.1e}")
+    t_step = gauss_newton_step(big, x)
+    print(f"  for the solver (information): one Gauss-Newton step with the gauge: J^T J (sparse) "
+          f"{t_step[0]:.2f} s, dense KKT solve {t_step[1]:.2f} s, gauge analysis {t_step[2]:.2f} s")
     ok &= err < 1e-9 and t_big < 10.0 and peak < 2 * 2**30
     print("OK" if ok else "FAILED (targets: agree to 1e-9; 2800 readings < 0.1 s; 1e5 < 10 s and < 2 GiB)")
     return 0 if ok else 1
