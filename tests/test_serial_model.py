@@ -362,3 +362,20 @@ def test_layout_puts_values_under_result_keys(chain, campaign, truth):
     np.testing.assert_allclose(out["tracker_frame"]["rotation_deg"], truth.frame[3:])
     np.testing.assert_allclose(one.beam_lengths(one.start_vector()),
                                np.linalg.norm(one.predict(one.start_vector()), axis=1))
+
+
+def test_error_maps_fit_the_harmonic_truth_far_better_than_dh(chain, truth):
+    """The continuous truth is outside both model families; the maps absorb its joint
+    deviations and backlash, the D-H model cannot (000's Fig. 9/10 comparison). What the maps
+    leave is their interpolation error between nodes: O(step²) for smooth deviations."""
+    ranges = np.tile([-90.0, 90.0], (6, 1))
+    camp = synthetic_campaign(truth, 400, seed=14, ranges_deg=ranges)
+    rms = {}
+    for kind, step in (("dh", 15.0), ("errormap", 15.0), ("errormap", 7.5)):
+        prob = problem("distance", build(chain, camp, kind, step=step), camp, truth)
+        gauge = find_gauge(prob)
+        x = gauss_newton(prob, prob.start_vector(), gauge.A, gauge.b, iterations=8)
+        rms[kind, step] = float(np.sqrt(np.mean(prob.residuals(x)[0] ** 2)))
+    assert rms["dh", 15.0] > 0.05  # mm: the harmonics and backlash the D-H model cannot follow
+    assert rms["errormap", 15.0] < rms["dh", 15.0] / 5
+    assert rms["errormap", 7.5] < rms["errormap", 15.0] / 3  # halving the step: ≈ 4× less
