@@ -703,7 +703,9 @@ def find_gauge(problem, x=None, *, n_poses: int = 40, seed: int = 0) -> Gauge:
     _, s, vt = np.linalg.svd(jac / scale, full_matrices=False)
     null = vt[s < NULL_RTOL * s[0]].T / scale[:, None]  # unscaled null directions (P_red, k)
     k = null.shape[1]
-    chosen = _greedy_rows(null, _candidates(reduced, probe))
+    # rank tests on the orthonormal (unit-scaled) basis: a row's size is how much that
+    # parameter takes part in the unseen directions, whatever its unit
+    chosen = _greedy_rows(null * scale[:, None], _candidates(reduced, probe))
     if len(chosen) < k:
         big = np.argsort(-np.abs(null * scale[:, None]).max(axis=1))[:4]
         raise ValueError("readings cannot see a combination of " + ", ".join(probe.names[i] for i in big)
