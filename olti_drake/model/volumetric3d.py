@@ -150,7 +150,7 @@ def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "c
         lo, hi = config.travel_mm[a]
         bad = np.flatnonzero(~np.isfinite(c[:, k]) | (c[:, k] < lo - 1e-9) | (c[:, k] > hi + 1e-9))
         if bad.size:
-            raise ValueError(f"{what}: row {bad[0]}: {a.lower()} = {c[bad[0], k]!r} mm is outside the "
+            raise ValueError(f"{what}: row {bad[0]}: {a.lower()} = {c[bad[0], k]:g} mm is outside the "
                              f"{a} travel [{lo}, {hi}] mm")
     m = np.zeros(len(c), int) if tool is None else np.broadcast_to(np.asarray(tool), (len(c),))
     if not np.issubdtype(m.dtype, np.integer) or np.any((m < 0) | (m >= len(config.tools))):
@@ -218,10 +218,21 @@ class SineMotions:
     def evaluate(self, axis: str, q, derivative: int = 0) -> np.ndarray:
         return np.column_stack([self._one(n, q, derivative) for n in motion_names(axis)])
 
+    def spline_error_bound(self, config: MachineConfig) -> Dict[str, float]:
+        """Per motion, the a-priori distance (mm or µrad) of this truth from ``config``'s spline space:
+        (5/384) h⁴ ‖f⁗‖∞ (cubic spline interpolation error, h the knot interval; the subtracted
+        chord is linear and does not change f⁗), with ‖f⁗‖∞ ≤ Σ |a_i| (2π/P_i)⁴."""
+        out = {}
+        for name, (a, period, _) in self.terms.items():
+            lo, hi = config.travel_mm[name[3]]
+            h = (hi - lo) / (config.n_basis(name[3]) - DEGREE)
+            out[name] = 5.0 / 384.0 * h ** 4 * float(np.sum(np.abs(a) * (2 * np.pi / period) ** 4))
+        return out
+
 
 def synthetic_truth(config: MachineConfig, seed: int, amplitude_mm: float = 0.005,
                     amplitude_urad: float = 10.0, squareness_urad=(12.0, -8.0, 5.0),
-                    min_period_intervals: float = 3.0) -> SineMotions:
+                    min_period_intervals: float = 4.0) -> SineMotions:
     """Seeded truth motions: per motion two sines, periods between ``min_period_intervals`` knot
     intervals and 1.5 travels (so never a knot multiple by construction), amplitudes up to
     ``amplitude_mm`` (linear) or ``amplitude_urad`` (angular), random phases; squareness given (µrad).
