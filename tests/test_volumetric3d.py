@@ -11,7 +11,7 @@ from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, Machin
                                            _rigid_columns, _rotations, axis_tables, chain_state,
                                            command_jacobian, compensate, error_grid, motion_names,
                                            motion_role, motion_unit, observability, synthetic_truth,
-                                           tool_positions)
+                                           tool_positions, write_tables)
 
 ONE_TOOL = ((0.0, 0.0, 100.0),)
 TWO_TOOLS = ((0.0, 0.0, 100.0), (60.0, 40.0, 150.0))
@@ -424,3 +424,47 @@ def test_compensation_refuses_a_target_outside_the_travel():
     wanted[1] = truth_at_start - [0.01, 0.0, 0.0]
     with pytest.raises(ValueError, match=r"compensated commands: row 1: x = .* outside the X travel"):
         compensate(truth, cfg, wanted, 0)
+
+
+# ------------------------------------------------------------------ files
+def test_document_round_trip_and_refusals():
+    import json
+
+    from olti_drake.model.volumetric3d import model_from_document, motions_document
+
+    cfg = MachineConfig(tool_offsets_mm=TWO_TOOLS, **TABLE_XY)
+    model = VolumetricModel(cfg)
+    x = random_params(model, 9)
+    doc = json.loads(json.dumps(motions_document(model, x, pitch_mm=25.0)))
+    assert doc["format"] == "olti-volumetric/1"
+    assert set(doc["error_motions"]) == set(ALL_MOTIONS) and doc["error_motions"]["E_AX"]["unit"] == "urad"
+    assert doc["error_motions"]["E_YX"]["fixed"] == "0 at both travel ends"
+    back, y = model_from_document(doc)
+    assert back.config.chain == cfg.chain
+    np.testing.assert_array_equal(y, x)
+    c, t = campaign(cfg, 20)
+    np.testing.assert_array_equal(back.positions(c, t, y), model.positions(c, t, x))
+    doc["error_motions"]["E_YX"]["coefficients"][0] = 1.0
+    with pytest.raises(ValueError, match=r"error_motions.E_YX.coefficients: must be 0 at \[0, 10\]"):
+        model_from_document(doc, "r.json")
+    del doc["squareness_urad"]["E_B0Z"]
+    doc["error_motions"]["E_YX"]["coefficients"][0] = 0.0
+    with pytest.raises(ValueError, match=r"r.json: squareness_urad.E_B0Z: missing"):
+        model_from_document(doc, "r.json")
+    with pytest.raises(ValueError, match=r"r.json: format"):
+        model_from_document({"format": "olti-volumetric/0"}, "r.json")
+
+
+def test_write_tables_csv(tmp_path):
+    cfg = MachineConfig(tool_offsets_mm=TWO_TOOLS)
+    truth = synthetic_truth(cfg, 2)
+    paths = write_tables(tmp_path, truth, cfg, 50.0, grid_pitch_mm=100.0)
+    assert sorted(p.rsplit("/", 1)[1] for p in paths) == ["axis_X.csv", "axis_Y.csv", "axis_Z.csv",
+                                                          "grid_tool0.csv", "grid_tool1.csv"]
+    lines = [ln for ln in open(tmp_path / "axis_Y.csv").read().splitlines() if not ln.startswith("#")]
+    assert lines[0] == "position_mm,E_XY_mm,E_YY_mm,E_ZY_mm,E_AY_urad,E_BY_urad,E_CY_urad"
+    data = np.loadtxt(tmp_path / "axis_Y.csv", delimiter=",", comments="#", skiprows=2)
+    np.testing.assert_allclose(data[:, 0], np.arange(0, 301, 50))
+    np.testing.assert_allclose(data[:, 1:], truth.evaluate("Y", data[:, 0]), atol=1e-6)
+    grid = np.loadtxt(tmp_path / "grid_tool1.csv", delimiter=",", comments="#", skiprows=2)
+    assert grid.shape == (5 * 4 * 4, 6)

@@ -614,3 +614,98 @@ def _travel_box(config: MachineConfig):
     lo = np.array([config.travel_mm[a][0] for a in AXES])
     hi = np.array([config.travel_mm[a][1] for a in AXES])
     return lo, hi
+
+
+# --------------------------------------------------------------------------- files
+FORMAT = "olti-volumetric/1"
+
+
+def motions_document(model: VolumetricModel, params, pitch_mm: float = 10.0) -> dict:
+    """The error motions as the ``olti-volumetric/1`` result's model part (formats.md, "Machine tool in 3D").
+
+    Per motion: ISO name, unit, role, the representation (B-spline knots and
+    every coefficient, fixed ones as 0, and what is fixed) and its values at
+    ``pitch_mm`` over the travel; the squareness (µrad); topology, travel and
+    tool offsets. The identifier adds stations, dead paths, gauge and
+    uncertainty.
+    """
+    cfg = model.config
+    motions = model.motions(params)
+    tables = axis_tables(motions, cfg, pitch_mm)
+    out = {}
+    for name in ALL_MOTIONS:
+        axis, unit = name[3], motion_unit(name)
+        fixed = "0 at both travel ends" if _fixed_ends(name)[1] else "0 at the travel start"
+        out[name] = {"axis": axis, "unit": unit, "role": motion_role(name), "fixed": fixed,
+                     "coefficients": motions.coefficients[name].tolist(),
+                     "positions_mm": tables[axis]["position_mm"].tolist(),
+                     "values": tables[axis][f"{name}_{unit}"].tolist()}
+    return {"format": FORMAT, "conventions": "docs/machine_3d.md",
+            "topology": {"tool_chain": list(cfg.tool_chain), "work_chain": list(cfg.work_chain)},
+            "travel_mm": {a: list(map(float, cfg.travel_mm[a])) for a in AXES},
+            "representation": {"basis": "clamped cubic B-spline", "knot_spacing_mm": cfg.knot_spacing_mm,
+                               "knots_mm": {a: cfg.knots(a).tolist() for a in AXES}},
+            "tool_offsets_mm": cfg.tools.tolist(),
+            "error_motions": out,
+            "squareness_urad": {s: float(v) for s, v in zip(SQUARENESS, motions.squareness_urad)}}
+
+
+def model_from_document(doc: dict, source: str = "volumetric result"):
+    """(VolumetricModel, params) of an ``olti-volumetric/1`` document; one-line ValueError naming the field."""
+    def need(cond, field, what):
+        if not cond:
+            raise ValueError(f"{source}: {field}: {what}")
+
+    need(isinstance(doc, dict) and doc.get("format") == FORMAT, "format", f"expected {FORMAT!r}")
+    try:
+        topo, rep = doc["topology"], doc["representation"]
+        cfg = MachineConfig(tool_chain=tuple(topo["tool_chain"]), work_chain=tuple(topo["work_chain"]),
+                            travel_mm={a: tuple(doc["travel_mm"][a]) for a in AXES},
+                            knot_spacing_mm=float(rep["knot_spacing_mm"]),
+                            tool_offsets_mm=tuple(map(tuple, doc["tool_offsets_mm"])))
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"{source}: missing or malformed field {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+    model = VolumetricModel(cfg)
+    x = model.zeros()
+    for name in ALL_MOTIONS:
+        entry = doc.get("error_motions", {}).get(name)
+        need(isinstance(entry, dict) and "coefficients" in entry, f"error_motions.{name}", "missing")
+        coef = np.asarray(entry["coefficients"], float)
+        need(coef.shape == (cfg.n_basis(name[3]),) and np.all(np.isfinite(coef)),
+             f"error_motions.{name}.coefficients", f"expected {cfg.n_basis(name[3])} finite values")
+        fixed = np.setdiff1d(np.arange(len(coef)), model.free[name])
+        need(np.all(coef[fixed] == 0), f"error_motions.{name}.coefficients", f"must be 0 at {fixed.tolist()}")
+        x[model.slices[name]] = coef[model.free[name]]
+    for s in SQUARENESS:
+        v = doc.get("squareness_urad", {}).get(s)
+        need(isinstance(v, (int, float)) and np.isfinite(v), f"squareness_urad.{s}", "missing or not finite")
+        x[model.slices[s]] = v
+    return model, x
+
+
+def write_tables(directory, motions, config: MachineConfig, pitch_mm: float, grid_pitch_mm=None) -> list:
+    """Compensation tables as CSV in ``directory``: ``axis_X.csv``, ``axis_Y.csv``, ``axis_Z.csv``
+    (one row per position, the six motions in ISO 230-1 names with units) and, with
+    ``grid_pitch_mm``, ``grid_tool<m>.csv`` per tool (positioning-error vectors). Atomic writes;
+    the caller checks the outputs first (``olti_drake.outputs.preflight``). Returns the paths."""
+    import os
+
+    from ..csvio import write_table
+
+    paths = []
+    for axis, cols in axis_tables(motions, config, pitch_mm).items():
+        path = os.path.join(directory, f"axis_{axis}.csv")
+        fmt = {c: ("%.6f" if c == "position_mm" else "%.9f" if c.endswith("_mm") else "%.6f") for c in cols}
+        write_table(path, cols, fmt, comments=[f"olti_drake volumetric error motions of axis {axis} "
+                                               f"(ISO 230-1 names; mm, urad; docs/machine_3d.md)"])
+        paths.append(path)
+    for m in range(len(config.tools)) if grid_pitch_mm else ():
+        cols = error_grid(motions, config, grid_pitch_mm, tool=m)
+        path = os.path.join(directory, f"grid_tool{m}.csv")
+        write_table(path, cols, {c: "%.6f" if "cmd" in c else "%.9f" for c in cols},
+                    comments=[f"olti_drake positioning-error vectors of tool {m} (offset "
+                              f"{config.tools[m].tolist()} mm): actual - command - offset, mm"])
+        paths.append(path)
+    return paths
