@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from olti_drake.threads import single_thread_blas
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, VolumetricModel,
                                            _rigid_columns, _rotations, axis_tables, chain_state,
                                            command_jacobian, compensate, error_grid, motion_names,
@@ -247,7 +248,8 @@ def fit_targets(model, commands, tools, measured, iterations=8):
         R = _rotations(w[None])[0][0]
         pred = p @ R.T + tau
         A = np.hstack([np.einsum("ij,mjp->mip", R, J).reshape(-1, model.n_params), _rigid_columns(pred)])
-        d = np.linalg.lstsq(A, (measured - pred).ravel(), rcond=None)[0]
+        with single_thread_blas():
+            d = np.linalg.lstsq(A, (measured - pred).ravel(), rcond=None)[0]
         x += d[:model.n_params]
         tau += d[model.n_params:model.n_params + 3]
         w += d[model.n_params + 3:]
@@ -273,7 +275,8 @@ def fit_distances(model, commands, tools, readings, stations0, dead0, iterations
             A[:, j, model.n_params + 3 * n + j] = -1.0
         A = A.reshape(-1, A.shape[2])
         scale = np.linalg.norm(A, axis=0)
-        d = np.linalg.lstsq(A / scale, r, rcond=None)[0] / scale
+        with single_thread_blas():
+            d = np.linalg.lstsq(A / scale, r, rcond=None)[0] / scale
         x += d[:model.n_params]
         P += d[model.n_params:model.n_params + 3 * n].reshape(n, 3)
         d0 += d[model.n_params + 3 * n:]

@@ -41,6 +41,8 @@ from typing import Dict, Sequence, Tuple
 import numpy as np
 from scipy.interpolate import BSpline
 
+from ..threads import single_thread_blas
+
 AXES = ("X", "Y", "Z")
 #: Per axis, the six error motions in ISO 230-1 order: three linear (mm), three angular (µrad).
 COMPONENTS = ("X", "Y", "Z", "A", "B", "C")
@@ -525,10 +527,11 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         what = f"distances from {len(np.asarray(stations_mm).reshape(-1, 3))} stations, unknown stations and dead paths"
     norms = np.linalg.norm(A, axis=0)  # a column no reading depends on stays 0: a null direction
     unit = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
-    Un, sn, _ = np.linalg.svd(N / np.linalg.norm(N, axis=0), full_matrices=False)
-    Qn = Un[:, sn > 1e-10 * sn[0]]
-    proj = unit - Qn @ (Qn.T @ unit)
-    _, s, Vt = np.linalg.svd(proj, full_matrices=False)
+    with single_thread_blas():  # medium SVDs: BLAS threads spin-wait on a shared machine (50x slower)
+        Un, sn, _ = np.linalg.svd(N / np.linalg.norm(N, axis=0), full_matrices=False)
+        Qn = Un[:, sn > 1e-10 * sn[0]]
+        proj = unit - Qn @ (Qn.T @ unit)
+        _, s, Vt = np.linalg.svd(proj, full_matrices=False)
     null = Vt[s <= rtol * s[0]].T
     groups = list(ALL_MOTIONS) + list(SQUARENESS)
     block = {g: np.linalg.norm(null[model.slices[g]], 2) if null.size else 0.0 for g in groups}
