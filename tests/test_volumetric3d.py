@@ -169,6 +169,8 @@ def test_topology_changes_the_abbe_arms():
 @pytest.mark.parametrize("kwargs, message", [
     (dict(tool_chain=("X", "Y"), work_chain=("Y",)), "X, Y and Z once each"),
     (dict(travel_mm={"X": (0, 100), "Y": (50, 50), "Z": (0, 1)}), "travel_mm['Y']"),
+    (dict(travel_mm={"X": (0, 100), "Y": ("a", 3), "Z": (0, 1)}), "travel_mm['Y']"),
+    (dict(travel_mm={"X": (0, 100), "Y": (0, 3)}), "travel_mm['Z']"),
     (dict(knot_spacing_mm=0.0), "knot_spacing_mm"),
     (dict(tool_offsets_mm=((0, 0),)), "tool_offsets_mm"),
 ])
@@ -187,6 +189,8 @@ def test_bad_commands_name_row_and_axis():
         model.positions(c[:1], 2, model.zeros())
     with pytest.raises(ValueError, match=r"params: expected"):
         model.positions(c[:1], 0, np.zeros(3))
+    with pytest.raises(ValueError, match=r"targets: row 0: \[nan, 1.0, 2.0\] mm is not finite"):
+        compensate(model.motions(model.zeros()), model.config, [[np.nan, 1.0, 2.0]], 0)
 
 
 # ------------------------------------------------------------------ observability

@@ -111,7 +111,10 @@ class MachineConfig:
             raise ValueError(f"tool_chain + work_chain must hold X, Y and Z once each, got "
                              f"tool_chain={self.tool_chain!r}, work_chain={self.work_chain!r}")
         for a in AXES:
-            lo, hi = (float(v) for v in self.travel_mm.get(a, (np.nan, np.nan)))
+            try:
+                lo, hi = (float(v) for v in self.travel_mm.get(a, (np.nan, np.nan)))
+            except (TypeError, ValueError):
+                lo = hi = np.nan
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 raise ValueError(f"travel_mm[{a!r}] must be finite (start, end) with end > start, "
                                  f"got {self.travel_mm.get(a)!r}")
@@ -142,23 +145,31 @@ class MachineConfig:
         return len(self.knots(axis)) - DEGREE - 1
 
 
-def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "commands"):
-    """(M, 3) commands and (M,) tool indices, validated: one-line ValueError naming the row and axis."""
-    c = np.asarray(commands_mm, dtype=float)
+def check_points(points_mm, tool, n_tools: int, what: str):
+    """(M, 3) finite points and (M,) tool indices: one-line ValueError naming the row or the indices."""
+    c = np.asarray(points_mm, dtype=float)
     c = c.reshape(1, 3) if c.shape == (3,) else c
     if c.ndim != 2 or c.shape[1] != 3:
-        raise ValueError(f"{what}: expected (M, 3) x, y, z in mm, got shape {np.shape(commands_mm)}")
+        raise ValueError(f"{what}: expected (M, 3) x, y, z in mm, got shape {np.shape(points_mm)}")
+    bad = np.flatnonzero(~np.all(np.isfinite(c), axis=1))
+    if bad.size:
+        raise ValueError(f"{what}: row {bad[0]}: {c[bad[0]].tolist()} mm is not finite")
+    m = np.zeros(len(c), int) if tool is None else np.broadcast_to(np.asarray(tool), (len(c),))
+    if not np.issubdtype(m.dtype, np.integer) or np.any((m < 0) | (m >= n_tools)):
+        raise ValueError(f"tool: indices must be integers in 0..{n_tools - 1}, got {np.unique(m)[:5].tolist()}")
+    return c, m.astype(int)
+
+
+def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "commands"):
+    """(M, 3) commands within the travel and (M,) tool indices: one-line ValueError naming row and axis."""
+    c, m = check_points(commands_mm, tool, len(config.tools), what)
     for k, a in enumerate(AXES):
         lo, hi = config.travel_mm[a]
-        bad = np.flatnonzero(~np.isfinite(c[:, k]) | (c[:, k] < lo - 1e-9) | (c[:, k] > hi + 1e-9))
+        bad = np.flatnonzero((c[:, k] < lo - 1e-9) | (c[:, k] > hi + 1e-9))
         if bad.size:
             raise ValueError(f"{what}: row {bad[0]}: {a.lower()} = {c[bad[0], k]:g} mm is outside the "
                              f"{a} travel [{lo}, {hi}] mm")
-    m = np.zeros(len(c), int) if tool is None else np.broadcast_to(np.asarray(tool), (len(c),))
-    if not np.issubdtype(m.dtype, np.integer) or np.any((m < 0) | (m >= len(config.tools))):
-        raise ValueError(f"tool: indices must be integers in 0..{len(config.tools) - 1}, got "
-                         f"{np.unique(m)[:5].tolist()}")
-    return c, m.astype(int)
+    return c, m
 
 
 # --------------------------------------------------------------------------- error motions
@@ -596,8 +607,7 @@ def compensate(motions, config: MachineConfig, targets_mm, tool=None, tol_mm: fl
     ValueError (naming the first point) when a command leaves the travel or the
     iteration does not reach ``tol_mm`` in ``max_iter`` steps (refused, not returned).
     """
-    target = np.asarray(targets_mm, float).reshape(-1, 3)
-    _, m = check_commands(config, np.clip(target, *_travel_box(config)), tool, "targets")
+    target, m = check_points(targets_mm, tool, len(config.tools), "targets")
     q = target - config.tools[m]
     for _ in range(max_iter):
         state = chain_state(config, motions, q, m)
@@ -611,12 +621,6 @@ def compensate(motions, config: MachineConfig, targets_mm, tool=None, tol_mm: fl
         raise ValueError(f"compensate: point {bad} did not converge ({err[bad]:.3g} mm after {max_iter} steps)")
     check_commands(config, q, m, "compensated commands")
     return q, err
-
-
-def _travel_box(config: MachineConfig):
-    lo = np.array([config.travel_mm[a][0] for a in AXES])
-    hi = np.array([config.travel_mm[a][1] for a in AXES])
-    return lo, hi
 
 
 # --------------------------------------------------------------------------- files
