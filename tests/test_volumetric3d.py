@@ -33,8 +33,8 @@ def campaign(config, n=600, seed=0):
 
 def random_params(model, seed, mm=0.005, urad=10.0):
     rng = np.random.default_rng(seed)
-    units = np.array([motion_unit(n.split("[")[0].replace("_urad", "")) for n in model.parameter_names()])
-    return rng.standard_normal(model.n_params) * np.where(units == "mm", mm, urad)
+    linear = np.array([n.endswith("_mm") or (n[2] in "XYZ" and "[" in n) for n in model.parameter_names()])
+    return rng.standard_normal(model.n_params) * np.where(linear, mm, urad)
 
 
 # ------------------------------------------------------------------ names, conventions
@@ -118,10 +118,11 @@ def test_rotations_are_exact_not_first_order():
 
 
 # ------------------------------------------------------------------ Jacobians
-@pytest.mark.parametrize("topology", [{}, TABLE_XY, TABLE_YX])
-def test_parameter_jacobian_matches_finite_differences(topology):
-    cfg = MachineConfig(tool_offsets_mm=TWO_TOOLS, **topology)
-    model = VolumetricModel(cfg)
+@pytest.mark.parametrize("topology, offsets", [({}, False), (TABLE_XY, False), (TABLE_YX, True)])
+def test_parameter_jacobian_matches_finite_differences(topology, offsets):
+    cfg = MachineConfig(tool_offsets_mm=THREE_TOOLS, **topology)
+    model = VolumetricModel(cfg, identify_tool_offsets=offsets)
+    assert (model.parameter_names()[-1] == "tool2_z_mm") == offsets
     c, t = campaign(cfg, 30)
     x = random_params(model, 1)
     p, J = model.jacobian(c, t, x)
@@ -231,6 +232,14 @@ def test_three_tools_separate_all_21(topology, stations):
     obs = observability(VolumetricModel(cfg), *campaign(cfg), stations_mm=stations)
     assert obs.null_dimension == 0 and not obs.inseparable, obs.describe()
     assert "all 21 error motions separable" in obs.describe()
+
+
+@pytest.mark.parametrize("stations", [None, STATIONS])
+def test_identified_tool_offsets_are_separable_with_three_tools(stations):
+    cfg = MachineConfig(tool_offsets_mm=THREE_TOOLS)
+    obs = observability(VolumetricModel(cfg, identify_tool_offsets=True), *campaign(cfg), stations_mm=stations)
+    assert not obs.inseparable and obs.separable["tool1"] and obs.separable["tool2"]
+    assert obs.describe().startswith("all 21 error motions and 2 tool offsets separable")
 
 
 def test_a_planar_campaign_cannot_see_z():
@@ -345,6 +354,25 @@ def test_fit_from_distances_recovers_all_21():
     assert all(err[n] <= tol[n] for n in err), {n: (err[n], tol[n]) for n in err if err[n] > tol[n]}
 
 
+def test_fit_identifies_the_tool_offsets_and_needs_them():
+    """Reflector mounts known to 0.1 mm only: identified, the motions are recovered as before;
+    taken as known, the offset errors corrupt the motions far beyond the basis bound."""
+    cfg = MachineConfig(tool_offsets_mm=THREE_TOOLS)
+    errors = [[0.0, 0.0, 0.0], [0.08, -0.05, 0.12], [-0.1, 0.07, 0.02]]
+    truth = synthetic_truth(cfg, 2, tool_offset_errors_mm=errors)
+    c, t = campaign(cfg, 600, 2)
+    p = tool_positions(cfg, truth, c, t)
+    tol = tolerances(truth, cfg)
+    model = VolumetricModel(cfg, identify_tool_offsets=True)
+    x = fit_targets(model, c, t, p)
+    err = motion_errors(model, x, truth)
+    assert all(err[n] <= tol[n] for n in err)
+    np.testing.assert_allclose(model.motions(x).tool_offset_errors_mm, errors, atol=tol["E_XX"])
+    known = VolumetricModel(cfg)
+    err_known = motion_errors(known, fit_targets(known, c, t, p), truth)
+    assert max(err_known[n] / tol[n] for n in err_known) > 10
+
+
 def test_fit_error_shrinks_with_the_knot_spacing():
     """Halving h must cut the fitted-motion error by far more than 2 (spline theory: 16)."""
     coarse = MachineConfig(tool_offsets_mm=THREE_TOOLS, knot_spacing_mm=50.0)
@@ -451,6 +479,14 @@ def test_document_round_trip_and_refusals():
     np.testing.assert_array_equal(y, x)
     c, t = campaign(cfg, 20)
     np.testing.assert_array_equal(back.positions(c, t, y), model.positions(c, t, x))
+    with_tools = VolumetricModel(cfg, identify_tool_offsets=True)
+    z = np.concatenate([x, [0.1, -0.2, 0.05]])
+    doc_t = json.loads(json.dumps(motions_document(with_tools, z)))
+    np.testing.assert_allclose(doc_t["tool_offsets_mm"][1], [60.1, 39.8, 150.05])
+    back_t, y_t = model_from_document(doc_t)
+    assert back_t.identify_tool_offsets and back_t.parameter_names()[-3:] == ("tool1_x_mm", "tool1_y_mm",
+                                                                                "tool1_z_mm")
+    np.testing.assert_array_equal(back_t.positions(c, t, y_t), with_tools.positions(c, t, z))
     doc["error_motions"]["E_YX"]["coefficients"][0] = 1.0
     with pytest.raises(ValueError, match=r"error_motions.E_YX.coefficients: must be 0 at \[0, 10\]"):
         model_from_document(doc, "r.json")

@@ -173,17 +173,29 @@ def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "c
 
 
 # --------------------------------------------------------------------------- error motions
+def _offset_errors(config: MachineConfig, errors_mm) -> np.ndarray:
+    """(n_tools, 3) tool-offset errors mm; tool 0's must be 0 (it is the origin's translation)."""
+    e = np.zeros((len(config.tools), 3)) if errors_mm is None else np.asarray(errors_mm, float)
+    if e.shape != (len(config.tools), 3) or not np.all(np.isfinite(e)) or np.any(e[0] != 0):
+        raise ValueError(f"tool_offset_errors_mm: expected {len(config.tools)} finite [dx, dy, dz] with tool 0's "
+                         f"= 0, got {np.asarray(errors_mm).tolist()}")
+    return e
+
+
 class SplineMotions:
     """Error motions on the cubic B-spline basis of :class:`MachineConfig` (the identified model).
 
     ``coefficients[name]`` holds every B-spline coefficient of that motion (mm or
-    µrad; the fixed ones are 0); ``squareness_urad`` = (E_C0Y, E_B0Z, E_A0Z).
+    µrad; the fixed ones are 0); ``squareness_urad`` = (E_C0Y, E_B0Z, E_A0Z);
+    ``tool_offset_errors_mm`` (n_tools, 3): actual minus configured tool offsets (0: known offsets).
     """
 
-    def __init__(self, config: MachineConfig, coefficients: Dict[str, np.ndarray], squareness_urad):
+    def __init__(self, config: MachineConfig, coefficients: Dict[str, np.ndarray], squareness_urad,
+                 tool_offset_errors_mm=None):
         self.config = config
         self.coefficients = coefficients
         self.squareness_urad = np.asarray(squareness_urad, float)
+        self.tool_offset_errors_mm = _offset_errors(config, tool_offset_errors_mm)
         self._splines = {a: BSpline(config.knots(a), np.eye(config.n_basis(a)), DEGREE, extrapolate=True)
                          for a in AXES}
         self._slopes = {a: s.derivative() for a, s in self._splines.items()}
@@ -209,10 +221,11 @@ class SineMotions:
     """
 
     def __init__(self, config: MachineConfig, terms: Dict[str, Tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 squareness_urad):
+                 squareness_urad, tool_offset_errors_mm=None):
         self.config = config
         self.terms = terms
         self.squareness_urad = np.asarray(squareness_urad, float)
+        self.tool_offset_errors_mm = _offset_errors(config, tool_offset_errors_mm)
 
     def _raw(self, name, q, derivative):
         a, period, phase = self.terms[name]
@@ -245,11 +258,12 @@ class SineMotions:
 
 def synthetic_truth(config: MachineConfig, seed: int, amplitude_mm: float = 0.005,
                     amplitude_urad: float = 10.0, squareness_urad=(12.0, -8.0, 5.0),
-                    min_period_intervals: float = 4.0) -> SineMotions:
+                    min_period_intervals: float = 4.0, tool_offset_errors_mm=None) -> SineMotions:
     """Seeded truth motions: per motion two sines, periods between ``min_period_intervals`` knot
     intervals and 1.5 travels (so never a knot multiple by construction), amplitudes up to
     ``amplitude_mm`` (linear) or ``amplitude_urad`` (angular), random phases; squareness given (µrad).
-    The positioning motions also get a scale error of ±20 µm/m."""
+    The positioning motions also get a scale error of ±20 µm/m. ``tool_offset_errors_mm``: the true
+    offsets minus the configured ones (tool 0's = 0)."""
     rng = np.random.default_rng(seed)
     terms = {}
     for name in ALL_MOTIONS:
@@ -266,7 +280,7 @@ def synthetic_truth(config: MachineConfig, seed: int, amplitude_mm: float = 0.00
             a = np.append(a, scale * long_period / (2 * np.pi))
             periods, phase = np.append(periods, long_period), np.append(phase, 0.0)
         terms[name] = (a, periods, phase)
-    return SineMotions(config, terms, squareness_urad)
+    return SineMotions(config, terms, squareness_urad, tool_offset_errors_mm)
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -310,7 +324,7 @@ class ChainState:
     """Everything the Jacobians need from one pass over the chain (per link, in chain order)."""
 
     p: np.ndarray                      # (M, 3) tool point, mm
-    C: list                            # C_k (M, 3, 3): rotation of the links before k
+    C: list                            # C_k (M, 3, 3): rotation of the links before k; C[n]: all
     v_next: list                       # v_{k+1} (M, 3): the tool point from link k's origin, before R_k
     dR: list                           # dR_k/d(a, b, c) per rad, 3 × (M, 3, 3)
     q: Dict[str, np.ndarray]
@@ -319,7 +333,8 @@ class ChainState:
 def chain_state(config: MachineConfig, motions, commands_mm, tool) -> ChainState:
     """Forward pass of p = A_1 ⋯ A_n t over the chain (exact rotations), commands (M, 3) mm."""
     c = np.asarray(commands_mm, float)
-    t = config.tools[np.asarray(tool, int)]
+    m = np.asarray(tool, int)
+    t = config.tools[m] + motions.tool_offset_errors_mm[m]
     dirs = axis_directions(motions.squareness_urad)
     chain = config.chain
     q = {a: c[:, AXES.index(a)] for a in AXES}
@@ -337,6 +352,7 @@ def chain_state(config: MachineConfig, motions, commands_mm, tool) -> ChainState
     for o, R, _ in links:
         C.append(acc)
         acc = acc @ R
+    C.append(acc)
     return ChainState(v, C, v_next, [dR for _, _, dR in links], q)
 
 
@@ -383,10 +399,17 @@ class VolumetricModel:
     ``E_C0Y_urad``, ``E_B0Z_urad``, ``E_A0Z_urad``. The coefficients fixed by the
     gauge (index 0 of every motion, and the last index of the straightness
     motions) are not parameters: they are 0.
+
+    ``identify_tool_offsets``: also the errors of the tool offsets of tools
+    1, 2, … (``tool1_x_mm``, ``tool1_y_mm``, ``tool1_z_mm``, …; mm, added to the
+    configured offsets): a reflector's mounting position is known to a fraction
+    of a mm only, and its error would otherwise bias the error motions. Tool
+    0's offset error is a translation of the origin (fixed at 0).
     """
 
-    def __init__(self, config: MachineConfig):
+    def __init__(self, config: MachineConfig, identify_tool_offsets: bool = False):
         self.config = config
+        self.identify_tool_offsets = bool(identify_tool_offsets)
         self.free: Dict[str, np.ndarray] = {}
         self.slices: Dict[str, slice] = {}
         start = 0
@@ -400,11 +423,16 @@ class VolumetricModel:
         for name in SQUARENESS:
             self.slices[name] = slice(start, start + 1)
             start += 1
+        self.tool_groups = tuple(f"tool{m}" for m in range(1, len(config.tools))) if identify_tool_offsets else ()
+        for name in self.tool_groups:
+            self.slices[name] = slice(start, start + 3)
+            start += 3
         self.n_params = start
 
     def parameter_names(self) -> Tuple[str, ...]:
         names = [f"{m}[{j}]" for m in ALL_MOTIONS for j in self.free[m]]
-        return tuple(names) + tuple(f"{s}_urad" for s in SQUARENESS)
+        tools = [f"{g}_{c}_mm" for g in self.tool_groups for c in "xyz"]
+        return tuple(names) + tuple(f"{s}_urad" for s in SQUARENESS) + tuple(tools)
 
     def zeros(self) -> np.ndarray:
         return np.zeros(self.n_params)
@@ -419,7 +447,10 @@ class VolumetricModel:
             full = np.zeros(self.config.n_basis(name[3]))
             full[self.free[name]] = x[self.slices[name]]
             coef[name] = full
-        return SplineMotions(self.config, coef, [x[self.slices[s]][0] for s in SQUARENESS])
+        offsets = np.zeros((len(self.config.tools), 3))
+        for m, g in enumerate(self.tool_groups, start=1):
+            offsets[m] = x[self.slices[g]]
+        return SplineMotions(self.config, coef, [x[self.slices[s]][0] for s in SQUARENESS], offsets)
 
     def positions(self, commands_mm, tool, params) -> np.ndarray:
         """Actual tool positions (M, 3) mm for commands (M, 3) mm and tool indices (M,)."""
@@ -430,7 +461,8 @@ class VolumetricModel:
 
         A coefficient's column is the motion's sensitivity (mm/mm or mm/µrad)
         times its basis function at the axis command; a squareness column is
-        C_k q_k ds_k/dθ (mm/µrad). Exact for the exact-rotation chain.
+        C_k q_k ds_k/dθ (mm/µrad); a tool-offset column is the rotation of the
+        whole chain (rows of that tool only). Exact for the exact-rotation chain.
         """
         c, m = check_commands(self.config, commands_mm, tool)
         motions = self.motions(params)
@@ -446,6 +478,9 @@ class VolumetricModel:
             k = chain.index(axis)
             ds = dirs[axis][1][r] * URAD
             J[:, :, self.slices[name].start] = np.einsum("mij,j->mi", state.C[k], ds) * state.q[axis][:, None]
+        for g in self.tool_groups:
+            rows = m == int(g[4:])
+            J[rows, :, self.slices[g]] = state.C[-1][rows]
         return state.p, J
 
     def fit_function(self, motions, n_samples: int = 400) -> np.ndarray:
@@ -461,13 +496,16 @@ class VolumetricModel:
             x[self.slices[name]] = np.linalg.lstsq(B, y, rcond=None)[0]
         for s in SQUARENESS:
             x[self.slices[s]] = motions.squareness_urad[SQUARENESS.index(s)]
+        for m, g in enumerate(self.tool_groups, start=1):
+            x[self.slices[g]] = motions.tool_offset_errors_mm[m]
         return x
 
 
 # --------------------------------------------------------------------------- observability
 @dataclass(frozen=True)
 class MotionObservability:
-    """Per error motion: separable or not, and the motions (and nuisances) it trades with."""
+    """Per error motion (squareness, identified tool offset ``tool<m>``): separable or not, and
+    the motions (and nuisances) it trades with."""
 
     separable: Dict[str, bool]
     trades_with: Dict[str, Tuple[str, ...]]
@@ -483,7 +521,9 @@ class MotionObservability:
     def describe(self) -> str:
         """One line per motion the campaign cannot separate, naming what it trades with."""
         if not self.inseparable:
-            return (f"all {len(self.separable)} error motions separable ({self.measurement}; "
+            tools = [n for n in self.separable if n.startswith("tool")]
+            extra = f" and {len(tools)} tool offsets" if tools else ""
+            return (f"all {len(self.separable) - len(tools)} error motions{extra} separable ({self.measurement}; "
                     f"rtol {self.rtol:g})")
         return "\n".join(f"{n}: not separable, " + (f"trades with {', '.join(self.trades_with[n])}"
                                                     if self.trades_with[n] else "no reading depends on it")
@@ -544,7 +584,7 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         proj = unit - Qn @ (Qn.T @ unit)
         _, s, Vt = np.linalg.svd(proj, full_matrices=False)
     null = Vt[s <= rtol * s[0]].T
-    groups = list(ALL_MOTIONS) + list(SQUARENESS)
+    groups = list(ALL_MOTIONS) + list(SQUARENESS) + list(model.tool_groups)
     block = {g: np.linalg.norm(null[model.slices[g]], 2) if null.size else 0.0 for g in groups}
     separable = {g: bool(block[g] <= share) for g in groups}
     trades = {}
@@ -633,7 +673,7 @@ def motions_document(model: VolumetricModel, params, pitch_mm: float = 10.0) -> 
     Per motion: ISO name, unit, role, the representation (B-spline knots and
     every coefficient, fixed ones as 0, and what is fixed) and its values at
     ``pitch_mm`` over the travel; the squareness (µrad); topology, travel and
-    tool offsets. The identifier adds stations, dead paths, gauge and
+    tool offsets (as identified: configured + errors, which are listed too). The identifier adds stations, dead paths, gauge and
     uncertainty.
     """
     cfg = model.config
@@ -652,7 +692,9 @@ def motions_document(model: VolumetricModel, params, pitch_mm: float = 10.0) -> 
             "travel_mm": {a: list(map(float, cfg.travel_mm[a])) for a in AXES},
             "representation": {"basis": "clamped cubic B-spline", "knot_spacing_mm": cfg.knot_spacing_mm,
                                "knots_mm": {a: cfg.knots(a).tolist() for a in AXES}},
-            "tool_offsets_mm": cfg.tools.tolist(),
+            "tool_offsets_mm": (cfg.tools + motions.tool_offset_errors_mm).tolist(),
+            "tool_offsets_identified": model.identify_tool_offsets,
+            "tool_offset_errors_mm": motions.tool_offset_errors_mm.tolist(),
             "error_motions": out,
             "squareness_urad": {s: float(v) for s, v in zip(SQUARENESS, motions.squareness_urad)}}
 
@@ -674,8 +716,8 @@ def model_from_document(doc: dict, source: str = "volumetric result"):
         raise ValueError(f"{source}: missing or malformed field {exc}") from None
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
-    model = VolumetricModel(cfg)
-    x = model.zeros()
+    model = VolumetricModel(cfg, identify_tool_offsets=bool(doc.get("tool_offsets_identified", False)))
+    x = model.zeros()   # the identified tool offsets are the configured ones here: errors 0
     for name in ALL_MOTIONS:
         entry = doc.get("error_motions", {}).get(name)
         need(isinstance(entry, dict) and "coefficients" in entry, f"error_motions.{name}", "missing")
