@@ -225,6 +225,14 @@ def test_two_tools_leave_one_spindle_rotation(stations):
     assert all(obs.separable[n] for n in motion_names("X") + motion_names("Y") + ("E_ZZ", "E_C0Y"))
 
 
+def test_two_tools_on_the_spindle_axis_miss_the_rolls():
+    """Two tool lengths along z: the tilts of Z are separated (two Abbe arms), the rotations about z
+    (roll of Z, yaw of Y) still act on no reading."""
+    cfg = MachineConfig(tool_offsets_mm=((0.0, 0.0, 100.0), (0.0, 0.0, 200.0)))
+    obs = observability(VolumetricModel(cfg), *campaign(cfg))
+    assert obs.inseparable == ("E_CY", "E_CZ") and obs.trades_with["E_CZ"] == ()
+
+
 @pytest.mark.parametrize("topology", [{}, TABLE_XY, TABLE_YX])
 @pytest.mark.parametrize("stations", [None, STATIONS])
 def test_three_tools_separate_all_21(topology, stations):
