@@ -237,6 +237,9 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(paper, tmp_path, capsys):
     _one_line_error(capsys, ["report", str(tmp_path / "missing.json"), "--out", str(out)], "missing.json")
     _one_line_error(capsys, ["report", str(d / "result.json"), "--out", str(out), "--campaign",
                              str(tmp_path / "nope.csv")], "nope.csv")
+    # A result given as the truth: same format, but an estimate -- refused, naming the file.
+    _one_line_error(capsys, ["report", str(d / "result.json"), "--out", str(out), "--campaign", CAMPAIGN,
+                             "--truth", str(tmp_path / "dh.json")], "dh.json", "not a simulation truth")
     assert not out.exists()
     # Never overwrite an input: a result called report.html in the output directory.
     shutil.copy(d / "result.json", tmp_path / "report.html")
