@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from figure_capture import annotations, captured_figures, legend_labels, line, suptitle
+from figure_capture import annotations, captured_figures, errorbar, legend_labels, line, suptitle
 
 from olti_drake import figures
 from olti_drake.campaign import prepare, run_campaign
@@ -123,3 +123,40 @@ def test_fig14_target_uncertainty_colours_each_target(tmp_path):
     np.testing.assert_allclose(sc.get_array(), U)
     assert "max 3.0 µm, mean 2.3 µm" in ax.get_title()
     assert [t.get_text() for t in ax.texts] == ["1.5", "2.5", "3.0"]
+
+
+def test_fig13_linear_errors_plot_both_instruments_with_their_bars(tmp_path):
+    x = np.array([0.0, 20.0, 40.0])
+    panel = {"title": "X axis", "xlabel": "X, mm", "ylabel": "E_XX, µm", "position_mm": x,
+             "estimate_um": np.array([0.0, 1.0, 2.5]), "expanded_um": np.array([0.5, 0.6, 0.7]),
+             "laser_position_mm": x, "laser_um": np.array([0.1, 1.1, 2.4]), "laser_bound_um": np.array([0.2] * 3)}
+    with captured_figures() as figs:
+        figures.plot_linear_errors([panel, dict(panel, truth_um=np.array([0.05, 1.05, 2.45]))], tmp_path / "f13.png")
+    a, b = figs["f13.png"].axes
+    for ax in (a, b):
+        assert (ax.get_title(), ax.get_xlabel(), ax.get_ylabel()) == ("X axis", "X, mm", "E_XX, µm")
+        x_, y, half = errorbar(ax, "'open-loop' tracking interferometer, U (k = 2)")
+        np.testing.assert_allclose(np.column_stack([x_, y, half]), np.column_stack([x, [0, 1, 2.5], [0.5, 0.6, 0.7]]))
+        _, y, half = errorbar(ax, "linear laser interferometer (Table 1 ±)")
+        np.testing.assert_allclose(y, [0.1, 1.1, 2.4])
+        np.testing.assert_allclose(half, 0.2)
+    assert "simulation truth (on the estimate's line)" not in legend_labels(a)
+    np.testing.assert_allclose(line(b, "simulation truth (on the estimate's line)")[:, 1], [0.05, 1.05, 2.45])
+
+
+def test_fig6_7_station_estimation_plots_first_and_last_sweeps(tmp_path):
+    from types import SimpleNamespace as NS
+
+    a = np.linspace(0, 360, 5)
+    y = np.linspace(-10, 10, 5)
+    centres = [NS(sweeps=[(a, a * 0.1), (a, a * 0.01)], iterations=3, error_um=(3.0, 4.0)) for _ in range(2)]
+    zeros = [NS(sweeps=[(y, y * 2.0), (y + 5, y * 0.1)], error_rad=12e-6, std_rad=5e-6) for _ in range(2)]
+    with captured_figures() as figs:
+        figures.plot_station_estimation(centres, zeros, tmp_path / "f67.png")
+    first, last, zero = figs["f67.png"].axes
+    assert legend_labels(first) == ["Pos A: target put near the axis", "Pos B: target put near the axis"]
+    assert legend_labels(last)[0] == "Pos A: after 2 moves (error 5.0 µm)"
+    np.testing.assert_allclose(line(last, "Pos B: after 2 moves (error 5.0 µm)"), np.column_stack([a, a * 0.01]))
+    np.testing.assert_allclose(line(zero, "Pos A: first setting"), np.column_stack([y, y * 2.0]))
+    np.testing.assert_allclose(line(zero, "Pos A: final (+12 µrad off, u 5 µrad)"), np.column_stack([y, y * 0.1]))
+    assert zero.get_xlabel() == "Y across the beam, mm" and "001 Fig. 7" in zero.get_title()
