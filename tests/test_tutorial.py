@@ -9,7 +9,8 @@ The convention (also stated in an HTML comment at the top of the tutorial):
                      quoted lines in order, consecutive unless a line ``...`` stands between them;
                      ``...`` (or ``[...]``) inside a line stands for any text; numbers within one unit
                      of their last quoted digit (integers exactly); a number written ``~N`` varies from
-                     run to run (durations, counts at an interruption) and is not compared;
+                     run to run or CPU to CPU (durations, counts at an interruption, solver
+                     iterations: the BLAS kernels move a stopping test) and is not compared;
 - anything else (```text, ```yaml, ...) is an illustration or a file excerpt, not checked.
 
 The scratch directory holds symlinks to the repository's ``diagrams/``, ``data/`` and
@@ -229,7 +230,7 @@ def quoted_problem(value, quoted, what, about=False):
 
     Prose rounds measured values, integers too ("24 µm"): here an integer is not a count. ``about``:
     the prose says "about N" of a number that varies from run to run; within 15 % of N (the emulated
-    run's validation RMS was seen between 15.4 and 16.7 µm, its residual RMS between 15.1 and 15.4 µm).
+    run's residual RMS was seen between 15.1 and 15.4 µm over runs interrupted at different readings).
     """
     if about:
         ok = abs(float(value) - float(quoted)) <= 0.15 * abs(float(quoted))
@@ -333,8 +334,8 @@ def test_outputs(scratch):
     run_iso = json.loads((w / "run/report/iso230.json").read_text())["axes"]
     assert_quoted(1e3 * run_iso["J1"]["B_mean_deg"], "9.5", "emulated J1 backlash, mdeg", about=True)
     assert_quoted(1e3 * run_iso["J2"]["B_mean_deg"], "14", "emulated J2 backlash, mdeg", about=True)
-    assert_quoted(_validation_table(w / "run/report/report.html")["500 random commands", "error map"][0], "16",
-                  "emulated validation RMS, um", about=True)
+    rms = _validation_table(w / "run/report/report.html")["500 random commands", "error map"][0]
+    prose.append(None if 15 * 0.9 <= rms <= 19 * 1.1 else f"emulated validation RMS: '15 to 19 um', the run gives {rms}")
     drifted = [p for p in prose if p]
     assert not drifted, "update the tutorial's prose:\n" + "\n".join(drifted)
 
