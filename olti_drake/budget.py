@@ -112,7 +112,7 @@ def _check_contributor(c: Contributor, label: str) -> None:
 
 
 def paper000_budget() -> Budget:
-    """000 Table 2 (k = 1): laser displacement at p* = (100, 100) mm, reflector P1."""
+    """000 Table 2 (k = 1): laser displacement at p* = (100, 100) mm, the paper's reflector P_1 (our P0)."""
     c = Contributor
     return Budget(
         name="paper 000 Table 2",

@@ -400,7 +400,7 @@ def design_layout(model: ScaraModel, plan, candidates_mm, n_reflectors: int, bud
 
     From ``starts`` random layouts (seeded by ``seed``; distinct feasible
     candidates at least ``min_separation_mm`` apart), each sweep replaces
-    reflector 1, 2, ... in turn by the feasible candidate that lowers the cost
+    reflector 0, 1, ... in turn by the feasible candidate that lowers the cost
     most (keeping the separation); stops when a sweep improves nothing or
     after ``max_sweeps``. The best layout of all starts wins. Layouts the
     identification cannot determine cost infinity.

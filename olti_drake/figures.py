@@ -1,6 +1,7 @@
 """Figures in the manner of paper 000 (matplotlib, PNG, no display needed).
 
-Units on every axis: mm, mdeg, and µm for positioning errors.
+Units on every axis: mm, mdeg, and µm for positioning errors. Reflectors are labelled P0, P1, ... as
+the ``reflector`` index j of the campaign file and the result's ``P{j}_x_mm`` (paper 000 counts P_1..P_3).
 """
 
 import os
@@ -34,7 +35,7 @@ def plot_poses_and_reflectors(setup, campaign, path):
     ax.plot(P[:, 0], P[:, 1], "o", mfc="none", color="tab:red", ms=10, label="reflectors (true)")
     ax.plot(P_est[:, 0], P_est[:, 1], "+", color="tab:blue", ms=10, label="reflectors (estimate)")
     for j, q in enumerate(P):
-        ax.annotate(f"P{j + 1}", q, textcoords="offset points", xytext=(8, 8))
+        ax.annotate(f"P{j}", q, textcoords="offset points", xytext=(8, 8))
     ax.plot([0], [0], "s", color="gray", label="J1 axis")
     ax.set(xlabel="X, mm", ylabel="Y, mm", title="Command positions and reflectors (000 Fig. 5)")
     ax.set_aspect("equal")
@@ -185,10 +186,14 @@ def plot_error_vectors(xy_cmd_mm, pass_dir, path_id, measured_mm, errormap_mm, d
     plt = _pyplot()
     cmd, meas = np.asarray(xy_cmd_mm), np.asarray(measured_mm)
     pass_dir, path_id = np.asarray(pass_dir), np.asarray(path_id)
-    panels = (("a) measured (tracker)", meas - cmd), ("b) error-map model", errormap_mm - cmd),
-              ("c) D-H model", dh_mm - cmd), ("d) measured - error-map model", meas - errormap_mm))
+    # What each panel's RMS is: only a) and d) involve the measurement; b) and c) are the size of the
+    # deviation a model *predicts*, not how accurate it is (a model predicting nothing would score 0).
+    panels = (("a) measured (tracker)", meas - cmd, "RMS of the measured error"),
+              ("b) error-map model", errormap_mm - cmd, "RMS of the predicted deviation (not an accuracy)"),
+              ("c) D-H model", dh_mm - cmd, "RMS of the predicted deviation (not an accuracy)"),
+              ("d) measured - error-map model", meas - errormap_mm, "RMS of the model's prediction error"))
     fig, axes = plt.subplots(2, 2, figsize=(11, 13.5), sharex=True, sharey=True)
-    for ax, (title, err) in zip(axes.ravel(), panels):
+    for ax, (title, err, what) in zip(axes.ravel(), panels):
         tip = cmd + magnification * err
         for d, color, name in _PASSES:
             s = pass_dir == d
@@ -201,7 +206,7 @@ def plot_error_vectors(xy_cmd_mm, pass_dir, path_id, measured_mm, errormap_mm, d
                         label=name if i == path_id[s].min() else None)
         ax.plot(cmd[:, 0], cmd[:, 1], ".", color="k", ms=4, label="command positions")
         rms = 1e3 * np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
-        ax.set_title(f"{title}\nRMS {rms:.1f} µm", fontsize=10)
+        ax.set_title(f"{title}\n{what}: {rms:.1f} µm", fontsize=10)
         ax.set_aspect("equal")
         ax.grid(True, alpha=0.3)
     # The error scale: a bar of scale_um µm, magnified.
@@ -289,7 +294,7 @@ def plot_prediction_uncertainty_map(pmap: dict, path, k: float = 2.0, method: st
 
     ``pmap``: :func:`prediction_uncertainty_map`'s dict (mm). Colour: U =
     k · sqrt(u_x² + u_y²) in µm, one panel per approach direction on a shared
-    colour scale; reflectors (▲ P1, P2, ...) and the J1 axis (■) marked.
+    colour scale; reflectors (▲ P0, P1, ...) and the J1 axis (■) marked.
     """
     plt = _pyplot()
     U = 1e3 * k * pmap["u_mm"]
@@ -302,7 +307,7 @@ def plot_prediction_uncertainty_map(pmap: dict, path, k: float = 2.0, method: st
                              vmin=vmin, vmax=vmax)
         ax.plot(P[:, 0], P[:, 1], "^", color="k", mfc="white", ms=9, label="reflectors")
         for j, q in enumerate(P):
-            ax.annotate(f"P{j + 1}", q, textcoords="offset points", xytext=(7, 5), fontsize=9)
+            ax.annotate(f"P{j}", q, textcoords="offset points", xytext=(7, 5), fontsize=9)
         ax.plot([0], [0], "s", color="gray", ms=7, label="J1 axis")
         stats = (f"max {np.nanmax(U[i]):.1f} µm, mean {np.nanmean(U[i]):.1f} µm" if np.isfinite(U[i]).any()
                  else "no point inside the map range")
@@ -340,13 +345,16 @@ def _station_names(n: int):
 
 
 def plot_machine_targets(commands_mm, stations_mm, estimates_mm, path, station_estimates_mm=None,
-                         scale_mm=None, truth_mm=None, magnification: float = 2000.0, scale_um: float = 5.0):
+                         scale_mm=None, truth_mm=None, magnification: float = 2000.0, scale_um: float = 5.0,
+                         stations_label: str = "stations (true table axis)"):
     """Command and estimated target positions with the stations, as 001 Fig. 10.
 
-    a) the layout: command positions, the stations Pos A, B, ... (true axis ▲, §2.2 estimate +).
+    a) the layout: command positions, the stations Pos A, B, ... (▲, ``stations_label`` says which:
+    the true table axes of a simulation, or the identified ones of a result; §2.2 estimate +).
     b) the targets: errors from the commands magnified ``magnification`` times (2,000 in 001) -- the
     multilateration estimate, the 2D digital scale (``scale_mm``) and the simulated truth (``truth_mm``),
-    all (N, 2) mm in the best-fit gauge; a bar of ``scale_um`` µm gives the scale.
+    all (N, 2) mm in the best-fit gauge; a bar of ``scale_um`` µm gives the scale. The title names
+    the digital-scale comparison only when ``scale_mm`` is drawn.
     """
     plt = _pyplot()
     c, S = np.asarray(commands_mm, dtype=float), np.asarray(stations_mm, dtype=float)
@@ -354,7 +362,7 @@ def plot_machine_targets(commands_mm, stations_mm, estimates_mm, path, station_e
     ax = axes[0]
     loop = _perimeter_order(c)
     ax.plot(c[loop, 0], c[loop, 1], "k.-", lw=0.6, ms=6, label="command target positions")
-    ax.plot(S[:, 0], S[:, 1], "^", color="tab:green", ms=11, label="stations (true table axis)")
+    ax.plot(S[:, 0], S[:, 1], "^", color="tab:green", ms=11, label=stations_label)
     if station_estimates_mm is not None:
         E = np.asarray(station_estimates_mm, dtype=float)
         ax.plot(E[:, 0], E[:, 1], "+", color="k", ms=14, mew=1.5, label="initial estimates (001 §2.2)")
@@ -386,7 +394,8 @@ def plot_machine_targets(commands_mm, stations_mm, estimates_mm, path, station_e
     ax.margins(0.1)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2)
-    fig.suptitle("Target positions estimated by multilateration vs the 2D digital scale (001 Fig. 10)")
+    fig.suptitle("Target positions estimated by multilateration" + (" vs the 2D digital scale" if scale_mm is not None
+                                                                     else "") + " (001 Fig. 10)")
     return _save(fig, plt, path)
 
 

@@ -180,6 +180,23 @@ def _from_plain(obj):
     return obj
 
 
+def read_truth(path) -> dict:
+    """A simulation truth (``truth.json`` of ``olti simulate`` / ``olti run`` on an emulated station).
+
+    It is in the result format *plus* a ``truth`` object (the simulated robot, the search estimates,
+    the seed). A result file has the same format but is an estimate, not a truth: validating a model
+    against another estimate would print accuracies that mean nothing, so it is refused (one line,
+    naming the file) before anything is written.
+    """
+    from .result import load_result
+
+    truth = load_result(path, outside="clamp")[3]  # a truth is a result-format file: the same schema check
+    if not isinstance(truth.get("truth"), dict):
+        raise InputError(f"{os.fspath(path)}: not a simulation truth (no 'truth' object: an identified result "
+                         f"is not a truth; give the truth.json that olti simulate wrote)")
+    return truth
+
+
 def _truth_robot(truth: dict, truth_path):
     """(TrueRobot, nominal (L1, L2) mm, how) from a truth.json (result format, simulation truth)."""
     from .kinematics import PAPER_L1_MM, PAPER_L2_MM
@@ -684,8 +701,9 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     if cmd is not None:
         from .figures import plot_machine_targets, plot_target_uncertainty
 
-        page.figure(lambda p: plot_machine_targets(cmd, S, T, p), "fig_targets.png",
-                    "Command and estimated target positions with the stations (001 Fig. 10 style)")
+        page.figure(lambda p: plot_machine_targets(cmd, S, T, p, stations_label="stations (identified)"),
+                    "fig_targets.png", "Command and estimated target positions with the identified stations "
+                    "(001 Fig. 10 style; no reference instrument is compared here)")
         if uT is not None:
             U = 1e3 * k * np.hypot(*uT.T)
             page.figure(lambda p: plot_target_uncertainty(cmd, U, p, k, label), "fig_target_uncertainty.png",
@@ -736,9 +754,7 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     if truth_path:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
-        from .result import load_result
-
-        truth = load_result(truth_path, outside="clamp")[3]  # a truth is a result-format file: same schema check
+        truth = read_truth(truth_path)
     if unc is not None:
         _check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from numeric_files import assert_same_numbers
 
 from olti_drake.campaign import campaign_commands, prepare, run_campaign
 from olti_drake.interferometer import InterferometerOptions
@@ -109,6 +110,7 @@ def _simulate(out, *args):
 
 
 def test_same_seed_same_campaign_byte_for_byte(tmp_path):
+    # Same machine, same run: same bytes (the shipped files, written elsewhere, are compared by number below).
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     for out, seed in ((a, "7"), (b, "7"), (c, "8")):
         r = _simulate(out, "--seed", seed)
@@ -119,10 +121,12 @@ def test_same_seed_same_campaign_byte_for_byte(tmp_path):
 
 
 def test_shipped_paper_campaign_is_reproduced(tmp_path):
+    # The shipped files were written on another CPU: the same numbers, not the same bytes
+    # (the Eq. (2) search estimates in truth.json differ in their last bits with the BLAS kernels).
     r = _simulate(tmp_path)
     assert r.returncode == 0, r.stderr
     for name in ("campaign.csv", "truth.json"):
-        assert filecmp.cmp(tmp_path / name, os.path.join(ROOT, "data", "paper000", name), shallow=False), name
+        assert_same_numbers(tmp_path / name, os.path.join(ROOT, "data", "paper000", name))
 
 
 def test_campaign_file_follows_the_shared_format():

@@ -237,3 +237,27 @@ def test_example_runs_and_reports_improvement(tmp_path):
     ratios = [float(s.split()[-1].rstrip("x")) for s in r.stdout.split("RMS improvement before/after:")[1]
               .splitlines()[0].split(";")]
     assert len(ratios) == 3 and min(ratios) >= 5.0
+
+
+def test_example_figure_shows_the_errors_before_and_after(tmp_path):
+    """examples/compensate_paper.py's figure: tips at target + 1000 x error, RMS and max in the titles."""
+    import importlib.util
+
+    from figure_capture import captured_figures, legend_labels, line, lines_with, points, same_points
+
+    spec = importlib.util.spec_from_file_location("compensate_paper", ROOT / "examples" / "compensate_paper.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    rng = np.random.default_rng(5)
+    targets = rng.uniform(200, 400, (20, 2))
+    dir1 = np.where(np.arange(20) % 2 == 0, 1, -1)
+    before, after = rng.normal(0, 0.1, (20, 2)), rng.normal(0, 0.01, (20, 2))
+    with captured_figures() as figs:
+        example.plot_before_after(targets, (before, dir1), (after, dir1), tmp_path / "ba.png")
+    for ax, e, what in zip(figs["ba.png"].axes, (before, after), ("before", "after")):
+        rms, worst = 1e3 * np.sqrt(np.mean(np.sum(e ** 2, axis=1))), 1e3 * np.max(np.hypot(*e.T))
+        assert ax.get_title().startswith(what) and f"RMS {rms:.1f} µm, max {worst:.1f} µm" in ax.get_title()
+        tips = points(lines_with(ax, marker="o"))
+        assert same_points(tips, targets + 1000.0 * e, atol=1e-9)
+        np.testing.assert_allclose(line(ax, "targets"), targets)
+    assert legend_labels(figs["ba.png"].axes[0]) == ["J1 approach +1", "J1 approach -1", "targets"]

@@ -41,6 +41,7 @@ def cli_out(tmp_path_factory):
 
 
 def test_example_equals_olti_simulate(tmp_path, cli_out):
+    # Both written on this machine in this run: the same bytes (across machines: tests/numeric_files.py).
     out = run(EXAMPLE, "--out", tmp_path / "ex", cwd=tmp_path)
     assert "wrote" in out
     assert data_lines(tmp_path / "ex" / "campaign.csv") == data_lines(cli_out / "campaign.csv")

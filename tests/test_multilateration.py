@@ -180,3 +180,22 @@ def test_implausible_solution_is_named_and_residual_checked_against_the_budget(t
     res = multilaterate(data, budget=tiny)
     assert len(res.fit.warnings) == 1 and "budget 'tiny'" in res.fit.warnings[0]
     assert res.to_dict()["warnings"] == res.fit.warnings and res.to_dict()["campaign"]["readings"] == len(data)
+
+
+def test_uncertainty_map_of_a_multilateration_result_colours_each_target_by_its_U(tmp_path):
+    from figure_capture import captured_figures
+
+    from olti_drake.cli import main
+
+    cols, _ = simulate_machine_campaign(MachineScenario())
+    write_machine_campaign(cols, tmp_path / "c.csv")
+    assert main(["multilaterate", str(tmp_path / "c.csv"), "--out", str(tmp_path / "r.json")]) == 0
+    with captured_figures() as figs:
+        assert main(["uncertainty", str(tmp_path / "r.json"), str(tmp_path / "c.csv"), "--method", "linear",
+                     "--map", str(tmp_path / "u.png"), "--out", str(tmp_path / "u.json")]) == 0
+    u = np.array(json.loads((tmp_path / "u.json").read_text())["targets_mm"])
+    ax = figs["u.png"].axes[0]
+    sc = ax.collections[0]
+    np.testing.assert_allclose(sc.get_array(), 2e3 * np.hypot(*u.T), rtol=1e-9)  # U (k = 2), µm
+    np.testing.assert_allclose(sc.get_offsets(), load_machine_campaign(tmp_path / "c.csv").commands_mm)
+    assert f"max {2e3 * np.hypot(*u.T).max():.1f} µm" in ax.get_title()

@@ -14,6 +14,7 @@ import types
 
 import numpy as np
 import pytest
+from figure_capture import annotations, captured_figures, errorbar, legend_labels, line, suptitle
 
 from olti_drake.campaign_io import load_campaign
 from olti_drake.cli import main
@@ -33,14 +34,22 @@ FULL_FIGURES = {"fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png", "
 
 
 @pytest.fixture(scope="module")
-def paper(tmp_path_factory):
+def paper_figures():
+    """{file name: matplotlib Figure} of the full paper report, filled by ``paper``."""
+    return {}
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory, paper_figures):
     """result.json (error map), unc.json (linear, 000 Table 2) and the full report of the paper campaign."""
     d = tmp_path_factory.mktemp("report")
     data = load_campaign(CAMPAIGN)
     write_result(identify(data, IdentificationOptions(model="errormap")), d / "result.json")
     assert main(["uncertainty", str(d / "result.json"), CAMPAIGN, "--method", "linear",
                  "--out", str(d / "unc.json")]) == 0
-    written = write_report(d / "result.json", d / "out", d / "unc.json", CAMPAIGN, TRUTH)
+    with captured_figures() as figs:
+        written = write_report(d / "result.json", d / "out", d / "unc.json", CAMPAIGN, TRUTH)
+    paper_figures.update(figs)
     return d, written
 
 
@@ -96,6 +105,45 @@ def test_full_report_renders_self_contained_with_every_figure(paper):
     assert "linear propagation (JCGM 100) of the full parameter covariance" in text
     assert "repeatab" in text  # R named as not available, not invented
     assert "<dt>date</dt>" not in text  # no wall-clock date unless passed
+
+
+def test_report_figures_show_what_the_page_says(paper, paper_figures):
+    d, written = paper
+    assert set(paper_figures) == FULL_FIGURES
+    text = _html(written[-1])
+    res = json.load(open(d / "result.json"))
+    iso = json.load(open(d / "out" / "iso230.json"))["axes"]
+    # Fig. 11: the models' panels are predicted deviations, not accuracies; d) is the accuracy.
+    titles = [ax.get_title() for ax in paper_figures["fig_error_vectors.png"].axes]
+    assert [t.split("\n")[1].split(":")[0] for t in titles] == [
+        "RMS of the measured error", "RMS of the predicted deviation (not an accuracy)",
+        "RMS of the predicted deviation (not an accuracy)", "RMS of the model's prediction error"]
+    # Residuals: one series per reflector j (P0..P2), with the RMS the table prints.
+    labels = legend_labels(paper_figures["fig_residuals.png"].axes[0])
+    assert [lab.split(":")[0] for lab in labels] == ["reflector 0", "reflector 1", "reflector 2"]
+    for j, lab in enumerate(labels):
+        rms = lab.split("RMS ")[1].split(" µm")[0]
+        assert re.search(rf"<tr><td class=\"l\">reflector {j}</td><td>\d+</td><td>{rms}</td>", text), (lab, j)
+    # The uncertainty map marks the result's reflectors as P0..P2, where the result puts them.
+    for ax in paper_figures["fig_uncertainty_map.png"].axes[:2]:
+        marks = annotations(ax)
+        assert sorted(marks) == ["P0", "P1", "P2"]
+        for j, q in enumerate(res["reflectors_mm"]):
+            assert marks[f"P{j}"] == pytest.approx(tuple(q))
+    # Reversal values: the identified B_i and B̄ of iso230.json, and the truth's.
+    for ax, axis in zip(paper_figures["fig_reversal.png"].axes, ("J1", "J2")):
+        b_mean = 1e3 * iso[axis]["B_mean_deg"]
+        assert f"B̄ = {b_mean:.2f} mdeg" in legend_labels(ax) and "truth B_i" in legend_labels(ax)
+        _, y, half = errorbar(ax, "B_i = x̄↑_i − x̄↓_i, identified, U (k = 2)")
+        np.testing.assert_allclose(y, 1e3 * np.array(iso[axis]["nodes"]["reversal_deg"]))
+        np.testing.assert_allclose(half, 2e3 * np.array(iso[axis]["nodes"]["u_reversal_deg"]))
+    # Maps: identified values of the result, truth overlaid.
+    maps = paper_figures["fig_maps.png"].axes
+    for ax, axis in zip(maps, ("J1", "J2")):
+        label = [lab for lab in legend_labels(ax) if lab.startswith("identified, positive")][0]
+        np.testing.assert_allclose(errorbar(ax, label)[1], 1e3 * np.array(res["error_map"][axis]["forward_deg"]))
+        assert any(lab.startswith("truth, positive") for lab in legend_labels(ax))
+    assert "Fig. 9" in paper_figures["fig_path_x200.png"].axes[0].get_title()
 
 
 def test_report_is_deterministic_escapes_text_and_prints_a_given_date(paper, tmp_path):
@@ -237,6 +285,9 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(paper, tmp_path, capsys):
     _one_line_error(capsys, ["report", str(tmp_path / "missing.json"), "--out", str(out)], "missing.json")
     _one_line_error(capsys, ["report", str(d / "result.json"), "--out", str(out), "--campaign",
                              str(tmp_path / "nope.csv")], "nope.csv")
+    # A result given as the truth: same format, but an estimate -- refused, naming the file.
+    _one_line_error(capsys, ["report", str(d / "result.json"), "--out", str(out), "--campaign", CAMPAIGN,
+                             "--truth", str(tmp_path / "dh.json")], "dh.json", "not a simulation truth")
     assert not out.exists()
     # Never overwrite an input: a result called report.html in the output directory.
     shutil.copy(d / "result.json", tmp_path / "report.html")
@@ -277,7 +328,14 @@ def test_multilateration_report_renders_targets_and_uncertainties(paper, tmp_pat
     assert main(["uncertainty", str(tmp_path / "ml.json"), str(tmp_path / "m.csv"), "--method", "linear",
                  "--out", str(tmp_path / "mu.json")]) == 0
     capsys.readouterr()
-    written = write_report(tmp_path / "ml.json", tmp_path / "r", tmp_path / "mu.json", tmp_path / "m.csv")
+    with captured_figures() as figs:
+        written = write_report(tmp_path / "ml.json", tmp_path / "r", tmp_path / "mu.json", tmp_path / "m.csv")
+    # Fig. 10 of a result: the identified stations, and no digital-scale comparison claimed (none is drawn).
+    fig10 = figs["fig_targets.png"]
+    stations = np.array(json.load(open(tmp_path / "ml.json"))["stations_mm"])
+    np.testing.assert_allclose(line(fig10.axes[0], "stations (identified)"), stations)
+    assert "digital scale" not in suptitle(fig10) + " ".join(legend_labels(fig10.axes[1]))
+    assert not any("true" in lab for ax in fig10.axes for lab in legend_labels(ax))
     names = {os.path.basename(p) for p in written}
     assert names == {"fig_targets.png", "fig_target_uncertainty.png", "fig_residuals.png", "report.html"}
     assert_png_files(written)

@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 import pytest
+from figure_capture import annotations, captured_figures, errorbar, legend_labels
 
 from olti_drake.budget import Budget, load_budget
 from olti_drake.campaign import prepare, simulate_vectorized, write_campaign
@@ -280,13 +281,31 @@ def test_cli_map_figures(files, capsys):
 
     d, csv, result = files
     png, maps = d / "map.png", d / "maps.png"
-    assert main(["uncertainty", result, csv, "--method", "linear", "--out", str(d / "u.json"),
-                 "--map", str(png), "--maps", str(maps), "--budget",
-                 os.path.join(ROOT, "data", "budget_paper001.yaml")]) == 0
+    with captured_figures() as figs:
+        assert main(["uncertainty", result, csv, "--method", "linear", "--out", str(d / "u.json"),
+                     "--map", str(png), "--maps", str(maps), "--budget",
+                     os.path.join(ROOT, "data", "budget_paper001.yaml")]) == 0
     for p in (png, maps):
-        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 20_000
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     u = json.loads((d / "u.json").read_text())
+    res = json.loads(open(result).read())
     assert u["budget"] == "paper 001 Table 4"
+    # The map's colours are the U (k = 2) the file summarizes; the reflectors are the result's P0..P2.
+    fig = figs["map.png"]
+    U = np.concatenate([np.ma.filled(ax.collections[0].get_array(), np.nan).ravel() for ax in fig.axes[:2]])
+    pe = u["prediction_expanded_mm"]
+    assert np.nanmax(U) == pytest.approx(1e3 * pe["max"]) and np.nanmean(U) == pytest.approx(1e3 * pe["mean"])
+    assert "linear, budget paper 001 Table 4" in fig._suptitle.get_text()
+    for ax in fig.axes[:2]:
+        marks = annotations(ax)
+        assert sorted(marks) == ["P0", "P1", "P2"] and marks["P1"] == pytest.approx(tuple(res["reflectors_mm"][1]))
+    # The maps: the result's identified values with the file's u (k = 1) as error bars, no truth.
+    for ax, axis in zip(figs["maps.png"].axes, ("J1", "J2")):
+        for block, name in (("forward", "positive (+1)"), ("reverse", "negative (-1)")):
+            _, y, half = errorbar(ax, f"identified, {name}, error bar u (k = 1), linear")
+            np.testing.assert_allclose(y, 1e3 * np.array(res["error_map"][axis][f"{block}_deg"]))
+            np.testing.assert_allclose(half, 1e3 * np.array(u["error_map"][axis][f"{block}_deg"]), rtol=1e-6)
+        assert not any(lab.startswith("truth") for lab in legend_labels(ax))
     # The named budget is the one propagated, not only the one reported (001 Table 4 differs from 000 Table 2).
     from olti_drake.campaign_io import load_campaign
     from olti_drake.uncertainty import identifier_at_result

@@ -10,6 +10,8 @@ import sys
 
 import numpy as np
 import pytest
+from figure_capture import (annotations, captured_figures, errorbar, legend_labels, line, lines_with, points,
+                            same_points, suptitle)
 
 from olti_drake import validation as v
 from olti_drake.campaign import prepare, run_campaign, write_campaign
@@ -132,12 +134,93 @@ def test_x200_path_beyond_the_map_is_predicted_with_held_ends(paper):
 
 def test_validation_figures_are_written(paper, tmp_path):
     setup, _, report = paper
-    paths = v.write_validation_figures(report, tmp_path, setup)
-    assert [os.path.basename(p) for p in paths] == list(FIGURES[2:])
+    with captured_figures() as figs:
+        paths = v.write_validation_figures(report, tmp_path, setup)
+    assert [os.path.basename(p) for p in paths] == list(FIGURES[2:]) == list(figs)
     for p in paths:
         with open(p, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
-        assert os.path.getsize(p) > 20_000, p
+
+
+def test_fig6_shows_the_identified_maps_with_their_error_bars_and_the_gauge_shifted_truth(paper, tmp_path):
+    setup, _, report = paper
+    ident = report.identifications["error map"]
+    with captured_figures() as figs:
+        v.write_validation_figures(report, tmp_path, setup)
+    axes = figs["fig6_maps.png"].axes
+    std = dict(zip(ident.names, ident.std))
+    for ax, axis, m in ((axes[0], "J1", ident.model.map1), (axes[1], "J2", ident.model.map2)):
+        assert ax.get_xlabel() == f"{axis} command angle θ{axis[1]}*, deg"
+        assert ax.get_ylabel() == "angular positioning deviation, mdeg"
+        for (d, name), values, block in (((1, "positive (+1)"), m.forward_deg, "forward"),
+                                         ((-1, "negative (-1)"), m.reverse_deg, "reverse")):
+            label = f"identified, {name}, error bar u (k = 1)"
+            assert label in legend_labels(ax)
+            x, y, half = errorbar(ax, label)
+            np.testing.assert_allclose(x, m.grid_deg)
+            np.testing.assert_allclose(y, 1e3 * values)
+            u = [std[f"{axis}_{block}_deg[{i}]"] for i in range(m.n_nodes)]
+            np.testing.assert_allclose(half, 1e3 * np.array(u), rtol=1e-9)  # the bar is u (k = 1), mdeg
+            truth = [lab for lab in legend_labels(ax) if lab.startswith(f"truth, {name}")]
+            assert len(truth) == 1
+        shift = 1e3 * np.mean(setup.robot.deviation("J1")(np.array([0.0, 0.0]), np.array([1.0, -1.0])))
+        truth_line = [ln for ln in ax.get_lines() if ln.get_label().startswith("truth, positive")][0]
+        x = truth_line.get_xdata()
+        expected = 1e3 * setup.robot.deviation(axis)(x, 1) - (shift if axis == "J1" else 0.0)
+        np.testing.assert_allclose(truth_line.get_ydata(), expected, atol=1e-9)
+    assert f"- {shift:.2f} mdeg (gauge: mean at 0 deg = 0)" in "".join(legend_labels(axes[0]))
+
+
+def test_figs_9_10_plot_the_measured_and_predicted_deviations_along_x200(paper, tmp_path):
+    setup, _, report = paper
+    r = report.results["x200"]
+    cmd, meas = r.commands.xy_cmd_mm, r.measured_mm
+    dh, em = r.comparison["D-H"]["predicted_mm"], r.comparison["error map"]["predicted_mm"]
+    with captured_figures() as figs:
+        v.write_validation_figures(report, tmp_path, setup)
+    axes = np.array(figs["fig9_10_x200.png"].axes).reshape(2, 2)
+    for col, c, name in ((0, 1, "E_YY = y - y*"), (1, 0, "E_XY = x - x*")):
+        assert axes[0, col].get_ylabel() == axes[1, col].get_ylabel() == f"{name}, µm"
+        assert axes[1, col].get_xlabel() == "command Y, mm (X = 200 mm)"
+        np.testing.assert_allclose(line(axes[0, col], "D-H model"),
+                                   np.column_stack([cmd[:, 1], 1e3 * (dh - cmd)[:, c]]))
+        for d, dname in ((1, "forward pass (+1)"), (-1, "return pass (-1)")):
+            s = r.commands.pass_dir == d
+            measured = np.column_stack([cmd[s, 1], 1e3 * (meas - cmd)[s, c]])
+            for row in (0, 1):
+                np.testing.assert_allclose(line(axes[row, col], f"measured, {dname}"), measured)
+            np.testing.assert_allclose(line(axes[1, col], f"error-map model, {dname}"),
+                                       np.column_stack([cmd[s, 1], 1e3 * (em - cmd)[s, c]]))
+        assert "D-H model" not in legend_labels(axes[1, col])
+
+
+def test_fig11_says_which_rms_is_a_prediction_and_which_an_accuracy(paper, tmp_path):
+    setup, _, report = paper
+    g = report.results["grid"]
+    cmd, meas = g.commands.xy_cmd_mm, g.measured_mm
+    em, dh = g.comparison["error map"]["predicted_mm"], g.comparison["D-H"]["predicted_mm"]
+    with captured_figures() as figs:
+        v.write_validation_figures(report, tmp_path, setup)
+    fig = figs["fig11_error_vectors.png"]
+    assert "not used in the identification" in suptitle(fig)
+
+    def rms(e):
+        return 1e3 * np.sqrt(np.mean(np.sum(e ** 2, axis=1)))
+
+    expected = (("a) measured (tracker)", "RMS of the measured error", meas - cmd),
+                ("b) error-map model", "RMS of the predicted deviation (not an accuracy)", em - cmd),
+                ("c) D-H model", "RMS of the predicted deviation (not an accuracy)", dh - cmd),
+                ("d) measured - error-map model", "RMS of the model's prediction error", meas - em))
+    for ax, (title, what, err) in zip(fig.axes, expected):
+        assert ax.get_title() == f"{title}\n{what}: {rms(err):.1f} µm"
+        # The magnified tips (joined per path and pass) are the command plus 1000 x the error.
+        tips = points(lines_with(ax, marker="o", linestyle="-"))
+        assert same_points(tips, cmd + 1000.0 * err, atol=1e-6)
+        assert same_points(line(ax, "command positions"), cmd)
+    assert sorted(legend_labels(fig.axes[0])) == sorted(["forward pass (+1)", "return pass (-1)", "command positions"])
+    assert any("error scale: 200 µm (x1000)" == t for t in annotations(fig.axes[0]))
+    # The accuracy (d) of the error map is far better than the deviation it predicts (b).
+    assert rms(meas - em) < 0.5 * rms(em - cmd)
 
 
 def test_demo_prints_the_comparison_and_writes_everything(paper, tmp_path):
