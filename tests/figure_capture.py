@@ -10,6 +10,7 @@ the data of the plotted lines.
 from __future__ import annotations
 
 import os
+import re
 from contextlib import contextmanager
 from unittest import mock
 
@@ -25,7 +26,10 @@ def captured_figures():
     original = Figure.savefig
 
     def savefig(self, fname, *args, **kwargs):
-        saved[os.path.basename(os.fspath(fname))] = self
+        name = os.path.basename(os.fspath(fname))
+        # olti_drake.outputs writes atomically: the figure is saved to ".NAME.XXXX.tmp", then renamed to NAME.
+        atomic = re.fullmatch(r"\.(.+)\.[^.]+\.tmp", name)
+        saved[atomic.group(1) if atomic else name] = self
         return original(self, fname, *args, **kwargs)
 
     with mock.patch.object(Figure, "savefig", savefig):
