@@ -271,7 +271,8 @@ class RobotAimer:
     1e-6 mm: ``AddGazeTargetConstraint`` with a near-zero cone is quadratic in the angle, so its
     1e-6 feasibility tolerance leaves ~1e-3 rad. Joint limits from the model; cost ‖q − q_prev‖²
     (nearest to the previous pose, which also starts the solver); the roll about the beam is
-    free. Nominal geometry (the plant's): the aim uses commands and estimates only (open loop).
+    free. ``aim_beam=False`` drops the beam constraint: plain position-only IK (the benchmark's
+    baseline; the reflector is then ignored). Nominal geometry (the plant's): the aim uses commands and estimates only (open loop).
     When SNOPT fails from the previous pose (a far first target), it restarts from up to
     ``restarts`` seeded random poses within the limits (cost still nearest to the previous pose);
     a target is refused (``success`` False) when no start gives a solution that, checked in the
@@ -280,13 +281,13 @@ class RobotAimer:
 
     def __init__(self, chain: SerialChain, laser: LaserOnTool, tool_offset_mm=(0.0, 0.0, 0.0), *,
                  position_tol_mm: float = 1e-6, line_tol_mm: float = 1e-6, min_range_mm: float = 50.0,
-                 restarts: int = 4, seed: int = 0):
+                 restarts: int = 4, seed: int = 0, aim_beam: bool = True):
         from pydrake.solvers import SnoptSolver, SolverOptions
 
         self.chain, self.laser = chain, laser
         self.tool_offset = np.asarray(tool_offset_mm, float)
         self.position_tol, self.line_tol, self.min_range = position_tol_mm, line_tol_mm, min_range_mm
-        self.restarts, self.seed = restarts, seed
+        self.restarts, self.seed, self.aim_beam = restarts, seed, aim_beam
         self.robot = nominal_robot(chain, self.tool_offset)
         self._solver = SnoptSolver()
         # the constraints are in metres: SNOPT's default 1e-6 feasibility would allow a micrometre
@@ -313,8 +314,9 @@ class RobotAimer:
         beam_frame = RigidTransform(RotationMatrix.MakeFromOneVector(_unit(self.laser.direction), 2),
                                     np.asarray(self.laser.origin_mm, float) * MM)
         tol = 0.5 * self.line_tol * MM  # half: the solver's last digits stay inside the stated tolerance
-        ik.AddPositionConstraint(world, reflector_mm * MM, tool, beam_frame,
-                                 np.array([-tol, -tol, self.min_range * MM]), np.array([tol, tol, 1e3]))
+        if self.aim_beam:
+            ik.AddPositionConstraint(world, reflector_mm * MM, tool, beam_frame,
+                                     np.array([-tol, -tol, self.min_range * MM]), np.array([tol, tol, 1e3]))
         n = plant.num_positions()
         cost = ik.prog().AddQuadraticErrorCost(np.eye(n), np.zeros(n), ik.q())
         return ik, pos, cost
@@ -360,7 +362,7 @@ class RobotAimer:
 
     def _satisfied(self, cmd, target, reflector) -> bool:
         err = self.constraint_errors(cmd[None], target[None], reflector[None])
-        return bool(err[0][0] <= 10 * self.position_tol and err[1][0] <= 10 * self.line_tol)
+        return bool(err[0][0] <= 10 * self.position_tol and (err[1][0] <= 10 * self.line_tol or not self.aim_beam))
 
     def constraint_errors(self, commands_deg, targets_mm, reflector_mm):
         """(position error mm (max abs per axis), beam-line miss of the reflector mm, beam angle
