@@ -196,3 +196,18 @@ def test_pan_tilt_station_estimate(chain, small_truth, robot_kind, centre_tol, z
     assert np.linalg.norm(est.centre_mm - head.centres_mm[0]) < centre_tol
     assert np.abs(est.zeros_deg - head.zeros_deg[0]).max() < zero_tol
     assert abs(est.dead_path_mm - 300.0) < centre_tol
+
+
+def test_tool_frame_points_of_an_identified_model(chain):
+    """The robot protocol also takes SerialPositionModel.with_vector(x): the tool-frame point at
+    the model's tool offset is the model's own tool point (maps and location errors applied)."""
+    from olti_drake.model.serial import build_position_model
+
+    cmds = chain.random_angles(50, 7)
+    dirs = np.where(np.random.default_rng(7).random(cmds.shape) < 0.5, -1.0, 1.0)
+    model = build_position_model(chain, cmds, dirs, tool_offset_mm=(40.0, -25.0, 60.0))
+    x = model.start_vector() + np.random.default_rng(8).normal(0, 0.01, model.n_params)
+    fitted = model.with_vector(x)
+    tool = fitted.chain_params[-3:]
+    pts = a.tool_frame_points(fitted, cmds, dirs, tool[None])
+    assert np.abs(pts[:, 0] - model.positions(cmds, dirs, x)).max() < 1e-9

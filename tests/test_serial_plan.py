@@ -122,7 +122,8 @@ def test_report_identifiable_plan(report, plan):
 
 
 def test_more_poses_lower_the_predicted_uncertainty(chain, report):
-    denser = sp.generate_plan(chain, STATIONS, dataclasses.replace(RULES, poses_per_node=6), tool_offset_mm=TOOL, seed=1)
+    denser = sp.generate_plan(chain, STATIONS, dataclasses.replace(RULES, poses_per_node=6),
+                              tool_offset_mm=TOOL, seed=1)
     better = sp.plan_report(chain, denser, STATIONS, U_MM, tool_offset_mm=TOOL)
     for name, (umax, umed) in report.node_uncertainty_deg.items():
         assert better.node_uncertainty_deg[name][1] < umed

@@ -44,7 +44,6 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 import scipy.linalg
 
-from ..errormap import approach_directions
 from ..model.aiming3d import MAX_VIEWING_DEG, _unit
 from ..model.chain import UNLIMITED_RANGE_DEG, SerialChain
 from ..model.serial import DistanceMeasurement, build_position_model, find_gauge

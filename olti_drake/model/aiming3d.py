@@ -264,15 +264,16 @@ class RobotAimer:
     """Aims the robot-mounted beam at a floor reflector estimate by Drake ``InverseKinematics``.
 
     Per target: the tool point (``tool_offset_mm`` in the tool frame) at the commanded position
-    within ±``position_tol_mm`` per axis (bounds at half of it) (``AddPositionConstraint``), and the reflector estimate
-    on the beam line: its position expressed in a beam frame (origin the laser origin, z along
+    within ±``position_tol_mm`` per axis (``AddPositionConstraint``, bounds at half of it), and
+    the reflector estimate on the beam line: its position expressed in a beam frame (origin the laser origin, z along
     the beam; ``AddPositionConstraint`` with ``X_AbarA``) within ±``line_tol_mm`` laterally and
     ahead of the head. This is the gaze constraint of the issue in a form a solver meets to
     1e-6 mm: ``AddGazeTargetConstraint`` with a near-zero cone is quadratic in the angle, so its
     1e-6 feasibility tolerance leaves ~1e-3 rad. Joint limits from the model; cost ‖q − q_prev‖²
     (nearest to the previous pose, which also starts the solver); the roll about the beam is
     free. ``aim_beam=False`` drops the beam constraint: plain position-only IK (the benchmark's
-    baseline; the reflector is then ignored). Nominal geometry (the plant's): the aim uses commands and estimates only (open loop).
+    baseline; the reflector is then ignored). Nominal geometry (the plant's): the aim uses
+    commands and estimates only (open loop).
     When SNOPT fails from the previous pose (a far first target), it restarts from up to
     ``restarts`` seeded random poses within the limits (cost still nearest to the previous pose);
     a target is refused (``success`` False) when no start gives a solution that, checked in the
