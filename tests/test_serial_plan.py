@@ -154,3 +154,12 @@ def test_empty_range_refused(chain):
     ranges[2] = [200.0, 210.0]  # beyond the elbow's ±180 limit
     with pytest.raises(ValueError, match="plan range of elbow_joint: empty"):
         sp.plan_ranges(chain, dataclasses.replace(RULES, ranges_deg=ranges))
+
+
+def test_report_names_a_map_the_readings_cannot_see(chain, plan):
+    """Tool point on the last joint's axis: no reading depends on wrist_3's angle; the report says
+    its map is not in the model (with the reason), instead of a silent gap."""
+    rep = sp.plan_report(chain, plan, STATIONS, U_MM, tool_offset_mm=(0.0, 0.0, 60.0))
+    assert "wrist_3_joint" not in rep.node_uncertainty_deg
+    assert any(line.startswith("not in the model: wrist_3_joint error map (no reading depends on it")
+               for line in rep.lines())

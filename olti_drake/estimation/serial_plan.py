@@ -298,6 +298,7 @@ class PlanReport:
     node_uncertainty_deg: Dict[str, Tuple[float, float]]
     unidentifiable: Tuple[str, ...]
     gauge: str
+    dropped: Tuple[Tuple[str, str], ...] = ()
 
     @property
     def identifiable(self) -> bool:
@@ -308,9 +309,13 @@ class PlanReport:
         out = [f"rank {self.rank} of {self.n_params} with the gauge; condition number {self.condition:.3g}; "
                f"u(reading) = {self.u_reading_mm * 1e3:.3g} um"]
         for name, cov in self.coverage.items():
-            umax, umed = self.node_uncertainty_deg.get(name, (np.nan, np.nan))
-            out.append(f"{name}: {len(cov)} nodes, readings per node +1 min {cov[:, 0].min()} / -1 min "
-                       f"{cov[:, 1].min()}; u(node) max {umax * 1e3:.3g} mdeg, median {umed * 1e3:.3g} mdeg")
+            line = (f"{name}: {len(cov)} nodes, readings per node +1 min {cov[:, 0].min()} / -1 min "
+                    f"{cov[:, 1].min()}; ")
+            if name in self.node_uncertainty_deg:
+                umax, umed = self.node_uncertainty_deg[name]
+                line += f"u(node) max {umax * 1e3:.3g} mdeg, median {umed * 1e3:.3g} mdeg"
+            out.append(line + ("" if name in self.node_uncertainty_deg else "no map"))
+        out += [f"not in the model: {name} ({why})" for name, why in self.dropped if "map" in name]
         if self.unidentifiable:
             out.append("unidentifiable: " + ", ".join(self.unidentifiable))
         return out
@@ -362,7 +367,7 @@ def plan_report(chain: SerialChain, plan: SerialPlan, stations_mm, u_reading_mm:
         node_u[m.joint] = (float(vals.max()), float(np.median(vals)))
     cond = float(s[0] / s[rank - 1]) if rank == len(s) else np.inf
     return PlanReport(plan.coverage(), rank + len(gauge.constraints), jac.shape[1], cond,
-                      u_reading_mm, node_u, unseen, gauge.sentence)
+                      u_reading_mm, node_u, unseen, gauge.sentence, tuple(model.dropped))
 
 
 def _unseen(null, names) -> Tuple[str, ...]:
