@@ -1,0 +1,1 @@
+"""estimation: least squares, identification, uncertainty, design of experiments"""
