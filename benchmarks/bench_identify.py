@@ -59,10 +59,10 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.optimize import least_squares
 
-from olti_drake.campaign_io import CampaignData, load_campaign
-from olti_drake.identification import IdentificationOptions, Identifier, identify
-from olti_drake.kinematics import JointCommands
-from olti_drake.scenario import Scenario
+from olti_drake.io.campaign_io import CampaignData, load_campaign
+from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
+from olti_drake.model.scara import JointCommands
+from olti_drake.sim.scenario import Scenario
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
 from timing import best_of, cpu_busy  # noqa: E402

@@ -23,11 +23,11 @@ import time
 
 import numpy as np
 
-from olti_drake import protocol
-from olti_drake.emulator import DEFAULT_SETTLE_S, DEFAULT_SPEEDS
-from olti_drake.runner import _plan, run
-from olti_drake.campaign import prepare
-from olti_drake.scenario import Emulated, Scenario
+from olti_drake.hardware import protocol
+from olti_drake.hardware.emulator import DEFAULT_SETTLE_S, DEFAULT_SPEEDS
+from olti_drake.hardware.runner import _plan, run
+from olti_drake.sim.campaign import prepare
+from olti_drake.sim.scenario import Emulated, Scenario
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from timing import cpu_busy  # noqa: E402

@@ -26,8 +26,8 @@ import time
 
 import numpy as np
 
-from olti_drake.campaign import STREAM_LASER, build_campaign_diagram, prepare, run_campaign, simulate_vectorized
-from olti_drake.scenario import Scenario
+from olti_drake.sim.campaign import STREAM_LASER, build_campaign_diagram, prepare, run_campaign, simulate_vectorized
+from olti_drake.sim.scenario import Scenario
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
 from timing import best_of  # noqa: E402

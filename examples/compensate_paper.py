@@ -31,12 +31,12 @@ import time
 
 import numpy as np
 
-from olti_drake import compensation as comp
-from olti_drake import validation as v
-from olti_drake.campaign import prepare, run_campaign
-from olti_drake.identification import IdentificationOptions, identify
-from olti_drake.kinematics import ScaraModel
-from olti_drake.scenario import load_scenario
+from olti_drake.estimation import compensation as comp
+from olti_drake.report import validation as v
+from olti_drake.sim.campaign import prepare, run_campaign
+from olti_drake.estimation.identification import IdentificationOptions, identify
+from olti_drake.model.scara import ScaraModel
+from olti_drake.sim.scenario import load_scenario
 
 #: Margin (deg) kept from the identified map range when drawing unseen targets, so their compensated
 #: commands stay inside the grid; θ2 starts at 2° so the nominal targets lie within the true reach.

@@ -12,8 +12,8 @@ import sys
 
 import numpy as np
 
-from olti_drake.campaign_io import load_campaign
-from olti_drake.identification import IdentificationOptions, Identifier
+from olti_drake.io.campaign_io import load_campaign
+from olti_drake.estimation.identification import IdentificationOptions, Identifier
 
 
 def second_difference(n: int) -> np.ndarray:

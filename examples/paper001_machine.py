@@ -1,16 +1,16 @@
 """Reproduce the machine-tool experiment of paper 001 (§2.2-§4) in simulation.
 
-An XY machining centre with volumetric errors (``olti_drake.machine``), the
+An XY machining centre with volumetric errors (``olti_drake.model.machine``), the
 20 perimeter targets of a 100 × 100 mm square in 20 mm steps, the
 interferometer's rotary table at three positions Pos A-C, 001 Table 4's
 budget:
 
 1. initial estimation of every station (001 §2.2, Figs. 6-7): rotation centre
-   and zero angle by the simulated procedures of ``olti_drake.station_estimation``;
+   and zero angle by the simulated procedures of ``olti_drake.estimation.station_estimation``;
 2. the campaign (numpy twin ``simulate_machine_campaign``; its aiming errors
    drawn with the uncertainties the procedures state) and the self-calibrating
    multilateration (001 §2.3), started from the estimated stations;
-3. the references of 001 §3.2 (``olti_drake.references``): a 2D digital scale
+3. the references of 001 §3.2 (``olti_drake.sim.references``): a 2D digital scale
    (Fig. 10) and a linear laser interferometer along X and along Y (Fig. 13);
 4. the Monte Carlo uncertainty of the target positions (001 §4.4, Fig. 14).
 
@@ -28,13 +28,13 @@ import os
 
 import numpy as np
 
-from olti_drake import figures
-from olti_drake.machine import MachineScenario, paper001_budget, simulate_machine_campaign, square_targets
-from olti_drake.multilateration import Multilateration, MultilaterationOptions, align_to_commands, machine_campaign
-from olti_drake.references import DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset
-from olti_drake.station_estimation import (CentreOptions, RotaryStation, ZeroAngleOptions, estimate_rotation_centre,
+from olti_drake.report import figures
+from olti_drake.model.machine import MachineScenario, paper001_budget, simulate_machine_campaign, square_targets
+from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, align_to_commands, machine_campaign
+from olti_drake.sim.references import DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset
+from olti_drake.estimation.station_estimation import (CentreOptions, RotaryStation, ZeroAngleOptions, estimate_rotation_centre,
                                            estimate_zero_angle, positioning_accuracy_um)
-from olti_drake.uncertainty import ReadingErrors, monte_carlo
+from olti_drake.estimation.uncertainty import ReadingErrors, monte_carlo
 
 #: 001 §3.2: where the linear interferometer measured (Y for the X line, X for the Y line), mm.
 LASER_LINES = {"x": 52.3, "y": 71.3}

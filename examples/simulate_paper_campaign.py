@@ -1,6 +1,6 @@
 """Assemble and run the campaign diagram by hand (what ``olti simulate`` does).
 
-``olti_drake.campaign.build_campaign_diagram`` wires this diagram for the CLI;
+``olti_drake.sim.campaign.build_campaign_diagram`` wires this diagram for the CLI;
 here every system and connection is spelled out, as a starting point for your
 own diagrams (a hardware station in place of the simulated one, other
 recorders, ...)::
@@ -17,9 +17,9 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake.campaign import Campaign, make_station, prepare, write_campaign
-from olti_drake.scenario import load_scenario
-from olti_drake.systems import BeamSteering, CampaignRecorder, PlanSequencer
+from olti_drake.sim.campaign import Campaign, make_station, prepare, write_campaign
+from olti_drake.sim.scenario import load_scenario
+from olti_drake.sim.systems import BeamSteering, CampaignRecorder, PlanSequencer
 
 
 def build(setup, meshcat=None):

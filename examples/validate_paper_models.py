@@ -4,7 +4,7 @@ Identifies both models of paper 000 from a campaign and compares their
 predictions with a simulated laser tracker (AT960-XR) reading the simulated
 robot: on the X = 200 mm path (Figs. 9-10), a grid of paths (Fig. 11) and
 random commands -- then on a path of your own, with the building blocks of
-``olti_drake.validation``::
+``olti_drake.report.validation``::
 
     python examples/validate_paper_models.py                       # simulate the paper default
     olti simulate my.yaml --out run && \\
@@ -20,10 +20,10 @@ import json
 import os
 import sys
 
-from olti_drake import validation as v
-from olti_drake.campaign import prepare, run_campaign
-from olti_drake.campaign_io import load_campaign
-from olti_drake.scenario import as_plain, load_scenario
+from olti_drake.report import validation as v
+from olti_drake.sim.campaign import prepare, run_campaign
+from olti_drake.io.campaign_io import load_campaign
+from olti_drake.sim.scenario import as_plain, load_scenario
 
 
 def campaign_for(scenario, campaign_path):

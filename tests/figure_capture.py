@@ -27,7 +27,7 @@ def captured_figures():
 
     def savefig(self, fname, *args, **kwargs):
         name = os.path.basename(os.fspath(fname))
-        # olti_drake.outputs writes atomically: the figure is saved to ".NAME.XXXX.tmp", then renamed to NAME.
+        # olti_drake.io.outputs writes atomically: the figure is saved to ".NAME.XXXX.tmp", then renamed to NAME.
         atomic = re.fullmatch(r"\.(.+)\.[^.]+\.tmp", name)
         saved[atomic.group(1) if atomic else name] = self
         return original(self, fname, *args, **kwargs)

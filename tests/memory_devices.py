@@ -1,15 +1,15 @@
 """Drivers of an in-memory robot and counter: a device family added by writing its driver classes.
 
 They speak no serial protocol at all -- the point is that the hardware station needs nothing but
-the driver methods (olti_drake.drivers). The truth is the noise-free simulated robot of
+the driver methods (olti_drake.hardware.drivers). The truth is the noise-free simulated robot of
 ``MemoryRobot.setup`` (set by the test), and the counter is zeroed like the emulator's.
 """
 
 import numpy as np
 
-from olti_drake.errormap import approach_directions
-from olti_drake.interferometer import beam_geometry
-from olti_drake.protocol import Joints, Position, Reading
+from olti_drake.model.errormap import approach_directions
+from olti_drake.model.interferometer import beam_geometry
+from olti_drake.hardware.protocol import Joints, Position, Reading
 
 
 class MemoryRobot:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import olti_drake
-from olti_drake.interferometer import InterferometerOptions
+from olti_drake.model.interferometer import InterferometerOptions
 from olti_drake.model import aiming3d as a
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import synthetic_truth
@@ -53,7 +53,7 @@ def _targets(n, seed):
 def test_pan_tilt_azimuth_equals_2d_table_steering_in_the_plane():
     """z = 0: the pan command equals 001 Eq. (1) as TableSteering computes it, to 1e-12 deg, and
     the true beam's world azimuth equals the table's beam direction with zero-angle error δ."""
-    from olti_drake.machine_station import TableSteering
+    from olti_drake.sim.machine_station import TableSteering
 
     rng = np.random.default_rng(0)
     stations = np.array([[-400.0, 150.0], [600.0, -250.0], [50.0, 700.0]])

@@ -10,8 +10,8 @@ import os
 import numpy as np
 import pytest
 
-from olti_drake.identification import Identifier, identify
-from olti_drake.scenario import Scenario
+from olti_drake.estimation.identification import Identifier, identify
+from olti_drake.sim.scenario import Scenario
 
 _PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks", "bench_identify.py")
 _spec = importlib.util.spec_from_file_location("bench_identify", _PATH)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from numeric_files import assert_same_numbers
 
-from olti_drake.campaign import campaign_commands, prepare, run_campaign
-from olti_drake.interferometer import InterferometerOptions
-from olti_drake.plan import bidirectional_grid
-from olti_drake.scenario import ExactEstimate, PlanFile, Scenario
+from olti_drake.sim.campaign import campaign_commands, prepare, run_campaign
+from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.plan import bidirectional_grid
+from olti_drake.sim.scenario import ExactEstimate, PlanFile, Scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -82,13 +82,13 @@ def test_beam_loss_is_recorded_invalid_with_no_reading():
 
 
 def test_exact_estimate_steers_onto_a_perfect_robot():
-    from olti_drake.errormap import NoDeviation
+    from olti_drake.model.errormap import NoDeviation
     s = _small(noise=False, quantization=False)
     s.robot.J1 = s.robot.J2 = s.robot.J4 = NoDeviation()
     s.robot.L1_mm, s.robot.L2_mm = s.robot.nominal_L1_mm, s.robot.nominal_L2_mm
     s.reflector_estimate = ExactEstimate()
     setup = prepare(s)
-    from olti_drake.campaign import build_campaign_diagram
+    from olti_drake.sim.campaign import build_campaign_diagram
     from pydrake.systems.analysis import Simulator
     diagram, rec, seq = build_campaign_diagram(setup)
     sim = Simulator(diagram)
@@ -130,7 +130,7 @@ def test_shipped_paper_campaign_is_reproduced(tmp_path):
 
 
 def test_campaign_file_follows_the_shared_format():
-    from olti_drake.csvio import read_table
+    from olti_drake.io.csvio import read_table
     path = os.path.join(ROOT, "data", "paper000", "campaign.csv")
     t = read_table(path, ["reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm"],
                    ["theta4_deg", "valid"])
@@ -144,7 +144,7 @@ def test_campaign_file_follows_the_shared_format():
 
 
 def test_plan_file_scenario_equals_generator(tmp_path):
-    from olti_drake.plan import save_plan
+    from olti_drake.model.plan import save_plan
     plan = bidirectional_grid(-40, 0, 20, 40, 100, 30)
     save_plan(plan, tmp_path / "plan.csv")
     s = _small()

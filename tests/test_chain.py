@@ -11,7 +11,7 @@ import pytest
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 import olti_drake
-from olti_drake.kinematics import forward_kinematics
+from olti_drake.model.scara import forward_kinematics
 from olti_drake.model.chain import (DEG, GEOMETRIC_SUFFIXES, base_parameter_set,
                                     drake_kinematics, load_serial_chain)
 

@@ -186,7 +186,7 @@ def test_force_replaces_a_result_atomically_and_names_the_written_file(capsys, w
 
 
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkeypatch):
-    from olti_drake import outputs
+    from olti_drake.io import outputs
 
     path = tmp_path / "r.json"
     path.write_text("old\n")
@@ -207,7 +207,7 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, mon
 
 def test_a_measurement_is_never_replaced_even_by_a_race(tmp_path):
     """The check before the work is repeated by the write itself: a campaign that appeared meanwhile stays."""
-    from olti_drake import outputs
+    from olti_drake.io import outputs
 
     path = tmp_path / "campaign.csv"
     path.write_text("measured\n")
@@ -219,7 +219,7 @@ def test_a_measurement_is_never_replaced_even_by_a_race(tmp_path):
 def test_oserror_and_interrupted_import_are_one_line(capsys, monkeypatch):
     """main(): an OSError is one line naming the file; Ctrl-C inside an import (pybind11 turns it into
     ImportError "initialization failed" chained to the KeyboardInterrupt) is "interrupted", exit 130."""
-    import olti_drake.cli as cli
+    import olti_drake.cli.verbs as cli
 
     def denied(args):
         raise PermissionError(13, "Permission denied", "/some/out.json")

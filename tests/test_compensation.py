@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake import compensation as comp
-from olti_drake import validation as v
-from olti_drake.campaign import prepare, simulate_vectorized
-from olti_drake.errormap import ErrorMap, approach_directions
-from olti_drake.identification import IdentificationOptions, identify
-from olti_drake.kinematics import ScaraModel, inverse_kinematics
-from olti_drake.result import write_result
-from olti_drake.robot import TrueRobot
-from olti_drake.scenario import Scenario
+from olti_drake.estimation import compensation as comp
+from olti_drake.report import validation as v
+from olti_drake.sim.campaign import prepare, simulate_vectorized
+from olti_drake.model.errormap import ErrorMap, approach_directions
+from olti_drake.estimation.identification import IdentificationOptions, identify
+from olti_drake.model.scara import ScaraModel, inverse_kinematics
+from olti_drake.io.result import write_result
+from olti_drake.model.truth import TrueRobot
+from olti_drake.sim.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 COMBOS = np.array(comp.DIRECTION_COMBOS, dtype=float)

@@ -1,4 +1,4 @@
-"""Reflector placement design by the linear method (000 §3.2.2 Remark 2, §5): olti_drake.design, `olti design`.
+"""Reflector placement design by the linear method (000 §3.2.2 Remark 2, §5): olti_drake.estimation.design, `olti design`.
 
 Truth: the default scenario's robot (paper-000 experiment) sampled on the
 plan's grid -- the error-map model an identification of the paper plan
@@ -15,14 +15,14 @@ import sys
 import numpy as np
 import pytest
 
-from olti_drake import design as D
-from olti_drake.budget import paper000_budget
-from olti_drake.csvio import InputError
-from olti_drake.errormap import sample_map
-from olti_drake.identification import UnidentifiableError
-from olti_drake.kinematics import ScaraModel, forward_kinematics
-from olti_drake.result import _values
-from olti_drake.scenario import Scenario
+from olti_drake.estimation import design as D
+from olti_drake.io.budget import paper000_budget
+from olti_drake.io.csvio import InputError
+from olti_drake.model.errormap import sample_map
+from olti_drake.estimation.identification import UnidentifiableError
+from olti_drake.model.scara import ScaraModel, forward_kinematics
+from olti_drake.io.result import _values
+from olti_drake.sim.scenario import Scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 REGIONS = os.path.join(ROOT, "data", "regions_paper000.yaml")
@@ -104,8 +104,8 @@ def test_cached_evaluator_equals_a_fresh_identification(paper):
     fresh = D.LayoutEvaluator(model, plan, 3, ws).position_std(other, budget)
     np.testing.assert_allclose(reused, fresh, rtol=1e-12)
     # Through the public Identifier path by hand: synthetic campaign, truth as x.
-    from olti_drake.identification import IdentificationOptions, Identifier
-    from olti_drake.uncertainty import ReadingErrors, linear_covariance, prediction_std
+    from olti_drake.estimation.identification import IdentificationOptions, Identifier
+    from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance, prediction_std
 
     data, d0 = D.synthetic_campaign(model, D.measured_commands(plan), other)
     assert np.allclose(data.displacement_mm[data.reflector == 0][0], 0.0)

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from olti_drake.diagram_pictures import (DIAGRAMS_DIR, SCENARIOS, campaign_diagram, graphviz_source, read_wiring,
+from olti_drake.report.diagram_pictures import (DIAGRAMS_DIR, SCENARIOS, campaign_diagram, graphviz_source, read_wiring,
                                          render_svg, wiring_lines)
 
 REGENERATE = "wiring changed: run `olti diagrams` and commit diagrams/*.svg and diagrams/*.wiring.txt"

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import serial
 
-from olti_drake.campaign import campaign_commands, prepare, simulate_vectorized
-from olti_drake.emulator import (ALARM_CODE, DEFAULT_ENCODER_RESOLUTION, STREAM_NOISE, Emulator, Faults, _Device)
-from olti_drake.errormap import approach_directions
-from olti_drake.interferometer import InterferometerOptions
-from olti_drake.protocol import (Frame, LinkLost, FrameParser, NakError, Responder, Transport, decode_alarms, decode_pong,
+from olti_drake.sim.campaign import campaign_commands, prepare, simulate_vectorized
+from olti_drake.hardware.emulator import (ALARM_CODE, DEFAULT_ENCODER_RESOLUTION, STREAM_NOISE, Emulator, Faults, _Device)
+from olti_drake.model.errormap import approach_directions
+from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.hardware.protocol import (Frame, LinkLost, FrameParser, NakError, Responder, Transport, decode_alarms, decode_pong,
                                  decode_position, decode_reading, encode, expect_ack, fmt_deg, movj_fields)
-from olti_drake.scenario import ExactEstimate, Scenario
-from olti_drake.steering import beam_command_deg
+from olti_drake.sim.scenario import ExactEstimate, Scenario
+from olti_drake.model.steering import beam_command_deg
 
 QUIET = InterferometerOptions(noise=False, quantization=False, cosine_error=False, beam_loss=False)
 
@@ -409,7 +409,7 @@ def test_realistic_speed_moves_take_time():
 
 def test_module_runs_as_a_program(tmp_path):
     link = str(tmp_path / "emu")
-    proc = subprocess.Popen([sys.executable, "-m", "olti_drake.emulator", "--seed", "3", "--link", link],
+    proc = subprocess.Popen([sys.executable, "-m", "olti_drake.hardware.emulator", "--seed", "3", "--link", link],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         lines = [proc.stdout.readline() for _ in range(3)]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from olti_drake.errormap import (ErrorMap, Harmonic, HarmonicDeviation, OutsideGridError,
+from olti_drake.model.errormap import (ErrorMap, Harmonic, HarmonicDeviation, OutsideGridError,
                                  approach_directions, sample_map)
 
 

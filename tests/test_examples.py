@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake.campaign import prepare, run_campaign
-from olti_drake.scenario import Scenario
+from olti_drake.sim.campaign import prepare, run_campaign
+from olti_drake.sim.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "simulate_paper_campaign.py"

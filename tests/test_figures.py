@@ -1,4 +1,4 @@
-"""What the figures show (olti_drake.figures): labels, legends, annotations and the plotted data.
+"""What the figures show (olti_drake.report.figures): labels, legends, annotations and the plotted data.
 
 Each figure is caught as it is saved (tests/figure_capture.py) and read back: the reflectors are
 P0, P1, ... as in the campaign file, every plotted point is the value it claims to be, and a title
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from figure_capture import annotations, captured_figures, errorbar, legend_labels, line, suptitle
 
-from olti_drake import figures
-from olti_drake.campaign import prepare, run_campaign
-from olti_drake.kinematics import forward_kinematics
-from olti_drake.scenario import Scenario
+from olti_drake.report import figures
+from olti_drake.sim.campaign import prepare, run_campaign
+from olti_drake.model.scara import forward_kinematics
+from olti_drake.sim.scenario import Scenario
 
 
 @pytest.fixture(scope="module")

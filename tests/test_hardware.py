@@ -7,10 +7,10 @@ import os
 import numpy as np
 import pytest
 
-from olti_drake.campaign import prepare, run_campaign
-from olti_drake.csvio import InputError
-from olti_drake.interferometer import InterferometerOptions
-from olti_drake.scenario import Emulated, ExactEstimate, Hardware, Scenario, Simulated, as_plain, load_scenario
+from olti_drake.sim.campaign import prepare, run_campaign
+from olti_drake.io.csvio import InputError
+from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.sim.scenario import Emulated, ExactEstimate, Hardware, Scenario, Simulated, as_plain, load_scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DIAGRAMS = os.path.join(ROOT, "diagrams")
@@ -41,8 +41,8 @@ def test_noise_free_emulated_campaign_equals_the_simulated_one():
 
 @pytest.fixture(scope="module")
 def paper_pair():
-    from olti_drake.identification import identify
-    from olti_drake.validation import campaign_data
+    from olti_drake.estimation.identification import identify
+    from olti_drake.report.validation import campaign_data
 
     out = {}
     for name, station in (("sim", Simulated()), ("emu", Emulated())):
@@ -88,8 +88,8 @@ def test_hardware_station_on_a_missing_port_names_it():
 def test_station_errors_name_the_command():
     from pydrake.systems.analysis import Simulator
 
-    from olti_drake.campaign import build_campaign_diagram
-    from olti_drake.hardware import StationError
+    from olti_drake.sim.campaign import build_campaign_diagram
+    from olti_drake.hardware.station import StationError
 
     diagram, rec, seq = build_campaign_diagram(prepare(_quiet(Emulated())))
     try:

@@ -22,16 +22,16 @@ import time
 import numpy as np
 import pytest
 
-from olti_drake.budget import paper000_budget
-from olti_drake.campaign import prepare, run_campaign, write_campaign
-from olti_drake.campaign_io import CampaignData, load_campaign
-from olti_drake.errormap import ErrorMap, HarmonicDeviation, NoDeviation, sample_map
-from olti_drake.identification import (IdentificationOptions, Identifier, UnidentifiableError,
+from olti_drake.io.budget import paper000_budget
+from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
+from olti_drake.io.campaign_io import CampaignData, load_campaign
+from olti_drake.model.errormap import ErrorMap, HarmonicDeviation, NoDeviation, sample_map
+from olti_drake.estimation.identification import (IdentificationOptions, Identifier, UnidentifiableError,
                                        identify)
-from olti_drake.interferometer import InterferometerOptions, displacement_model
-from olti_drake.kinematics import JointCommands, ScaraModel
-from olti_drake.plan import BidirectionalGrid, bidirectional_grid
-from olti_drake.scenario import ExactEstimate, MapTable, Robot, Scenario
+from olti_drake.model.interferometer import InterferometerOptions, displacement_model
+from olti_drake.model.scara import JointCommands, ScaraModel
+from olti_drake.model.plan import BidirectionalGrid, bidirectional_grid
+from olti_drake.sim.scenario import ExactEstimate, MapTable, Robot, Scenario
 
 K = 3.0  # coverage factor of every "recovered within" assertion
 PAPER_P = np.array([[650.0, -450.0], [700.0, -50.0], [650.0, 350.0]])
@@ -508,8 +508,8 @@ def test_nodes_between_commands_recover_truth_and_state_honest_uncertainty():
 
     Tolerances: M = 40 campaigns give a sample std with relative standard error 1/sqrt(78) = 0.11 per parameter;
     the median over 37 parameters is within ~0.05 -- we allow 0.15, a doubled variance (x1.41) is 0.29 off."""
-    from olti_drake.campaign import simulate_vectorized
-    from olti_drake.validation import campaign_data
+    from olti_drake.sim.campaign import simulate_vectorized
+    from olti_drake.report.validation import campaign_data
 
     setup = prepare(Scenario())
     r, opts = setup.scenario.robot, IdentificationOptions(grid1_deg=BETWEEN_G1, grid2_deg=BETWEEN_G2)
@@ -534,9 +534,9 @@ def test_nodes_between_commands_recover_truth_and_state_honest_uncertainty():
 def test_short_period_truth_is_flagged_by_the_resolution_check(paper0):
     """A deviation of period 30 deg (1.5 node spacings of 20 deg) is fitted perfectly at the nodes -- the
     residual matches the noise -- and wrong between them; the held-out readings at alternate nodes show it."""
-    from olti_drake.campaign import simulate_vectorized
-    from olti_drake.errormap import Harmonic
-    from olti_drake.validation import campaign_data
+    from olti_drake.sim.campaign import simulate_vectorized
+    from olti_drake.model.errormap import Harmonic
+    from olti_drake.report.validation import campaign_data
 
     default = paper0["errormap"].resolution
     assert default["done"] and default["ratio"] < 3 and not paper0["errormap"].warnings
@@ -555,7 +555,7 @@ def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
     refusal path (a covariance singular within the gauge at the solution, a non-finite estimate) by name."""
     import scipy.sparse as sp
 
-    from olti_drake.leastsquares import FitRefused, LeastSquaresProgram, SolverOptions
+    from olti_drake.estimation.leastsquares import FitRefused, LeastSquaresProgram, SolverOptions
 
     class Line(LeastSquaresProgram):
         t = np.linspace(0.0, 1.0, 20)

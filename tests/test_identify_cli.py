@@ -12,10 +12,10 @@ import sys
 import numpy as np
 import pytest
 
-from olti_drake.campaign import prepare, run_campaign, write_campaign
-from olti_drake.campaign_io import load_campaign, load_commands
-from olti_drake.result import load_result
-from olti_drake.scenario import Scenario
+from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
+from olti_drake.io.campaign_io import load_campaign, load_commands
+from olti_drake.io.result import load_result
+from olti_drake.sim.scenario import Scenario
 
 
 def olti(*args, cwd):
@@ -167,10 +167,10 @@ def _noise_free_dh():
     """D-H identified from the seed-0 scenario's poses with the reading noise off (numpy twin of the diagram)."""
     import dataclasses
 
-    from olti_drake.budget import Budget
-    from olti_drake.campaign import simulate_vectorized
-    from olti_drake.identification import IdentificationOptions, identify
-    from olti_drake.validation import campaign_data
+    from olti_drake.io.budget import Budget
+    from olti_drake.sim.campaign import simulate_vectorized
+    from olti_drake.estimation.identification import IdentificationOptions, identify
+    from olti_drake.report.validation import campaign_data
 
     setup = prepare(Scenario(seed=0))
     quiet = dataclasses.replace(setup, budget=Budget(name="none"))
@@ -354,7 +354,7 @@ def test_untrustworthy_fit_is_refused_one_line_no_file(work, case, args, needles
 
 
 def test_physically_impossible_solution_is_named(work):
-    from olti_drake.identification import Identifier
+    from olti_drake.estimation.identification import Identifier
 
     ident = Identifier(load_campaign(work[0] / "campaign.csv"))
     x = ident.x0.copy()

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from olti_drake.errormap import ErrorMap
-from olti_drake.kinematics import JointCommands, ScaraModel, forward_kinematics, inverse_kinematics
+from olti_drake.model.errormap import ErrorMap
+from olti_drake.model.scara import JointCommands, ScaraModel, forward_kinematics, inverse_kinematics
 
 
 def _cmds(rng, n=40):

@@ -10,12 +10,12 @@ from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake.interferometer import InterferometerOptions
-from olti_drake.machine import (MachineScenario, VolumetricError, machine_sequence, simulate_machine_campaign,
+from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.machine import (MachineScenario, VolumetricError, machine_sequence, simulate_machine_campaign,
                                 square_targets)
-from olti_drake.machine_station import (VolumetricErrorAxes, build_machine_diagram, machine_columns,
+from olti_drake.sim.machine_station import (VolumetricErrorAxes, build_machine_diagram, machine_columns,
                                         make_machine_station, prepare_machine, run_machine_campaign)
-from olti_drake.multilateration import MultilaterationOptions, align_to_commands, machine_campaign, multilaterate
+from olti_drake.estimation.multilateration import MultilaterationOptions, align_to_commands, machine_campaign, multilaterate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 YAML_PATH = os.path.join(ROOT, "diagrams", "paper001_machine.yaml")

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from olti_drake.campaign import build_campaign_diagram, prepare
-from olti_drake.diagram_pictures import DIAGRAMS_DIR
-from olti_drake.meshcat_view import campaign_view, start_meshcat
-from olti_drake.scenario import load_scenario
+from olti_drake.sim.campaign import build_campaign_diagram, prepare
+from olti_drake.report.diagram_pictures import DIAGRAMS_DIR
+from olti_drake.sim.meshcat_view import campaign_view, start_meshcat
+from olti_drake.sim.scenario import load_scenario
 
 ROWS = 40  # simulated seconds = plan rows (period 1 s)
 

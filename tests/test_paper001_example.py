@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake.machine import MachineScenario, paper001_budget, simulate_machine_campaign
-from olti_drake.multilateration import Multilateration, machine_campaign
-from olti_drake.uncertainty import ReadingErrors, monte_carlo
+from olti_drake.model.machine import MachineScenario, paper001_budget, simulate_machine_campaign
+from olti_drake.estimation.multilateration import Multilateration, machine_campaign
+from olti_drake.estimation.uncertainty import ReadingErrors, monte_carlo
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "paper001_machine.py"

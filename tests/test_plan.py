@@ -1,11 +1,11 @@
-"""Tests of olti_drake.plan: the paper's bidirectional plan (000 §4.1, Eq. (11)-(12)) and file I/O."""
+"""Tests of olti_drake.model.plan: the paper's bidirectional plan (000 §4.1, Eq. (11)-(12)) and file I/O."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from olti_drake.plan import (BidirectionalGrid, Plan, bidirectional_grid, load_plan,
+from olti_drake.model.plan import (BidirectionalGrid, Plan, bidirectional_grid, load_plan,
                              save_plan)
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "plan_paper000.csv"

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake import plant as plant_mod
-from olti_drake.kinematics import PAPER_L1_MM, PAPER_L2_MM, forward_kinematics
-from olti_drake.plant import add_scara_plant, make_scara_plant
+from olti_drake.sim import plant as plant_mod
+from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, forward_kinematics
+from olti_drake.sim.plant import add_scara_plant, make_scara_plant
 
 REFLECTORS_MM = np.array([[700.0, 100.0], [-50.0, 650.0], [400.0, -500.0]])
 LENGTHS = [(PAPER_L1_MM, PAPER_L2_MM), (324.97, 225.004)]

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from olti_drake import protocol as P
-from olti_drake.protocol import (ChecksumError, FieldError, Frame, FrameError, FrameParser, FrameSyntaxError,
+from olti_drake.hardware import protocol as P
+from olti_drake.hardware.protocol import (ChecksumError, FieldError, Frame, FrameError, FrameParser, FrameSyntaxError,
                                  Joints, NakError, NoiseError, NonAsciiError, OverlongLine, PartialFrame,
                                  Responder, Transport, TransportTimeout, encode)
 
@@ -178,7 +178,7 @@ def test_doc_bitwise_crc_matches():
 
 
 def test_doc_emulator_example_answers_the_olti_counter_driver():
-    from olti_drake.drivers import OltiCounter
+    from olti_drake.hardware.drivers import OltiCounter
 
     (emulator,) = [b for b in _doc_python_blocks() if "class CounterEmulator" in b]
     ns = {"request_bytes": encode(3, "READ")}
@@ -196,7 +196,7 @@ def test_doc_emulator_example_answers_the_olti_counter_driver():
 
 
 def test_doc_driver_of_another_protocol_meets_the_driver_rules():
-    from olti_drake.drivers import AlarmActive, DriverError
+    from olti_drake.hardware.drivers import AlarmActive, DriverError
 
     (driver,) = [b for b in _doc_python_blocks() if "class FanucRobot" in b]
 
@@ -634,7 +634,7 @@ def test_responder_naks():
 
 
 def test_import_pulls_neither_pydrake_nor_numpy():
-    code = ("import sys, olti_drake.protocol; "
+    code = ("import sys, olti_drake.hardware.protocol; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pydrake', 'numpy')); "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -9,9 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from olti_drake.machine import VolumetricError, square_targets
-from olti_drake.multilateration import align_to_commands
-from olti_drake.references import (DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset,
+from olti_drake.model.machine import VolumetricError, square_targets
+from olti_drake.estimation.multilateration import align_to_commands
+from olti_drake.sim.references import (DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset,
                                    thermal_scale)
 
 MACHINE = VolumetricError()

@@ -1,4 +1,4 @@
-"""The calibration report (`olti report`) and the ISO 230-2 style statistics (olti_drake.iso230).
+"""The calibration report (`olti report`) and the ISO 230-2 style statistics (olti_drake.report.iso230).
 
 One module-scoped fixture identifies the error-map model on the shipped paper campaign
 (data/paper000/campaign.csv, the simulated paper-000 experiment), propagates the 000 Table 2 budget
@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 from figure_capture import annotations, captured_figures, errorbar, legend_labels, line, suptitle
 
-from olti_drake.campaign_io import load_campaign
+from olti_drake.io.campaign_io import load_campaign
 from olti_drake.cli import main
-from olti_drake.errormap import ErrorMap
-from olti_drake.identification import IdentificationOptions, identify, parse_grid
-from olti_drake.iso230 import STATISTICS, axis_statistics, map_statistics
-from olti_drake.report import write_report
-from olti_drake.result import load_result, write_result
-from olti_drake.scenario import Robot
+from olti_drake.model.errormap import ErrorMap
+from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
+from olti_drake.report.iso230 import STATISTICS, axis_statistics, map_statistics
+from olti_drake.report.html import write_report
+from olti_drake.io.result import load_result, write_result
+from olti_drake.sim.scenario import Robot
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -320,7 +320,7 @@ def test_cli_dh_report_with_campaign_and_truth(paper, tmp_path, capsys):
 
 # -- machine tool (001) ------------------------------------------------------------------------------------
 def test_multilateration_report_renders_targets_and_uncertainties(paper, tmp_path, capsys):
-    from olti_drake.machine import MachineScenario, simulate_machine_campaign, write_machine_campaign
+    from olti_drake.model.machine import MachineScenario, simulate_machine_campaign, write_machine_campaign
 
     cols, _ = simulate_machine_campaign(MachineScenario())
     write_machine_campaign(cols, tmp_path / "m.csv")

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from olti_drake.csvio import InputError, read_table
+from olti_drake.io.csvio import InputError, read_table
 
 PLANNED = 1056
 COLS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "valid", "step", "session",
@@ -43,7 +43,7 @@ def _run(*args, **kw):
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
     """The uninterrupted noise-free emulated campaign (in process)."""
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     tmp = tmp_path_factory.mktemp("reference")
     out = str(tmp / "run")
@@ -135,7 +135,7 @@ def test_disconnect_is_a_one_line_error_and_resume_on_a_fixed_line_completes(tmp
 
 
 def test_beam_loss_is_reread_and_a_lost_count_rezeroed_at_the_reference_pose(tmp_path, reference):
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     # Injected interruptions, counter that keeps counting: re-reads recover every reading.
     out = str(tmp_path / "transient")
@@ -164,8 +164,8 @@ def test_beam_loss_is_reread_and_a_lost_count_rezeroed_at_the_reference_pose(tmp
 
 
 def test_alarm_is_cleared_per_policy_and_the_pose_reapproached(tmp_path, reference):
-    from olti_drake.hardware import StationError
-    from olti_drake.runner import run
+    from olti_drake.hardware.station import StationError
+    from olti_drake.hardware.runner import run
 
     out = str(tmp_path / "cleared")
     run(_scenario(tmp_path, "a.yaml", "!Emulated {alarm_at: 500, policy: {clear_alarms: 1}}"), out)
@@ -183,7 +183,7 @@ def test_alarm_is_cleared_per_policy_and_the_pose_reapproached(tmp_path, referen
 
 def test_simulated_run_resumed_in_process_equals_the_uninterrupted_one(tmp_path):
     """The simulated station resumes too (joint directions, laser noise stream), noise on."""
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     scenario = _scenario(tmp_path, station="!Simulated {}", noise=True)
     whole = str(tmp_path / "whole")
@@ -210,7 +210,7 @@ def test_simulated_run_resumed_in_process_equals_the_uninterrupted_one(tmp_path)
 
 
 def test_a_cut_last_line_is_dropped_and_taken_again(tmp_path):
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     scenario = _scenario(tmp_path, station="!Simulated {}")
     whole, out = str(tmp_path / "whole"), str(tmp_path / "cut")
@@ -233,7 +233,7 @@ def test_a_cut_last_line_is_dropped_and_taken_again(tmp_path):
 
 
 def test_bad_starts_and_resumes_are_one_line_errors(tmp_path):
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     scenario, out = _scenario(tmp_path, station="!Simulated {}"), str(tmp_path / "run")
     with pytest.raises(InputError, match=r"run\.json: no campaign to resume"):
@@ -255,9 +255,9 @@ def test_another_device_family_is_one_driver_class_per_device(tmp_path):
     """A Hardware scenario naming other drivers runs the campaign with no other change."""
     import memory_devices
 
-    from olti_drake.campaign import prepare
-    from olti_drake.runner import run
-    from olti_drake.scenario import load_scenario
+    from olti_drake.sim.campaign import prepare
+    from olti_drake.hardware.runner import run
+    from olti_drake.sim.scenario import load_scenario
 
     station = ("!Hardware {robot_port: mem0, counter_port: mem1, robot_driver: 'memory_devices:MemoryRobot', "
                "counter_driver: 'memory_devices:MemoryCounter'}")
@@ -307,7 +307,7 @@ def test_a_hardware_station_refuses_a_simulated_reflector_search(tmp_path):
 @pytest.fixture(scope="module")
 def simulated_run(tmp_path_factory):
     """(scenario, run directory) of a whole noise-free simulated campaign; tests copy the directory."""
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     tmp = tmp_path_factory.mktemp("simulated")
     scenario, out = _scenario(tmp, station="!Simulated {}"), str(tmp / "whole")
@@ -335,7 +335,7 @@ def test_every_reading_and_event_is_fsynced_after_it_is_written(tmp_path, monkey
     before it; --no-fsync (fsync=False) skips it."""
     import types
 
-    from olti_drake import runlog
+    from olti_drake.hardware import runlog
 
     synced = []
     real = os.fsync
@@ -364,7 +364,7 @@ def _table_steps(csv):
 
 def test_resume_never_records_a_step_already_on_disk(tmp_path, simulated_run):
     """Readings 100..149 missing in the middle: the resume takes exactly those, not the later ones again."""
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     scenario, whole = simulated_run
     out = _copy_run(whole, str(tmp_path / "gap"), keep=lambda step: not 100 <= step < 150)
@@ -376,8 +376,7 @@ def test_resume_never_records_a_step_already_on_disk(tmp_path, simulated_run):
 
 
 def test_a_step_recorded_twice_is_refused_on_resume(tmp_path, simulated_run):
-    from olti_drake.runlog import CampaignLog
-    from olti_drake.runner import run
+    from olti_drake.hardware.runlog import CampaignLog
 
     scenario, whole = simulated_run
     out = _copy_run(whole, str(tmp_path / "twice"))
@@ -392,7 +391,7 @@ def test_a_step_recorded_twice_is_refused_on_resume(tmp_path, simulated_run):
 
 def test_a_resume_that_finds_every_reading_on_disk_marks_the_run_complete(tmp_path, simulated_run):
     """Interrupted after its last reading: run.json said complete false; the resume completes it."""
-    from olti_drake.runner import run
+    from olti_drake.hardware.runner import run
 
     scenario, whole = simulated_run
     out = _copy_run(whole, str(tmp_path / "last"))

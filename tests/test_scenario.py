@@ -4,9 +4,9 @@ import os
 
 import pytest
 
-from olti_drake.budget import load_budget, paper000_budget
-from olti_drake.csvio import InputError
-from olti_drake.scenario import Scenario, as_plain, load_scenario
+from olti_drake.io.budget import load_budget, paper000_budget
+from olti_drake.io.csvio import InputError
+from olti_drake.sim.scenario import Scenario, as_plain, load_scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER = os.path.join(ROOT, "diagrams", "paper000_scara.yaml")

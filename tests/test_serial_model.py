@@ -12,7 +12,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 import olti_drake
-from olti_drake.errormap import OutsideGridError
+from olti_drake.model.errormap import OutsideGridError
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import (DistanceMeasurement, JointMap, PointMeasurement,
                                      RootPositionMeasurement, build_position_model, find_gauge,

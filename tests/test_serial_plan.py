@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import olti_drake
-from olti_drake.errormap import approach_directions
+from olti_drake.model.errormap import approach_directions
 from olti_drake.estimation import serial_plan as sp
 from olti_drake.model import aiming3d as a
 from olti_drake.model.chain import load_serial_chain

@@ -4,12 +4,12 @@ start the multilateration converges from. Units: mm, µm, rad."""
 import numpy as np
 import pytest
 
-from olti_drake.errormap import NoDeviation
-from olti_drake.interferometer import InterferometerOptions
-from olti_drake.machine import (MachineScenario, VolumetricError, paper001_budget, simulate_machine_campaign,
+from olti_drake.model.errormap import NoDeviation
+from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.machine import (MachineScenario, VolumetricError, paper001_budget, simulate_machine_campaign,
                                 square_targets)
-from olti_drake.multilateration import Multilateration, MultilaterationOptions, machine_campaign
-from olti_drake.station_estimation import (PULSE_RAD, CentreOptions, RotaryStation, ZeroAngleOptions,
+from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, machine_campaign
+from olti_drake.estimation.station_estimation import (PULSE_RAD, CentreOptions, RotaryStation, ZeroAngleOptions,
                                            estimate_rotation_centre, estimate_zero_angle, positioning_accuracy_um)
 
 STATIONS = MachineScenario().stations_mm

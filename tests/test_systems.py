@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from olti_drake.errormap import ErrorMap
-from olti_drake.systems import ErrorMapJoint
+from olti_drake.model.errormap import ErrorMap
+from olti_drake.sim.systems import ErrorMapJoint
 
 J1 = ErrorMap([0.0, 10.0, 20.0], [0.010, 0.030, 0.020], [-0.010, 0.000, 0.040], axis="J1")
 

@@ -3,8 +3,8 @@ import pytest
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 
-from olti_drake.kinematics import DEG, PAPER_L1_MM as L1, PAPER_L2_MM as L2, forward_kinematics
-from olti_drake.tracker import LaserTracker, LaserTrackerSpec, measure_positions, path_commands
+from olti_drake.model.scara import DEG, PAPER_L1_MM as L1, PAPER_L2_MM as L2, forward_kinematics
+from olti_drake.sim.tracker import LaserTracker, LaserTrackerSpec, measure_positions, path_commands
 
 
 def test_noise_statistics_match_spec():

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 from figure_capture import annotations, captured_figures, errorbar, legend_labels
 
-from olti_drake.budget import Budget, load_budget
-from olti_drake.campaign import prepare, simulate_vectorized, write_campaign
-from olti_drake.identification import IdentificationOptions, Identifier, identify
-from olti_drake.scenario import Scenario
-from olti_drake.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, linear_covariance,
+from olti_drake.io.budget import Budget, load_budget
+from olti_drake.sim.campaign import prepare, simulate_vectorized, write_campaign
+from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
+from olti_drake.sim.scenario import Scenario
+from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
-from olti_drake.validation import campaign_data, random_commands
+from olti_drake.report.validation import campaign_data, random_commands
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: Independent campaigns and Monte Carlo trials of the key test.
@@ -210,8 +210,8 @@ def test_prediction_std_matches_the_mc_spread_of_positions(first, mc):
 @pytest.fixture(scope="module")
 def files(setup, tmp_path_factory):
     """A campaign.csv and its error-map result.json in a fresh directory."""
-    from olti_drake.campaign_io import load_campaign
-    from olti_drake.result import write_result
+    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.result import write_result
 
     d = tmp_path_factory.mktemp("unc")
     csv, _ = write_campaign(simulate_vectorized(setup, np.random.default_rng([SEED, 1])), str(d))
@@ -244,8 +244,8 @@ def _values_layout(result: dict) -> dict:
 @pytest.mark.parametrize("method", ["linear", "mc"])
 def test_cli_writes_uncertainty_json(files, method, capsys):
     from olti_drake.cli import main
-    from olti_drake.campaign_io import load_campaign
-    from olti_drake.uncertainty import identifier_at_result
+    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.estimation.uncertainty import identifier_at_result
 
     d, csv, result = files
     out = d / f"unc_{method}.json"
@@ -307,8 +307,8 @@ def test_cli_map_figures(files, capsys):
             np.testing.assert_allclose(half, 1e3 * np.array(u["error_map"][axis][f"{block}_deg"]), rtol=1e-6)
         assert not any(lab.startswith("truth") for lab in legend_labels(ax))
     # The named budget is the one propagated, not only the one reported (001 Table 4 differs from 000 Table 2).
-    from olti_drake.campaign_io import load_campaign
-    from olti_drake.uncertainty import identifier_at_result
+    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.estimation.uncertainty import identifier_at_result
 
     ident, x = identifier_at_result(result, load_campaign(csv))
     for name, expect in (("paper001", True), ("paper000", False)):
@@ -361,7 +361,7 @@ def test_mc_trials_are_each_re_solved_to_their_own_minimum(small):
     readings from the batch seeds and solve them from scratch with the identifier's LM. The LM stops at a
     relative cost change of 1e-12 (parameters to ~1e-6 u: measured 3e-6 u); one linearized step instead of
     the re-solve leaves 1e-4..2e-4 u (measured) -- the threshold 3e-5 u lies between."""
-    from olti_drake.campaign_io import CampaignData
+    from olti_drake.io.campaign_io import CampaignData
 
     ident, x, errors = small
     mc = monte_carlo(ident, x, errors, trials=4, seed=3, workers=1)
@@ -378,7 +378,7 @@ def test_mc_trials_are_each_re_solved_to_their_own_minimum(small):
 
 def test_adaptive_stopping_rule_needs_estimate_u_and_both_endpoints_stable():
     """JCGM 101 §7.9.4: 2 s ≤ δ for the estimate, u and both interval endpoints; δ = ½ 10^l from u's digits."""
-    from olti_drake.uncertainty import _stable
+    from olti_drake.estimation.uncertainty import _stable
 
     rng = np.random.default_rng(1)
     steady = [np.array([[10.0], [1.23], [8.0], [12.0]]) + 1e-5 * rng.standard_normal((4, 1)) for _ in range(4)]
@@ -391,7 +391,7 @@ def test_adaptive_stopping_rule_needs_estimate_u_and_both_endpoints_stable():
 
 
 def test_adaptive_cap_reports_not_converged_and_omits_intervals(small):
-    from olti_drake.uncertainty import round_trials
+    from olti_drake.estimation.uncertainty import round_trials
 
     ident, x, errors = small
     capped = monte_carlo(ident, x, errors, seed=5, workers=1, adaptive=True, tolerance_digits=4,
@@ -406,7 +406,7 @@ def test_adaptive_cap_reports_not_converged_and_omits_intervals(small):
 def test_each_contributor_is_drawn_with_its_own_distribution():
     """Normal: excess kurtosis 0; uniform (rectangular): -1.2. With 200 000 draws the sample excess kurtosis
     has a standard error of sqrt(24/n) = 0.011 (normal), so ±0.06 separates the two by far."""
-    from olti_drake.budget import Contributor
+    from olti_drake.io.budget import Contributor
 
     def kurtosis(distribution):
         b = Budget(name=distribution, contributors=[Contributor("u", "", 3.0, "um", 1.0, "B", "reading",
@@ -422,8 +422,8 @@ def test_each_contributor_is_drawn_with_its_own_distribution():
 def test_monte_carlo_refuses_trials_that_do_not_converge(small):
     """Reading errors of 10 mm (a budget in the wrong unit) drive trials beyond where the chord iteration
     re-solves them: before, their NaN or unconverged rows went into the standard uncertainties silently."""
-    from olti_drake.budget import Contributor
-    from olti_drake.leastsquares import FitRefused
+    from olti_drake.io.budget import Contributor
+    from olti_drake.estimation.leastsquares import FitRefused
 
     ident, x, _ = small
     wrong = Budget(name="mm", contributors=[Contributor("u", "", 10.0, "mm", 1.0, "B", "reading")])

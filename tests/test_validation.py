@@ -13,12 +13,12 @@ import pytest
 from figure_capture import (annotations, captured_figures, errorbar, legend_labels, line, lines_with, points,
                             same_points, suptitle)
 
-from olti_drake import validation as v
-from olti_drake.campaign import prepare, run_campaign, write_campaign
-from olti_drake.campaign_io import load_campaign
-from olti_drake.kinematics import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, forward_kinematics
-from olti_drake.scenario import Scenario
-from olti_drake.tracker import LaserTrackerSpec
+from olti_drake.report import validation as v
+from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
+from olti_drake.io.campaign_io import load_campaign
+from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, forward_kinematics
+from olti_drake.sim.scenario import Scenario
+from olti_drake.sim.tracker import LaserTrackerSpec
 
 FIGURES = ("fig5_poses_reflectors.png", "fig6_truth_maps.png", "fig6_maps.png", "fig9_10_x200.png",
            "fig11_error_vectors.png")

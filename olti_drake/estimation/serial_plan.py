@@ -44,9 +44,9 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 import scipy.linalg
 
-from ..model.aiming3d import MAX_VIEWING_DEG, _unit
-from ..model.chain import UNLIMITED_RANGE_DEG, SerialChain
-from ..model.serial import DistanceMeasurement, build_position_model, find_gauge
+from olti_drake.model.aiming3d import MAX_VIEWING_DEG, _unit
+from olti_drake.model.chain import UNLIMITED_RANGE_DEG, SerialChain
+from olti_drake.model.serial import DistanceMeasurement, build_position_model, find_gauge
 
 #: A plan parameter's unseen share above this (of its unit-scaled null direction) names it unidentifiable.
 UNSEEN_SHARE = 0.1

@@ -44,9 +44,9 @@ from typing import Callable, Optional, Tuple
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..budget import Budget
-from ..interferometer import InterferometerOptions, quantize
-from .chain import DEG, SerialChain
+from olti_drake.io.budget import Budget
+from olti_drake.model.interferometer import InterferometerOptions, quantize
+from olti_drake.model.chain import DEG, SerialChain
 
 #: Cat's-eye acceptance half-angle: beyond it the return beam is lost, deg.
 MAX_VIEWING_DEG = 80.0

@@ -3,7 +3,7 @@
 The model layer of "any serial robot in 3D" (no solver here):
 
 * :class:`JointMap` — the bidirectional angular positioning deviation of one
-  joint, 000 Eq. (6)–(9), on :class:`olti_drake.errormap.ErrorMap`; a
+  joint, 000 Eq. (6)–(9), on :class:`olti_drake.model.errormap.ErrorMap`; a
   one-directional map (files without ``dir`` columns) has a single branch.
 * :class:`SerialPositionModel` — the chain of :mod:`olti_drake.model.chain`
   with its free location errors (the identifiable base set), per-joint angle
@@ -36,8 +36,8 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 import scipy.sparse as sp
 
-from ..errormap import ErrorMap, Harmonic, HarmonicDeviation, approach_directions
-from .chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, TOOL_NAMES, UNLIMITED_RANGE_DEG,
+from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, approach_directions
+from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, TOOL_NAMES, UNLIMITED_RANGE_DEG,
                     SerialChain, base_parameter_set, _axis_rotation, _cross)
 
 MODEL_KINDS = ("dh", "errormap")

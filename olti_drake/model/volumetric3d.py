@@ -41,7 +41,7 @@ from typing import Dict, Sequence, Tuple
 import numpy as np
 from scipy.interpolate import BSpline
 
-from ..threads import single_thread_blas
+from olti_drake.estimation.threads import single_thread_blas
 
 AXES = ("X", "Y", "Z")
 #: Per axis, the six error motions in ISO 230-1 order: three linear (mm), three angular (µrad).
@@ -738,10 +738,10 @@ def write_tables(directory, motions, config: MachineConfig, pitch_mm: float, gri
     """Compensation tables as CSV in ``directory``: ``axis_X.csv``, ``axis_Y.csv``, ``axis_Z.csv``
     (one row per position, the six motions in ISO 230-1 names with units) and, with
     ``grid_pitch_mm``, ``grid_tool<m>.csv`` per tool (positioning-error vectors). Atomic writes;
-    the caller checks the outputs first (``olti_drake.outputs.preflight``). Returns the paths."""
+    the caller checks the outputs first (``olti_drake.io.outputs.preflight``). Returns the paths."""
     import os
 
-    from ..csvio import write_table
+    from olti_drake.io.csvio import write_table
 
     paths = []
     for axis, cols in axis_tables(motions, config, pitch_mm).items():

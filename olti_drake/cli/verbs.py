@@ -1,0 +1,983 @@
+"""The ``olti`` command (shared/spec/cli.md).
+
+Only argparse is imported at start-up, so ``olti --help`` answers at once;
+each verb imports what it needs (pydrake, matplotlib) when it runs.
+Bad input ends with one line ``error: ...`` on stderr and exit status 2.
+"""
+
+import argparse
+import os
+import sys
+import time
+
+from olti_drake.cli import args as cliargs
+
+EXIT_BAD_INPUT = 2
+
+
+def _progress(enabled: bool):
+    """A progress callback printing to stderr, only when stderr is a terminal."""
+    if not (enabled and sys.stderr.isatty()):
+        return None
+
+    def report(fraction: float):
+        sys.stderr.write(f"\r  simulating campaign {100 * fraction:5.1f} %")
+        if fraction >= 1:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return report
+
+
+def _check_outputs(args, files=(), inputs=(), measurements=(), dirs=(), create_dirs=False):
+    """Every output of a verb, checked before its work (olti_drake.io.outputs.preflight): never an input,
+    never a measurement, an existing result only with --force, a directory that can take it."""
+    from olti_drake.io.outputs import preflight
+
+    preflight(files, inputs, force=getattr(args, "force", False), measurements=measurements, dirs=dirs,
+              create_dirs=create_dirs)
+
+
+def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None, results=()):
+    """Simulate the scenario's campaign into ``out_dir`` (campaign.csv, truth.json: measurements, never
+    replaced); ``results``: the caller's other outputs, checked with them before the simulation;
+    ``view()``: (extend, realtime rate) of a live view, started only once the outputs are known good."""
+    from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
+    from olti_drake.sim.scenario import Hardware, load_scenario
+
+    scenario = load_scenario(scenario_path)
+    if isinstance(scenario.station, Hardware):
+        raise ValueError(f"scenario {scenario_path}: station !Hardware: olti {args.verb} runs the simulated "
+                         f"station; drive the hardware with: olti run {scenario_path} --out DIR")
+    if seed is not None:  # checked by argparse (cliargs.seed)
+        scenario.seed = seed
+    inputs = [scenario_path]
+    if scenario.budget:
+        inputs.append(scenario.resolve(scenario.budget))
+    if hasattr(scenario.plan, "path"):
+        inputs.append(scenario.resolve(scenario.plan.path))
+    _check_outputs(args, [os.path.join(out_dir, n) for n in results], inputs,
+                   [os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], [out_dir], create_dirs=True)
+    extend, realtime_rate = view() if view else (None, 0.0)
+    setup = prepare(scenario)
+    campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate)
+    source = scenario_path or "embedded default (paper 000 experiment)"
+    paths = write_campaign(campaign, out_dir, comments=[f"scenario: {source}; seed {scenario.seed}"])
+    return setup, campaign, paths
+
+
+def _summary(setup, campaign, elapsed_s: float) -> str:
+    import numpy as np
+
+    c = campaign.columns
+    valid = c["valid"] > 0
+    est_err = np.hypot(*(setup.reflectors_estimate_mm - setup.reflectors_mm).T)
+    lines = [f"readings: {campaign.n_readings} ({int(valid.sum())} valid, {int((~valid).sum())} beam lost) "
+             f"at {len(setup.plan)} plan rows x {len(setup.reflectors_mm)} reflectors "
+             f"({setup.plan.n_measured} measured poses each)",
+             f"simulated in {elapsed_s:.2f} s ({campaign.n_readings / max(elapsed_s, 1e-9):.0f} readings/s, "
+             f"start-up included)"]
+    for j, (p, e, d0) in enumerate(zip(setup.reflectors_mm, est_err, setup.dead_paths_mm)):
+        sel = valid & (c["reflector"] == j)
+        span = np.ptp(c["displacement_mm"][sel]) if sel.any() else float("nan")
+        lines.append(f"  reflector {j}: true ({p[0]:.3f}, {p[1]:.3f}) mm, steering estimate off by "
+                     f"{e:.3f} mm, dead path {d0:.3f} mm, reading span {span:.3f} mm")
+    lines.append(f"  theta40: true {setup.scenario.robot.theta40_deg:.4f} deg, estimate "
+                 f"{setup.theta40_estimate_deg:.4f} deg (Eq. (2) search)" if setup.search is not None else
+                 f"  theta40 estimate {setup.theta40_estimate_deg:.4f} deg")
+    return "\n".join(lines)
+
+
+def _meshcat_view(args):
+    """(extend, realtime rate) of the --meshcat options: the live view's systems, or none."""
+    extend, rate = None, args.realtime_rate  # >= 0, checked by argparse (cliargs.nonnegative)
+    if args.meshcat:
+        from olti_drake.sim.meshcat_view import campaign_view, start_meshcat
+
+        meshcat = start_meshcat(args.meshcat_port)
+        print(f"meshcat: live view at {meshcat.web_url()}", flush=True)
+        extend, rate = campaign_view(meshcat, error_scale=args.error_scale), 20.0 if rate is None else rate
+    return extend, rate or 0.0
+
+
+def _add_meshcat_options(p):
+    p.add_argument("--meshcat", action="store_true",
+                   help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
+    p.add_argument("--meshcat-port", type=cliargs.port, default=None,
+                   help="Meshcat port (default: first free from 7000)")
+    p.add_argument("--realtime-rate", type=cliargs.nonnegative, default=None,
+                   help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
+    p.add_argument("--error-scale", type=cliargs.real(0, 1e6, lo_open=True), default=500.0,
+                   help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
+
+
+def cmd_simulate(args) -> int:
+    t0 = time.perf_counter()
+    setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
+    print(_summary(setup, campaign, time.perf_counter() - t0))
+    print(f"wrote {paths[0]} and {paths[1]}")
+    if args.meshcat and sys.stdin.isatty():
+        input("press Enter to close the Meshcat view: ")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
+    from olti_drake.report.figures import CAMPAIGN_FIGURES, write_campaign_figures
+    from olti_drake.io.result import write_result
+    from olti_drake.report.validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
+                             write_validation_figures)
+
+    t0 = time.perf_counter()
+    results = ("result_dh.json", "result_errormap.json") + CAMPAIGN_FIGURES + VALIDATION_FIGURES
+    setup, campaign, paths = _simulate(args, None, args.out, results=results)
+    print("paper 000 experiment, simulated (open-loop tracking interferometer on a SCARA robot)")
+    print(_summary(setup, campaign, time.perf_counter() - t0))
+    print(f"wrote {paths[0]} and {paths[1]}")
+    r = setup.scenario.robot
+    report = validate_models(campaign_data(campaign), setup.robot, (r.nominal_L1_mm, r.nominal_L2_mm),
+                             seed=setup.scenario.seed)
+    for (label, ident), name in zip(report.identifications.items(), ("result_dh.json", "result_errormap.json")):
+        print(f"\nidentified {label} model (000 §4.2):")
+        print(identification_summary(ident))
+        write_result(ident, os.path.join(args.out, name))
+        print(f"wrote {os.path.join(args.out, name)}")
+    print()
+    print(validation_table(report))
+    figures = write_campaign_figures(setup, campaign, args.out) + write_validation_figures(report, args.out, setup)
+    for path in figures:
+        print(f"wrote {path}")
+    print(f"demo done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def identification_summary(ident) -> str:
+    """Parameters ± standard uncertainty (k = 1), residual RMS, iterations, conditioning."""
+    import numpy as np
+
+    m = ident.model
+    u = {n: s for n, s in zip(ident.names, ident.std)}
+    lines = [f"model {'errormap' if m.is_errormap else 'dh'}: {ident.n_readings} readings, "
+             f"{len(ident.names)} parameters, solver {ident.solver}",
+             f"  L1 = {m.L1_mm:.4f} +- {u['L1_mm']:.4f} mm, L2 = {m.L2_mm:.4f} +- {u['L2_mm']:.4f} mm (k = 1)"]
+    if m.is_errormap:
+        for axis, mp in (("J1", m.map1), ("J2", m.map2)):
+            s = np.array([u[n] for n in ident.names if n.startswith(axis + "_")])
+            back = mp.forward_deg - mp.reverse_deg
+            lines.append(f"  {axis} map: {mp.n_nodes} nodes {mp.grid_deg[0]:g}..{mp.grid_deg[-1]:g} deg, "
+                         f"deviation {1e3 * mp.values.min():.2f}..{1e3 * mp.values.max():.2f} mdeg, "
+                         f"mean backlash {1e3 * back.mean():.2f} mdeg, u up to {1e3 * s.max():.3f} mdeg")
+    else:
+        lines.append(f"  theta20 = {1e3 * m.theta20_deg:.3f} +- {1e3 * u['theta20_deg']:.3f} mdeg")
+    for j, (p, d0) in enumerate(zip(ident.reflectors_mm, ident.dead_paths_mm)):
+        lines.append(f"  P{j} = ({p[0]:.3f}, {p[1]:.3f}) mm, d0_{j} = {d0:.3f} mm")
+    lines.append(f"  residual RMS {1e3 * ident.residual_rms_mm:.2f} um, {ident.iterations} iterations, "
+                 f"condition number {ident.condition_number:.3g} (scaled, within the gauge)")
+    lines.append(f"  gauge: {ident.gauge}")
+    for note in ident.notes:
+        lines.append(f"  note: {note}")
+    res = getattr(ident, "resolution", None)
+    if res and res.get("done"):
+        lines.append(f"  resolution check: held-out readings at alternate nodes missed by the map on the others by RMS "
+                     f"{1e3 * res['held_out_rms_mm']:.1f} um ({res['ratio']:.1f} x the budget's reading u)")
+    elif res:
+        lines.append(f"  resolution check not possible: {res['why']}")
+    for warning in getattr(ident, "warnings", []):
+        lines.append(f"  warning: {warning}")
+    if ident.outliers:
+        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in ident.outliers[:10])
+        more = f" and {len(ident.outliers) - 10} more" if len(ident.outliers) > 10 else ""
+        lines.append(f"  {len(ident.outliers)} suspect reading(s) beyond the outlier threshold: {shown}{more}")
+    return "\n".join(lines)
+
+
+def cmd_identify(args) -> int:
+    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
+    from olti_drake.io.result import write_result
+
+    _check_outputs(args, [args.out], [args.campaign, args.budget])
+    nominal = args.nominal_mm[0] if args.nominal_mm else (325.0, 225.0)
+    options = IdentificationOptions(
+        model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
+        grid1_deg=parse_grid(args.grid1_deg, "--grid1-deg") if args.grid1_deg else None,
+        grid2_deg=parse_grid(args.grid2_deg, "--grid2-deg") if args.grid2_deg else None,
+        reflectors_mm=args.reflectors_mm,
+        fix_reflectors=args.fix_reflectors, loss=args.loss, huber_k=args.huber_k,
+        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+    if args.budget:
+        from olti_drake.io.budget import load_budget
+
+        options.budget = load_budget(args.budget)
+    if options.fix_reflectors and options.reflectors_mm is None:
+        raise ValueError("--fix-reflectors needs --reflectors-mm")
+    data = load_campaign(args.campaign)
+    ident = identify(data, options)
+    write_result(ident, args.out)
+    print(identification_summary(ident))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_multilaterate(args) -> int:
+    import numpy as np
+
+    from olti_drake.estimation.multilateration import MultilaterationOptions, load_machine_campaign, multilaterate
+    from olti_drake.io.outputs import write_json
+
+    _check_outputs(args, [args.out], [args.campaign, args.budget])
+    options = MultilaterationOptions(
+        stations_mm=args.stations_mm, gauge=args.gauge,
+        loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
+        solver=args.solver)
+    data = load_machine_campaign(args.campaign)
+    if args.budget == "residuals":
+        budget = None
+    else:
+        from olti_drake.io.budget import load_budget
+        from olti_drake.model.machine import paper001_budget
+
+        budget = paper001_budget() if args.budget is None else load_budget(args.budget)
+    res = multilaterate(data, options, budget)
+    write_json(args.out, res.to_dict())
+    dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
+    U = 2e3 * np.hypot(*res.targets_std_mm.T)
+    print(f"multilateration (001 Eq. 2-6): {len(data)} readings, {data.n_targets} targets, {data.n_stations} "
+          f"stations, {len(res.fit.names)} parameters, solver {res.fit.solver}")
+    print(f"  target deviation from command: max {dev.max():.2f} um, mean {dev.mean():.2f} um; "
+          f"U (k = 2) of the 2-norm: max {U.max():.2f} um")
+    for j, (P, L0) in enumerate(zip(res.stations_mm, res.dead_paths_mm)):
+        print(f"  station {j}: ({P[0]:.4f}, {P[1]:.4f}) mm, dead path {L0:.4f} mm")
+    print(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
+          f"condition number {res.fit.condition_number:.3g}")
+    print(f"  gauge: {res.gauge}")
+    for warning in res.fit.warnings:
+        print(f"  warning: {warning}")
+    if res.fit.outliers:
+        print(f"  {len(res.fit.outliers)} suspect reading(s): "
+              + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _add_force(p):
+    """--force: the verbs that write results (never a measurement nor an input: olti_drake.io.outputs)."""
+    p.add_argument("--force", action="store_true",
+                   help="replace existing result files (a campaign, a run log or an input is never replaced)")
+
+
+def _add_solver_options(p):
+    """The solver options every identification verb shares (leastsquares.SolverOptions)."""
+    p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
+    p.add_argument("--huber-k", type=cliargs.positive, default=3.0, help="Huber threshold in robust sigmas (default 3)")
+    p.add_argument("--outlier-threshold", type=cliargs.positive, default=4.0,
+                   help="report readings whose normalized residual exceeds this (default 4)")
+    p.add_argument("--regularize", action="store_true",
+                   help="regularize unidentifiable parameters (and say so) instead of stopping")
+    p.add_argument("--solver", choices=("lm", "nlp"), default="lm",
+                   help="lm: Levenberg-Marquardt steps as Drake programs (default); nlp: Drake NLP solver")
+
+
+def cmd_predict(args) -> int:
+    from olti_drake.io.campaign_io import load_commands
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.result import load_result
+
+    _check_outputs(args, [args.out], [args.result, args.commands])
+    from olti_drake.model.errormap import OutsideGridError
+
+    model, _, _, _ = load_result(args.result, outside=args.outside)
+    cmd, lines = load_commands(args.commands)
+    try:
+        p = model.positions(cmd)
+    except OutsideGridError as e:
+        raise ValueError(f"{args.commands}:{lines[e.row]}: {e} -- or run with --outside clamp") from None
+    cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg, "dir1": cmd.dir1, "dir2": cmd.dir2,
+            "x_mm": p[:, 0], "y_mm": p[:, 1]}
+    write_table(args.out, cols, {"dir1": "%d", "dir2": "%d", "x_mm": "%.6f", "y_mm": "%.6f"},
+                comments=[f"olti predict: {args.result} applied to {args.commands}; mm and degrees"])
+    print(f"predicted {len(cmd)} positions; wrote {args.out}")
+    return 0
+
+
+def _result_format(path) -> str:
+    """The ``format`` of a result JSON ('' when unreadable: the loader then says why)."""
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return str(json.load(f).get("format", ""))
+    except (OSError, ValueError, AttributeError):
+        return ""
+
+
+def _propagate(ident, x, errors, args):
+    """(std, cov or None, samples for coverage intervals or None, extra dict, all samples or None) by the
+    method of ``args`` (linear or mc); the intervals only when enough trials make them reliable."""
+    import numpy as np
+
+    from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo, trials_for_intervals
+
+    if args.method == "linear":
+        cov = linear_covariance(ident, x, errors)
+        return (np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, None,
+                {"method_detail": "linear propagation through the identification Jacobian (JCGM 100), "
+                                  "budget reading errors"}, None)
+    tty = sys.stderr.isatty()
+
+    def report(done, total):
+        sys.stderr.write(f"\r  Monte Carlo: {done} trials" + (" (adaptive, at most " if args.adaptive else " of ")
+                         + f"{total}{')' if args.adaptive else ''}")
+        sys.stderr.flush()
+
+    mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
+                     adaptive=args.adaptive, max_trials=args.max_trials, coverage=args.coverage,
+                     progress=report if tty else None)
+    if tty:
+        sys.stderr.write("\n")
+    notes = list(mc.notes)
+    if not mc.intervals_adequate:
+        notes.append(f"coverage intervals not reported: {len(mc.samples)} trials "
+                     + ("did not stabilize them (JCGM 101 §7.9)" if args.adaptive else
+                        f"are fewer than the 10^4/(1 - p) = {trials_for_intervals(args.coverage)} JCGM 101 §7.2.2 "
+                        f"asks for p = {args.coverage:g} (use --adaptive or more --trials)"))
+    return (mc.samples.std(axis=0, ddof=1), None, mc.samples if mc.intervals_adequate else None,
+            {"method_detail": "Monte Carlo (JCGM 101): budget errors drawn for every reading, the problem "
+                              "re-solved per trial", "trials": int(len(mc.samples)), "seed": args.seed,
+             "adaptive": bool(args.adaptive), "converged": bool(mc.converged), "notes": notes,
+             **({"max_trials": args.max_trials} if args.adaptive else {})}, mc.samples)
+
+
+def _uncertainty_multilateration(args, t0) -> int:
+    """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
+    import numpy as np
+
+    from olti_drake.io.budget import load_budget
+    from olti_drake.report.figures import plot_target_uncertainty
+    from olti_drake.model.machine import paper001_budget
+    from olti_drake.io.campaign_io import check_campaign_matches
+    from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
+    from olti_drake.io.outputs import write_json
+    from olti_drake.estimation.uncertainty import ReadingErrors, uncertainty_dict
+
+    if args.maps:
+        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
+    res = load_result(args.result)
+    budget = load_budget(args.budget) if args.budget else paper001_budget()
+    data = load_machine_campaign(args.campaign)
+    campaign_note = check_campaign_matches(res, data, args.result)
+    ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
+    x = np.concatenate([np.ravel(res["targets_mm"]), np.ravel(res["stations_mm"]), res["dead_paths_mm"]])
+    if len(x) != len(ident.names):
+        raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
+    std, _, samples, extra, every = _propagate(ident, x, ReadingErrors(budget), args)
+    _campaign_note(extra, campaign_note)
+    U = 1e3 * args.k * np.hypot(*std[:2 * data.n_targets].reshape(-1, 2).T)
+    extra.update(gauge=res["gauge"], elapsed_s=round(time.perf_counter() - t0, 3),
+                 target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
+                                     "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
+    out = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
+                           extra=extra)
+    write_json(args.out, out)
+    print(f"uncertainty ({args.method}) of the multilateration {args.result} on {len(data)} readings; budget "
+          f"{budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None else ""))
+    print(f"  targets: U (k = {args.k:g}) of the 2-norm max {U.max():.2f} um, mean {U.mean():.2f} um")
+    _print_notes(extra)
+    print(f"wrote {args.out}")
+    if args.map:
+        plot_target_uncertainty(data.commands_mm, U, args.map, args.k,
+                                f"{'Monte Carlo' if every is not None else 'linear'}, budget {budget.name}")
+        print(f"wrote {args.map}")
+    return 0
+
+
+def _campaign_note(extra: dict, note: str) -> None:
+    """Add the campaign-digest note (older results carry no digest) to the uncertainty file's notes."""
+    if note:
+        extra["notes"] = list(extra.get("notes", [])) + [note]
+
+
+def _print_notes(extra: dict) -> None:
+    for note in extra.get("notes", []):
+        print(f"  note: {note}")
+
+
+def cmd_uncertainty(args) -> int:
+    """Uncertainty of an identified result from its campaign and a budget (000 §5; 001 §4.4).
+
+    linear: JCGM 100 propagation (std = sqrt(diag(cov))); mc: JCGM 101 Monte
+    Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
+    (k = 1, plus ``expanded`` with --k); mm and degrees.
+    """
+    import types
+
+    import numpy as np
+
+    from olti_drake.io.budget import load_budget, paper000_budget
+    from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
+    from olti_drake.io.csvio import read_json
+    from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
+    from olti_drake.io.outputs import write_json
+    from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
+
+    _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
+    from olti_drake.estimation.uncertainty import round_trials
+
+    if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
+        raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
+                         f"--coverage {args.coverage:g}), got {args.max_trials}")
+    if _result_format(args.result) == "olti-multilateration/1":
+        return _uncertainty_multilateration(args, time.perf_counter())
+    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    data = load_campaign(args.campaign)
+    campaign_note = check_campaign_matches(read_json(args.result, None), data, args.result)
+    ident, x = identifier_at_result(args.result, data)
+    model = ident.split(x)[0]
+    if (args.map or args.maps) and not model.is_errormap:
+        raise ValueError(f"{args.result}: --map and --maps need an error-map result (model 'errormap')")
+
+    t0 = time.perf_counter()
+    errors = ReadingErrors(budget)
+    u_reading = errors.std(ident.beam_lengths(x))
+    std, cov, samples, extra, every = _propagate(ident, x, errors, args)
+    _campaign_note(extra, campaign_note)
+    pmap = prediction_uncertainty_map(ident, x, cov, every) if model.is_errormap else None
+    elapsed = time.perf_counter() - t0
+    extra.update(budget_file=args.budget or "built-in paper 000 Table 2",
+                 result=args.result, campaign=args.campaign, elapsed_s=round(elapsed, 3),
+                 reading_std_median_mm=float(np.median(u_reading)), reading_std_max_mm=float(np.max(u_reading)))
+    if pmap is not None:
+        U = args.k * pmap["u_mm"]
+        extra["prediction_expanded_mm"] = {
+            "k": args.k, "max": float(np.nanmax(U)), "mean": float(np.nanmean(U)),
+            "points": int(np.isfinite(U[0]).sum()),
+            "what": "k * sqrt(u_x^2 + u_y^2) of predicted positions on an XY grid inside the map range, "
+                    "approach directions +1 and -1 (001 Fig. 14)"}
+    unc = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples,
+                           coverage=args.coverage, extra=extra)
+    write_json(args.out, unc)
+
+    u = dict(zip(ident.names, std))
+    print(f"uncertainty ({args.method}) of {args.result} ({'errormap' if model.is_errormap else 'dh'}, "
+          f"{len(ident.names)} parameters) on {len(data)} readings of {args.campaign}; budget {budget.name!r}"
+          + (f"; {len(every)} trials, seed {args.seed}" if every is not None else "")
+          + f"; {elapsed:.2f} s")
+    print(f"  reading standard uncertainty (k = 1): median {1e3 * np.median(u_reading):.2f} um, "
+          f"max {1e3 * np.max(u_reading):.2f} um")
+    print(f"  L1: u = {1e3 * u['L1_mm']:.2f} um, L2: u = {1e3 * u['L2_mm']:.2f} um (k = 1); "
+          f"U (k = {args.k:g}): {1e3 * args.k * u['L1_mm']:.2f} um, {1e3 * args.k * u['L2_mm']:.2f} um")
+    if model.is_errormap:
+        ranges = []
+        for axis in ("J1", "J2"):
+            s = np.array([v for n, v in u.items() if n.startswith(axis + "_")])
+            ranges.append(f"{axis} map nodes u = {1e3 * s.min():.3f}..{1e3 * s.max():.3f} mdeg")
+        print("  " + ", ".join(ranges) + " (k = 1)")
+    else:
+        print(f"  theta20: u = {1e3 * u['theta20_deg']:.3f} mdeg (k = 1)")
+    n = ident.n_robot
+    sP, sd = std[n:n + 2 * ident.n_t], std[n + 2 * ident.n_t:]
+    print(f"  reflectors: u = {1e3 * sP.min():.2f}..{1e3 * sP.max():.2f} um, dead paths: u = "
+          f"{1e3 * sd.min():.2f}..{1e3 * sd.max():.2f} um (k = 1)")
+    if pmap is not None:
+        p = extra["prediction_expanded_mm"]
+        print(f"  predicted positions over the workspace map ({p['points']} points x 2 approach directions): "
+              f"U (k = {args.k:g}) max {1e3 * p['max']:.2f} um, mean {1e3 * p['mean']:.2f} um")
+    _print_notes(extra)
+    print(f"wrote {args.out}")
+    label = "Monte Carlo" if every is not None else "linear"
+    if args.map:
+        plot_prediction_uncertainty_map(pmap, args.map, args.k, f"{label}, budget {budget.name}")
+        print(f"wrote {args.map}")
+    if args.maps:
+        identified = types.SimpleNamespace(model=model, names=list(ident.names), std=std)
+        plot_identified_maps(identified, None, args.maps, std=std, method=label)
+        print(f"wrote {args.maps}")
+    return 0
+
+
+def cmd_design(args) -> int:
+    """Reflector placement by the linear uncertainty method (000 §3.2.2 Remark 2, §5).
+
+    The result's model is the truth; the plan's campaign is synthesized for the
+    current layout (the result's reflectors) and for every candidate layout;
+    the cost is the worst or mean predicted-position u = sqrt(u_x² + u_y²)
+    (k = 1) over the workspace. Prints both costs and the improvement; writes
+    DESIGN.json (mm).
+    """
+    from olti_drake.io.budget import load_budget, paper000_budget
+    from olti_drake.estimation.design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
+                         workspace_commands)
+    from olti_drake.estimation.identification import UnidentifiableError
+    from olti_drake.io.outputs import write_json
+    from olti_drake.model.plan import bidirectional_grid, load_plan
+    from olti_drake.io.result import load_result
+
+    _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
+    model, P, _, _ = load_result(args.result, outside="clamp")
+    plan = load_plan(args.plan) if args.plan else bidirectional_grid()
+    plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
+    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    regions = load_regions(args.regions)
+    n = len(P) if args.reflectors is None else args.reflectors
+    if n < 3:
+        raise ValueError(f"--reflectors must be >= 3 (000 §3.2.2 Remark 1), got {n}"
+                         + ("" if args.reflectors is not None else f" (the result {args.result} has {len(P)})"))
+    cmd = measured_commands(plan)
+    if model.is_errormap:
+        ws = workspace_commands(model, args.workspace_step_mm, option="--workspace-step-mm")
+    else:  # a D-H model has no map range: the plan's angle ranges
+        ws = workspace_commands((cmd.theta1_deg, cmd.theta2_deg), args.workspace_step_mm, model.L1_mm, model.L2_mm,
+                                option="--workspace-step-mm")
+    candidates = candidate_grid(regions, args.step_mm, option="--step-mm")
+
+    def costs(u):
+        return {"max_u_mm": float(u.max()), "mean_u_mm": float(u.mean()), "max_U_k2_mm": float(2 * u.max()),
+                "mean_U_k2_mm": float(2 * u.mean())}
+
+    t0 = time.perf_counter()
+    current = {"reflectors_mm": P.tolist()}
+    try:
+        current.update(costs(LayoutEvaluator(model, plan, len(P), ws).position_std(P, budget)))
+    except UnidentifiableError as e:
+        current["not_identifiable"] = " ".join(str(e).split())
+    tty = sys.stderr.isatty()
+
+    def report(start, sweep, cost):
+        sys.stderr.write(f"\r  designing: start {start + 1}/{args.starts}, sweep {sweep + 1}, "
+                         f"{args.criterion} u = {1e3 * cost:.2f} um   ")
+        sys.stderr.flush()
+
+    ev = LayoutEvaluator(model, plan, n, ws)
+    res = design_layout(model, plan, candidates, n, budget, ws, args.criterion, seed=args.seed, starts=args.starts,
+                        max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
+                        clearance_mm=args.clearance_mm, base_radius_mm=args.base_radius_mm, evaluator=ev,
+                        progress=report if tty else None)
+    if tty:
+        sys.stderr.write("\n")
+    designed = {"reflectors_mm": res.reflectors_mm.tolist()}
+    designed.update(costs(ev.position_std(res.reflectors_mm, budget)))
+    elapsed = time.perf_counter() - t0
+    key = f"{args.criterion}_u_mm"
+    improvement = current[key] / designed[key] if key in current else None
+
+    print(f"reflector layout design (000 §3.2.2 Remark 2) by linear propagation (JCGM 100), budget {budget.name!r}")
+    print(f"  truth: {args.result} ({'errormap' if model.is_errormap else 'dh'}); plan: {plan_name}, "
+          f"{len(cmd)} measured poses per reflector")
+    print(f"  cost: predicted-position u = sqrt(u_x^2 + u_y^2) over {len(ws) // 4} workspace points x 4 approach "
+          f"directions ({args.workspace_step_mm:g} mm grid inside the "
+          f"{'map range' if model.is_errormap else 'plan angle ranges'})")
+    print(f"  candidates: {len(res.candidates_mm)} on a {args.step_mm:g} mm grid in {len(regions)} region(s) of "
+          f"{args.regions}; {int(res.feasible.sum())} feasible ({res.rejected['clearance']} within "
+          f"{args.clearance_mm:g} mm of the arm, {res.rejected['base']} with a beam within {args.base_radius_mm:g} mm "
+          f"of the J1 axis); separation >= {args.min_separation_mm:g} mm")
+    print(f"  {'layout':22s}{'max u':>10s}{'mean u':>10s}{'max U(k=2)':>12s}   (um)")
+    for label, c in (("current (result)", current), (f"designed ({n} refl.)", designed)):
+        if "max_u_mm" in c:
+            print(f"  {label:22s}{1e3 * c['max_u_mm']:10.2f}{1e3 * c['mean_u_mm']:10.2f}"
+                  f"{1e3 * c['max_U_k2_mm']:12.2f}")
+        else:
+            print(f"  {label:22s}  not identifiable: {c['not_identifiable']}")
+    if improvement is not None:
+        print(f"  improvement ({args.criterion} u, current / designed): {improvement:.2f}x")
+    for name, c in (("current", current), ("designed", designed)):
+        print(f"  {name} positions (mm): " + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in c["reflectors_mm"]))
+    print(f"  coordinate exchange: {args.starts} start(s), seed {args.seed}, {res.evaluations} layouts evaluated, "
+          f"{elapsed:.1f} s")
+    out = {"format": "olti-design/1", "criterion": args.criterion, "k": 1,
+           "method": "linear propagation (JCGM 100) of the identification (000 §5 Remark); coordinate exchange "
+                     "over candidate positions from seeded random starts",
+           "budget": budget.name, "budget_file": args.budget or "built-in paper 000 Table 2",
+           "result": args.result, "plan": plan_name, "regions": args.regions,
+           "reflectors_mm": designed["reflectors_mm"], "current": current, "designed": designed,
+           "improvement": improvement, "evaluations": res.evaluations, "seed": args.seed, "starts": args.starts,
+           "max_sweeps": args.max_sweeps, "cost_history_mm": res.history,
+           "candidates": {"step_mm": args.step_mm, "count": int(len(res.candidates_mm)),
+                          "feasible": int(res.feasible.sum()), "rejected": res.rejected},
+           "rules": {"min_separation_mm": args.min_separation_mm, "clearance_mm": args.clearance_mm,
+                     "base_radius_mm": args.base_radius_mm},
+           "workspace": {"step_mm": args.workspace_step_mm, "commands": len(ws),
+                         "directions": "(dir1, dir2) = (+1, +1), (+1, -1), (-1, +1), (-1, -1)"},
+           "elapsed_s": round(elapsed, 3)}
+    write_json(args.out, out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_diagrams(args) -> int:
+    """Render the simulated, emulated and hardware campaign diagrams (SVG + wiring files)."""
+    from olti_drake.report.diagram_pictures import SCENARIOS, write_pictures
+    from olti_drake.io.resources import source_tree_dir
+
+    out = args.out or source_tree_dir("diagrams")
+    if out is None:
+        raise ValueError("olti diagrams: give --out DIR (the default, diagrams/ of a source checkout, is not "
+                         "there: the package is installed)")
+    _check_outputs(args, [os.path.join(out, n + ext) for n in SCENARIOS for ext in (".svg", ".wiring.txt")],
+                   dirs=[out], create_dirs=True)
+    for path in write_pictures(out):
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    """The calibration report: DIR/report.html, self-contained (figures embedded, also written as PNG)."""
+    from olti_drake.report.html import write_report
+
+    t0 = time.perf_counter()
+    paths = write_report(args.result, args.out, args.uncertainty, args.campaign, args.truth, date=args.date,
+                         force=args.force)
+    for path in paths:
+        print(f"wrote {path}")
+    html_path = paths[-1]
+    print(f"report {html_path}: {os.path.getsize(html_path) / 1e6:.2f} MB, self-contained, "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def cmd_compensate(args) -> int:
+    """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
+    from olti_drake.io.result import load_result
+
+    tables = [os.path.join(args.tables, f"{a}_compensation.csv") for a in ("J1", "J2")] if args.tables else []
+    _check_outputs(args, [args.out] + tables, [args.result, args.targets], dirs=[args.tables] if args.tables else [],
+                   create_dirs=True)
+    model, _, _, _ = load_result(args.result, outside=args.outside)
+    if args.tables and not model.is_errormap:
+        raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is 'dh'")
+    comp, lines = compensate_file(model, args.targets, elbow=args.elbow)
+    write_commands(comp, args.out, comments=[
+        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
+        "executed with dir1, dir2 these commands put the end effector on x_mm, y_mm by the model (000 Eq. 3, 7)"])
+    c = comp.commands
+    print(f"compensated {len(c)} targets ({'errormap' if model.is_errormap else 'dh'} model): "
+          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm")
+    print(f"  theta1* {c.theta1_deg.min():.4f}..{c.theta1_deg.max():.4f} deg, "
+          f"theta2* {c.theta2_deg.min():.4f}..{c.theta2_deg.max():.4f} deg")
+    flagged = lines[comp.needs_approach.any(axis=1)]
+    if flagged.size:
+        shown = ", ".join(str(n) for n in flagged[:10]) + (" ..." if flagged.size > 10 else "")
+        print(f"  note: {flagged.size} target(s) reverse an axis by less than its backlash; approach them with an "
+              f"overrun move in the stated direction (lines {shown})")
+    print(f"wrote {args.out}")
+    for path in write_tables(model, args.tables, f" from {args.result}") if args.tables else []:
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from olti_drake.hardware.station import StationError
+    from olti_drake.hardware.runner import RunInterrupted, run
+
+    import logging
+
+    resume_hint = f"olti run {args.scenario} --out {args.out} --resume"
+    # The emulator's notes on injected faults are for the emulator's own log, not this command's stderr.
+    logging.getLogger("olti_drake.hardware.emulator").addHandler(logging.NullHandler())
+    nl = "\n" if sys.stderr.isatty() else ""
+
+    def progress(done, planned):
+        if sys.stderr.isatty():
+            sys.stderr.write(f"\r  readings on disk {done}/{planned}")
+            sys.stderr.flush()
+
+    try:
+        extend, rate = _meshcat_view(args)
+        s = run(args.scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress,
+                extend=extend, realtime_rate=rate)
+    except RunInterrupted as e:
+        print(f"{nl}error: {e}; continue with: {resume_hint}", file=sys.stderr)
+        return 130
+    except StationError as e:
+        print(f"{nl}error: {' '.join(str(e).split())}; every reading taken is on disk; after fixing it continue "
+              f"with: {resume_hint}", file=sys.stderr)
+        return 3
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    if s.taken == 0 and s.complete:
+        print(f"{args.out}: the campaign is already complete ({s.on_disk} of {s.planned} readings)")
+        return 0
+    print(f"session {s.session}: {s.taken} readings taken ({s.invalid} invalid) from step {s.start_step} in "
+          f"{s.elapsed_s:.2f} s; {s.on_disk} of {s.planned} planned readings in "
+          f"{os.path.join(args.out, 'campaign.csv')}" + ("" if s.complete else " (incomplete)"))
+    return 0 if s.complete else 1
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is the one line ``error: olti VERB: ...`` (exit 2), as every bad input."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"error: {self.prog}: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="olti", description="Open-loop tracking interferometer calibration (mm and degrees).")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    sub.required = True
+    p = sub.add_parser("demo", help="simulate the paper-000 experiment, identify D-H and error-map models, "
+                                    "compare them on unseen paths; write results and figures",
+                       description="Simulate the paper-000 SCARA experiment on the embedded default "
+                                   "scenario, identify the D-H and error-map models (000 §4.2), compare "
+                                   "their predictions with a simulated laser tracker on paths not used in "
+                                   "the identification (000 §4.3), write result_dh.json, "
+                                   "result_errormap.json and figures (PNG).")
+    p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
+    _add_force(p)
+    p.set_defaults(func=cmd_demo)
+    p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
+                       description="Build the scenario's Drake diagram with the simulated plant, run the "
+                                   "whole measurement plan, write DIR/campaign.csv and DIR/truth.json. "
+                                   "Without a scenario: the paper-000 SCARA experiment (diagrams/).")
+    p.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--seed", type=cliargs.seed, default=None, help="override the scenario's seed")
+    _add_meshcat_options(p)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+                       description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
+                                   "from a campaign CSV; print a summary; write RESULT.json.")
+    p.add_argument("campaign", help="campaign CSV (formats.md)")
+    p.add_argument("--model", choices=("dh", "errormap"), required=True)
+    p.add_argument("--out", required=True, help="result JSON to write")
+    p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
+    p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
+    p.add_argument("--nominal-mm", type=cliargs.pairs_mm(2, positive=True),
+                   help="nominal link lengths L1,L2 in mm, the starting point (default 325,225)")
+    p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
+                   help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
+    p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
+    p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
+                                    "against (warning above 3 x; default: 000 Table 2)")
+    _add_solver_options(p)
+    _add_force(p)
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
+                       description="Apply an identified model to commands (formats.md commands.csv); write "
+                                   "the commands with the predicted x_mm, y_mm.")
+    p.add_argument("result", help="result JSON from olti identify")
+    p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
+    p.add_argument("--out", required=True, help="prediction CSV to write")
+    p.add_argument("--outside", choices=("error", "clamp"), default="error",
+                   help="commands outside the map grid: refuse (default) or hold the end values")
+    _add_force(p)
+    p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("multilaterate", help="paper-001 self-calibrating multilateration of a machine-tool campaign",
+                       description="Identify target positions, station positions and dead paths from a machine-tool "
+                                   "campaign (001 Eq. 2-6, 2D) with the frame fixed by an explicit gauge; write "
+                                   "RESULT.json (formats.md). mm.")
+    p.add_argument("campaign", help="machine-tool campaign CSV (formats.md)")
+    p.add_argument("--out", required=True, help="result JSON to write")
+    p.add_argument("--stations-mm", type=cliargs.pairs_mm(2),
+                   help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; default: from the data)")
+    p.add_argument("--gauge", choices=("best-fit", "first-two"), default="best-fit",
+                   help="best-fit: no mean translation/rotation of the targets from their commands (default); "
+                        "first-two: target 0 at its command, target 1 on its command direction")
+    p.add_argument("--budget", help="budget YAML for the standard uncertainties (default: 001 Table 4); "
+                                    "'residuals' propagates the residual variance instead")
+    _add_solver_options(p)
+    _add_force(p)
+    p.set_defaults(func=cmd_multilaterate)
+
+    p = sub.add_parser("uncertainty", help="standard uncertainties of an identified result from a budget "
+                                           "(linear or Monte Carlo)",
+                       description="Propagate an uncertainty budget (default: 000 Table 2) through the "
+                                   "identification of RESULT.json on CAMPAIGN.csv: linear (JCGM 100) or Monte "
+                                   "Carlo (JCGM 101, 000 §5). Writes the formats.md 'uncertainty' object: "
+                                   "standard uncertainties (k = 1) with the result's keys and shapes, plus "
+                                   "'expanded' (k = --k); mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify")
+    p.add_argument("campaign", help="the campaign CSV the result was identified from")
+    p.add_argument("--method", choices=("mc", "linear"), required=True,
+                   help="mc: Monte Carlo (JCGM 101); linear: Jacobian propagation (JCGM 100)")
+    p.add_argument("--budget", help="budget YAML (e.g. data/budget_paper001.yaml; default: 000 Table 2)")
+    p.add_argument("--trials", type=cliargs.integer(2), default=1000, help="Monte Carlo trials (default 1000; "
+                                                            "ignored with --adaptive)")
+    p.add_argument("--k", type=cliargs.coverage_factor, default=2.0, help="coverage factor of 'expanded' (default 2)")
+    p.add_argument("--coverage", type=cliargs.probability, default=0.95,
+                   help="probability of the Monte Carlo coverage intervals (default 0.95)")
+    p.add_argument("--seed", type=cliargs.seed, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--workers", type=cliargs.workers, default=None,
+                   help="Monte Carlo worker processes (default: up to 2 cores; results do not depend on it)")
+    p.add_argument("--adaptive", action="store_true",
+                   help="Monte Carlo until every estimate, standard uncertainty and coverage-interval endpoint "
+                        "is stable to 2 significant digits of u (JCGM 101 §7.9), at most --max-trials")
+    p.add_argument("--max-trials", type=cliargs.integer(2), default=50_000,
+                   help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
+                        "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
+    p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
+    p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
+    p.add_argument("--out", required=True, help="uncertainty JSON to write")
+    _add_force(p)
+    p.set_defaults(func=cmd_uncertainty)
+
+    p = sub.add_parser("design", help="design reflector positions that minimize the predicted-position "
+                                      "uncertainty (linear method)",
+                       description="Reflector (station) placement for a campaign (000 §3.2.2 Remark 2): the "
+                                   "result's model is the truth, the plan is run against candidate layouts, and "
+                                   "the predicted-position uncertainty over the workspace (linear propagation, "
+                                   "JCGM 100, of the budget) is minimized by coordinate exchange over candidates "
+                                   "on a grid inside the regions. Prints the current and the designed layout's "
+                                   "costs; writes DESIGN.json. mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify (its model is the truth, its reflectors the "
+                                  "current layout)")
+    p.add_argument("--plan", help="plan CSV or YAML (default: the paper 000 plan, Eq. 11-12)")
+    p.add_argument("--regions", required=True, help="regions YAML: rectangles {x_mm: [lo, hi], y_mm: [lo, hi]} "
+                                                    "(e.g. data/regions_paper000.yaml)")
+    p.add_argument("--reflectors", type=cliargs.integer(3, 1000), default=None,
+                   help="number of reflectors to place (default: as many as the result has)")
+    p.add_argument("--criterion", choices=("max", "mean"), default="max",
+                   help="minimize the worst (default) or the mean predicted-position u over the workspace")
+    p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
+    p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
+                   help="candidate grid step in the regions (default 50)")
+    p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
+                   help="step of the workspace XY grid the cost is evaluated on (default 50)")
+    p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--starts", type=cliargs.count, default=3, help="random starts (default 3)")
+    p.add_argument("--max-sweeps", type=cliargs.count, default=5, help="exchange sweeps per start at most (default 5)")
+    p.add_argument("--min-separation-mm", type=cliargs.distance_mm, default=100.0,
+                   help="minimum distance between reflectors (default 100)")
+    p.add_argument("--clearance-mm", type=cliargs.distance_mm, default=50.0,
+                   help="minimum distance of a reflector from every end-effector position (default 50)")
+    p.add_argument("--base-radius-mm", type=cliargs.distance_mm, default=40.0,
+                   help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
+    p.add_argument("--out", required=True, help="design JSON to write")
+    _add_force(p)
+    p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("diagrams", help="draw the simulated, emulated and hardware campaign diagrams (Graphviz SVG)",
+                       description="Build the campaign diagram of diagrams/paper000_scara.yaml, "
+                                   "paper000_emulated.yaml and paper000_hardware.yaml (the hardware station on "
+                                   "unopened ports, the emulator started and stopped) and write NAME.svg "
+                                   "(Graphviz dot) and NAME.wiring.txt (sorted 'src.port -> dst.port' lines).")
+    p.add_argument("--out", default=None, help="output directory (default: diagrams/ of the source checkout)")
+    _add_force(p)
+    p.set_defaults(func=cmd_diagrams)
+
+    p = sub.add_parser("report", help="calibration report: one self-contained HTML page with tables and figures",
+                       description="Write DIR/report.html for a result (SCARA olti-result/1 or machine-tool "
+                                   "olti-multilateration/1): parameters with standard (k = 1) and expanded "
+                                   "uncertainties, the identified maps with error bars (000 Fig. 6), ISO 230-2 "
+                                   "style statistics per axis (B, B-bar, E, E-up, E-down, M), the predicted-position "
+                                   "uncertainty map (001 Fig. 14 style, needs --campaign), residuals and, with "
+                                   "--truth, validation (000 Figs. 9-11). Figures are embedded as data URIs and "
+                                   "written as PNG files in DIR. mm and degrees.")
+    p.add_argument("result", help="result JSON (olti identify or olti multilaterate)")
+    p.add_argument("uncertainty", nargs="?", default=None,
+                   help="uncertainty JSON of this result (olti uncertainty; default: the result's own)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--campaign", help="the campaign CSV of the result: covariance (linear), map, residuals")
+    p.add_argument("--truth", help="truth.json of a simulated SCARA campaign (olti simulate): validation")
+    p.add_argument("--date", help="date text for the header (the report never reads the clock)")
+    _add_force(p)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("compensate", help="joint commands that put the end effector on targets by the model",
+                       description="Invert the identified model (000 Eq. 3 with Eq. 7): for every target of "
+                                   "TARGETS.csv (x_mm, y_mm; optional dir1, dir2) the commands theta1_deg, "
+                                   "theta2_deg and approach directions that put the end effector on it. Without "
+                                   "dir columns the directions follow the compensated sequence itself "
+                                   "(formats.md rule). Targets beyond the reach or the map grid are refused "
+                                   "with their line. mm and degrees.")
+    p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
+    p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
+    p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
+                                                "x_mm, y_mm)")
+    p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
+                                    "compensation tables at the map nodes) into this directory")
+    p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--outside", choices=("error", "clamp"), default="error",
+                   help="commands outside the map grid: refuse the target (default) or hold the end values")
+    _add_force(p)
+    p.set_defaults(func=cmd_compensate)
+    p = sub.add_parser("run", help="run a scenario's campaign on its station (simulated, emulated or hardware), "
+                                   "writing every reading to disk as it arrives; --resume continues",
+                       description="Run the scenario's measurement plan on the station the scenario names "
+                                   "(station: !Simulated, !Emulated or !Hardware). Every reading is appended to "
+                                   "DIR/campaign.csv (formats.md columns plus step, session, raw status, "
+                                   "attempts, time) and flushed to disk as it arrives; events (zeroings, "
+                                   "re-reads, alarms) go to DIR/events.jsonl. After Ctrl-C, kill -9 or a lost "
+                                   "line, --resume continues from the first reading not on disk: none lost, "
+                                   "none duplicated (docs/runner.md). Exit 0 complete, 130 interrupted, "
+                                   "3 station failure, 2 bad input.")
+    p.add_argument("scenario", help="scenario YAML (e.g. diagrams/paper000_emulated.yaml)")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted campaign in --out")
+    p.add_argument("--no-fsync", action="store_true",
+                   help="flush each reading to the OS but skip fsync (faster; a power cut may lose the last ones)")
+    _add_meshcat_options(p)
+    p.set_defaults(func=cmd_run)
+    return parser
+
+
+#: Options whose values may start with '-' (negative angles, coordinates).
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
+
+
+def _join_signed_values(argv):
+    """``--grid1-deg -140:60:20`` -> ``--grid1-deg=-140:60:20`` (argparse would take it for an option)."""
+    out, it = [], iter(argv)
+    for a in it:
+        if a in _SIGNED_VALUE_OPTIONS:
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
+
+
+def _interrupted(e: BaseException) -> bool:
+    """Whether ``e`` is Ctrl-C, or an error it caused: an import interrupted inside an extension module
+    (pybind11's "initialization failed") surfaces as ImportError chained to the KeyboardInterrupt."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def _os_error_line(e: OSError) -> str:
+    """One line for an OSError: the file it names and the system's reason."""
+    where = ": ".join(os.fspath(f) for f in (e.filename, e.filename2) if f is not None)
+    reason = e.strerror or " ".join(str(e).split()) or type(e).__name__
+    return f"{where}: {reason}" if where else reason
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe (``olti ... | head``): point stdout at devnull so the exit flush is silent
+    (the recipe of the Python documentation, signal module, "Note on SIGPIPE")."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
+    try:
+        code = args.func(args)
+        sys.stdout.flush()               # a reader that went away is found here, not at exit
+        return code
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 1
+    except ValueError as e:              # bad input (csvio.InputError and outputs.OutputError included)
+        msg = " ".join(str(e).split()) or type(e).__name__
+        print(f"error: {msg}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as e:                 # an output or input the system refuses: one line naming it
+        print(f"error: {_os_error_line(e)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (KeyboardInterrupt, ImportError) as e:
+        if not _interrupted(e):
+            raise
+        print(f"error: interrupted (olti {args.verb})", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,402 @@
+"""Identification of the SCARA models of paper 000 §3 as a Drake MathematicalProgram.
+
+* D-H model (Eq. 3-5): e = [L1, L2, θ20, P_1..P_Nt, d0_1..d0_Nt].
+* Error-map model (Eq. 6-10): e = [L1, L2, Δθ1,map(·, ±1), Δθ2,map(·, ±1), P, d0]
+  (θ20 absorbed in the J2 map).
+
+Both minimize Σ (‖p̂(k) − P_j‖ − d0_j − d_j(k))² (Eq. 5 / Eq. 10) with the
+residuals and analytic Jacobians of :mod:`olti_drake.model.scara`.
+
+:attr:`Identifier.prog` holds one named decision variable per parameter
+(``L1_mm``, ``J2_reverse_deg[3]``, ``P0_x_mm``, ``d0_0_mm``, ...) and the gauge
+constraint. Add your own constraints and costs to it before
+:meth:`Identifier.solve`. The solvers (LM steps as Drake programs, or a Drake
+NLP solver), the identifiability check and the uncertainty are the shared
+machinery of :mod:`olti_drake.estimation.leastsquares`.
+
+Units: mm and degrees in every parameter, residual and Jacobian.
+"""
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from olti_drake.io.campaign_io import CampaignData
+from olti_drake.io.csvio import InputError, check_spread, unit_bound
+from olti_drake.model.errormap import ErrorMap
+from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
+from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
+from olti_drake.estimation.multilateration import station_fit
+
+
+@dataclass
+class IdentificationOptions(SolverOptions):
+    """What to identify (units mm, deg), plus the solver options of :class:`SolverOptions`.
+
+    ``grid1_deg``/``grid2_deg``: map nodes (default: distinct commanded angles).
+    ``reflectors_mm``: initial reflector positions (e.g. from the Eq. (2)
+    search); ``fix_reflectors`` makes them known (then N_t = 2 suffices).
+    """
+
+    model: str = "errormap"
+    grid1_deg: Optional[np.ndarray] = None
+    grid2_deg: Optional[np.ndarray] = None
+    nominal_L1_mm: float = PAPER_L1_MM
+    nominal_L2_mm: float = PAPER_L2_MM
+    reflectors_mm: Optional[np.ndarray] = None
+    fix_reflectors: bool = False
+    #: Run :meth:`Identifier.resolution_check` after an error-map fit (one more fit on a third of the readings).
+    check_resolution: bool = True
+
+
+@dataclass
+class Identification:
+    """The identified model, its uncertainty (k = 1, linear propagation) and diagnostics."""
+
+    model: ScaraModel
+    reflectors_mm: np.ndarray
+    dead_paths_mm: np.ndarray
+    names: List[str]
+    x: np.ndarray
+    std: np.ndarray
+    covariance: np.ndarray
+    residuals_mm: np.ndarray
+    iterations: int
+    condition_number: float
+    gauge: str
+    solver: str
+    outliers: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    n_readings: int = 0
+    converged_by: str = ""
+    warnings: list = field(default_factory=list)
+    #: The campaign identified from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    campaign: dict = field(default_factory=dict)
+    #: Error-map models: the under-resolution check (:meth:`Identifier.resolution_check`), None if not possible.
+    resolution: Optional[dict] = None
+
+    @property
+    def residual_rms_mm(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals_mm ** 2)))
+
+    def value(self, name: str) -> float:
+        return float(self.x[self.names.index(name)])
+
+    def uncertainty(self, name: str) -> float:
+        return float(self.std[self.names.index(name)])
+
+
+#: Reach (L1 + L2) beyond that of any SCARA robot made (the largest reach about 1.2 m), mm: with the
+#: nominal lengths, the bound on the spread of one reflector's readings (csvio.check_spread).
+MAX_SCARA_REACH_MM = 2000.0
+
+#: Most nodes a map grid may have: the identification's dense matrices grow as the square of the
+#: 4 * nodes map parameters (2 maps x 2 directions); 2001 nodes (e.g. 0.1 deg over 200 deg) is 8004
+#: parameters, a 0.5 GB covariance -- a finer grid is a slip (a step in the wrong unit), not a plan.
+MAX_GRID_NODES = 2001
+
+
+def parse_grid(text: str, name: str) -> np.ndarray:
+    """``start:stop:step`` (inclusive) or a comma list, degrees, e.g. ``-140:60:10``: finite, strictly
+    ascending, within +-720 deg (``csvio.UNIT_BOUNDS``), at most :data:`MAX_GRID_NODES` nodes. Errors are
+    one line naming the option ``name``."""
+    form = (f"{name}: expected START:STOP:STEP (degrees, STOP >= START, STEP > 0) or a comma list, "
+            f"got {text!r}")
+    try:
+        if ":" in text:
+            a, b, s = (float(v) for v in text.split(":"))
+        else:
+            g = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise InputError(form) from None
+    if ":" in text:
+        if not (np.isfinite([a, b, s]).all() and s > 0 and b >= a):
+            raise InputError(form)
+        n = (b - a) / s
+        if n + 1 > MAX_GRID_NODES:
+            raise InputError(f"{name}: {text!r} has {n + 1:.3g} nodes, more than {MAX_GRID_NODES} "
+                             f"(use a coarser step)")
+        n = int(round(n))
+        if abs(a + n * s - b) > 1e-9 * max(1.0, abs(b)):
+            raise InputError(f"{name}: step {s:g} does not divide [{a:g}, {b:g}]")
+        g = a + s * np.arange(n + 1)
+    if g.size == 0 or np.any(np.diff(g) <= 0) or not np.all(np.isfinite(g)):
+        raise InputError(f"{name}: grid must be finite and strictly ascending, got {text!r}")
+    if g.size > MAX_GRID_NODES:
+        raise InputError(f"{name}: {g.size} nodes, more than {MAX_GRID_NODES}")
+    if np.abs(g).max() > unit_bound("_deg"):
+        raise InputError(f"{name}: nodes beyond +-{unit_bound('_deg'):g} deg, outside any physical range")
+    return g
+
+
+class Identifier(LeastSquaresProgram):
+    """The identification problem of 000 §3 for one campaign and model.
+
+    Build it, optionally add constraints/costs to :attr:`prog` (its decision
+    variables are :attr:`variables`, named as :attr:`names`), then call
+    :meth:`solve`.
+    """
+
+    rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
+    untouched_hint = "set a coarser map grid"
+
+    def __init__(self, data: CampaignData, options: IdentificationOptions = None):
+        self.data = data
+        o = options or IdentificationOptions()
+        if o.model not in ("dh", "errormap"):
+            raise InputError(f"model must be 'dh' or 'errormap', got {o.model!r}")
+        self.options = o
+        self._check_reflectors()
+        self.robot0 = self._robot_start()
+        self.n_t = data.n_reflectors
+        self.n_robot = len(self.robot0.parameter_names())
+        self._declare(self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
+                      + [f"d0_{j}_mm" for j in range(self.n_t)], o)
+        self.x0 = self._initial_guess()
+        self.gauge = self._add_gauge()
+        if o.fix_reflectors:
+            idx = slice(self.n_robot, self.n_robot + 2 * self.n_t)
+            self.prog.AddBoundingBoxConstraint(self.x0[idx], self.x0[idx], self.variables[idx])
+
+    def solve(self) -> "Identification":
+        """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
+        from olti_drake.io.campaign_io import campaign_digest
+
+        f = self.fit()
+        model, P, d0 = self.split(f.x)
+        resolution = self.resolution_check(P) if model.is_errormap and self.options.check_resolution else None
+        warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
+        return Identification(model, P, d0, f.names, f.x, f.std, f.covariance, f.residuals, f.iterations,
+                              f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
+                              f.converged_by, warnings, campaign_digest(self.data), resolution)
+
+    def resolution_check(self, reflectors_mm) -> Optional[dict]:
+        """Is the map resolved between its nodes? Held-out readings at every second node (000 Eq. 8-9).
+
+        The residual cannot tell: at the default grid every reading sits on a node, so a deviation with a
+        period under ~2 node spacings is fitted perfectly at the nodes and wrong between them. Here the map
+        is fitted on every second node of each axis (ends kept) from the readings whose commands are all on
+        those nodes; the readings at the dropped nodes, held out, are predicted by it. Their RMS miss against
+        the budget's reading uncertainty (:data:`RESOLUTION_WARNING_RATIO`) says whether the true deviation
+        changes within two node spacings -- then the map may miss as much between its own nodes, and readings
+        between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
+        """
+        from olti_drake.estimation.leastsquares import RESIDUAL_WARNING_RATIO, _rms
+        from olti_drake.estimation.uncertainty import ReadingErrors
+
+        c = self.data.commands
+        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
+        on = [np.any(np.abs(cmd[:, None] - g[None, :]) <= 1e-9, axis=1)
+              for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
+        keep = on[0] & on[1]
+        if keep.all() or not keep.any():
+            return None
+        spacing = [float(np.diff(g).max()) if g.size > 1 else 0.0 for g in coarse]
+        how = (f"map on every second node (J1 {spacing[0]:g} deg, J2 {spacing[1]:g} deg spacing) from the "
+               f"{int(keep.sum())} readings on them; {int((~keep).sum())} readings at the dropped nodes held out "
+               f"and predicted")
+        o = dataclasses.replace(self.options, grid1_deg=coarse[0], grid2_deg=coarse[1], reflectors_mm=reflectors_mm,
+                                check_resolution=False, regularize=False)
+        try:
+            x = Identifier(self.data.subset(keep), o).fit().x
+            full = Identifier(self.data, o)
+        except InputError as e:  # too few readings left, or the coarse fit refused: say so, do not fail
+            return {"method": how, "done": False, "why": str(e)}
+        r = full.residuals(x)[0]
+        budget = self.options.budget if self.options.budget is not None else self.default_budget()
+        u = _rms(ReadingErrors(budget).std(full.beam_lengths(x)))
+        out = {"method": how, "done": True, "held_out_rms_mm": _rms(r[~keep]), "fitted_rms_mm": _rms(r[keep]),
+               "reading_u_mm": u, "ratio": _rms(r[~keep]) / u}
+        if out["ratio"] > RESIDUAL_WARNING_RATIO:
+            out["warning"] = (
+                f"under-resolution check: readings at the dropped nodes, held out, miss the map fitted on every "
+                f"second node by RMS {1e3 * out['held_out_rms_mm']:.1f} um = {out['ratio']:.1f} x the budget's "
+                f"reading uncertainty: the true deviation changes within two node spacings, so the map may miss "
+                f"as much between its own nodes, where no reading looks -- measure between the nodes (finer plan)")
+        return out
+
+    #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
+    LENGTH_FACTOR = 2.0
+    #: A joint deviation (map node, theta20) beyond this is no positioning deviation, deg.
+    MAX_DEVIATION_DEG = 10.0
+
+    def implausible(self, x) -> list:
+        """Link lengths not positive or outside [1/f, f] x nominal (f = :attr:`LENGTH_FACTOR`); joint deviations
+        beyond :attr:`MAX_DEVIATION_DEG`; non-finite reflectors or dead paths."""
+        o, out = self.options, []
+        for name, nominal in (("L1", o.nominal_L1_mm), ("L2", o.nominal_L2_mm)):
+            v = x[self.names.index(f"{name}_mm")]
+            if not v > 0:
+                out.append(f"{name} = {v:.6g} mm is not a positive length")
+            elif nominal > 0 and not nominal / self.LENGTH_FACTOR <= v <= nominal * self.LENGTH_FACTOR:
+                out.append(f"{name} = {v:.6g} mm is more than {self.LENGTH_FACTOR:g} x off its nominal "
+                           f"{nominal:g} mm (readings in mm? the right --nominal-mm?)")
+        dev = np.abs(x[2:self.n_robot])
+        if dev.size and dev.max() > self.MAX_DEVIATION_DEG:
+            i = 2 + int(np.argmax(dev))
+            out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no positioning "
+                       f"deviation")
+        return out
+
+    def default_budget(self):
+        """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
+        from olti_drake.io.budget import paper000_budget
+
+        return paper000_budget()
+
+    def reading_label(self, k: int) -> dict:
+        return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
+
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
+        from olti_drake.io.result import uncertainty_layout
+
+        return uncertainty_layout(self.robot0, v)
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """Reflector distance ‖p̂(k) − P_j‖ of every reading at x, mm (the budget's cosine error scales with it)."""
+        r, _, _ = self.residual_rows(np.asarray(x)[None])
+        return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
+
+    def check_identifiability(self, x=None) -> float:
+        """As :meth:`LeastSquaresProgram.check_identifiability`; a map node no reading touches is also
+        named by the campaign lines that command that axis near it (often one mistyped angle)."""
+        try:
+            return super().check_identifiability(x)
+        except UnidentifiableError as e:
+            where = self._node_readings(e.names[0]) if e.names else ""
+            if not where:
+                raise
+            raise UnidentifiableError(f"{e}; {where}", e.names) from None
+
+    def _node_readings(self, name: str) -> str:
+        """Where the readings near a map-node parameter's node are (file lines, directions), or ''."""
+        import re
+
+        m = re.fullmatch(r"(J[12])_(forward|reverse)_deg\[(\d+)\]", name)
+        if m is None or not self.robot0.is_errormap:
+            return ""
+        axis, i = m.group(1), int(m.group(3))
+        grid = (self.robot0.map1 if axis == "J1" else self.robot0.map2).grid_deg
+        c = self.data.commands
+        cmd, dirs = (c.theta1_deg, c.dir1) if axis == "J1" else (c.theta2_deg, c.dir2)
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        near = np.flatnonzero((cmd > lo) & (cmd < hi) | (cmd == grid[i]))
+        if not near.size:
+            return f"no reading commands {axis} between {lo:g} and {hi:g} deg"
+        lines = ", ".join(f"{self.data.source}:{self.data.line[k]}" for k in near[:3])
+        lines += " ..." if near.size > 3 else ""
+        sides = sorted({f"{d:+.0f}" for d in dirs[near]})
+        return (f"the only readings near the {axis} node {grid[i]:g} deg are at {lines} (direction "
+                f"{', '.join(sides)} only) -- check {'that command' if near.size == 1 else 'those commands'}")
+
+    # -- model -------------------------------------------------------------------------------
+    def _check_reflectors(self):
+        o, d = self.options, self.data
+        # A reading far from its reflector's others (a typo, a unit slip) is named by line before the start
+        # values are built from it. The bound holds for any SCARA: none reaches beyond MAX_SCARA_REACH_MM.
+        reach = max(o.nominal_L1_mm + o.nominal_L2_mm, MAX_SCARA_REACH_MM)
+        check_spread(d.displacement_mm, d.reflector, d.line, d.source, "displacement_mm", 2 * reach, "reflector",
+                     f"twice the reach, at most {reach:g} mm for any SCARA")
+        counts = np.bincount(d.reflector)
+        if counts.size < 3 and not o.fix_reflectors:
+            raise UnidentifiableError(
+                f"{d.source}: {counts.size} reflector position(s); with unknown reflector positions at least 3 "
+                f"are needed (000 §3.2.2 Remark 1) -- P and d0 of every reflector are not identifiable")
+        few = np.flatnonzero(counts < 3)
+        if few.size:
+            raise UnidentifiableError(
+                f"{d.source}: reflector {few[0]} has {counts[few[0]]} valid reading(s); each reflector needs at "
+                f"least 3 (its position P{few[0]} and dead path d0_{few[0]} are 3 unknowns)",
+                [f"P{few[0]}_x_mm", f"P{few[0]}_y_mm", f"d0_{few[0]}_mm"])
+
+    def _robot_start(self) -> ScaraModel:
+        o, c = self.options, self.data.commands
+        if o.model == "dh":
+            return ScaraModel(o.nominal_L1_mm, o.nominal_L2_mm, 0.0)
+        maps = []
+        for axis, grid, cmd in (("J1", o.grid1_deg, c.theta1_deg), ("J2", o.grid2_deg, c.theta2_deg)):
+            # Distinct commanded angles; files written elsewhere may carry 1e-12 deg of float noise.
+            g = np.unique(np.round(cmd, 9)) if grid is None else np.asarray(grid, dtype=float)
+            if grid is None and g.size > MAX_GRID_NODES:
+                raise InputError(f"{self.data.source}: {g.size} distinct {axis} commands would be {g.size} map nodes, "
+                                 f"more than {MAX_GRID_NODES}; give the {axis} map grid (--grid{axis[1]}-deg)")
+            out = (cmd < g[0] - 1e-9) | (cmd > g[-1] + 1e-9)
+            if out.any():
+                k = np.flatnonzero(out)[0]
+                raise InputError(f"{self.data.source}:{self.data.line[k]}: {axis} command {cmd[k]:g} deg is outside "
+                                 f"the {axis} map grid [{g[0]:g}, {g[-1]:g}] deg")
+            maps.append(ErrorMap(g, np.zeros(g.size), np.zeros(g.size), axis=axis))
+        return ScaraModel(o.nominal_L1_mm, o.nominal_L2_mm, None, *maps)
+
+    def split(self, x):
+        """Parameter vector -> (ScaraModel, reflectors (Nt, 2) mm, dead paths (Nt,) mm)."""
+        n = self.n_robot
+        return (self.robot0.with_parameters(x[:n]), x[n:n + 2 * self.n_t].reshape(-1, 2), x[n + 2 * self.n_t:])
+
+    def residual_rows(self, X, displacement_mm=None):
+        """Eq. (10) residuals of T parameter vectors at once, Jacobian row-compressed.
+
+        Args:
+            X: (T, n) parameter vectors (layout of :attr:`names`).
+            displacement_mm: readings (K,) or per trial (T, K); default the campaign's.
+
+        Returns:
+            r (T, K) mm; cols (K, m) parameter indices shared by all trials;
+            vals (T, K, m) the matching dr/dx entries: the robot's few non-zeros
+            (kinematics), −u on P_j, −1 on d0_j, u the unit vector from P_j to p̂(k).
+        """
+        X = np.atleast_2d(X)
+        n, n_t, j = self.n_robot, self.n_t, self.data.reflector
+        p, cols, dx, dy = self.robot0.jacobian_rows(self.data.commands, X[:, :n])
+        P = X[:, n:n + 2 * n_t].reshape(len(X), n_t, 2)
+        diff = p - P[:, j]
+        dist = np.hypot(diff[..., 0], diff[..., 1])
+        u = diff / dist[..., None]
+        d = self.data.displacement_mm if displacement_mm is None else displacement_mm
+        r = dist - X[:, n + 2 * n_t:][:, j] - d
+        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * n_t + j])
+        vals = np.concatenate([u[..., :1] * dx + u[..., 1:] * dy, -u, -np.ones(r.shape + (1,))], axis=-1)
+        return r, cols, vals
+
+    def residuals(self, x):
+        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and the sparse dr/dx."""
+        r, cols, vals = self.residual_rows(np.asarray(x)[None])
+        return r[0], rows_to_csr(cols, vals[0], len(self.names))
+
+    # -- start and gauge -----------------------------------------------------------------------
+    def _initial_guess(self) -> np.ndarray:
+        """Nominal robot, reflectors/dead paths fitted per reflector on the nominal model."""
+        o = self.options
+        p = self.robot0.positions(self.data.commands)
+        P0 = None if o.reflectors_mm is None else np.asarray(o.reflectors_mm, dtype=float).reshape(-1, 2)
+        if P0 is not None and len(P0) != self.n_t:
+            raise InputError(f"reflectors_mm gives {len(P0)} positions but the campaign has {self.n_t} reflectors")
+        fits = [station_fit(p[self.data.reflector == j], self.data.displacement_mm[self.data.reflector == j],
+                               None if P0 is None else P0[j]) for j in range(self.n_t)]
+        P = np.array([f[0] for f in fits]) if P0 is None or not o.fix_reflectors else P0
+        d0 = np.array([f[1] for f in fits])
+        return np.concatenate([self.robot0.parameter_vector(), P.ravel(), d0])
+
+    def _add_gauge(self) -> str:
+        if self.options.model == "dh":
+            return ("none needed: the D-H model has no J1 offset, so X lies along the arm at theta1* = 0 "
+                    "(formats.md frame)")
+        if self.options.fix_reflectors:
+            return "fixed by the known reflector positions (no free rotation about J1)"
+        m = self.robot0.map1
+        at = float(np.clip(0.0, m.grid_deg[0], m.grid_deg[-1]))
+        w = (m.weights([at, at], [1.0, -1.0]).toarray().sum(axis=0) / 2)[None, :]
+        self.prog.AddLinearEqualityConstraint(w, [0.0], self.variables[2:2 + 2 * m.n_nodes]).evaluator(
+        ).set_description("gauge")
+        return (f"rotation about J1 fixed by the constraint (dtheta1({at:g} deg, +1) + dtheta1({at:g} deg, -1))/2 = 0: "
+                f"X lies along the arm at theta1* = {at:g} deg, mean of both approach directions")
+
+    # -- linear algebra shared by the solvers and the uncertainty ----------------------------
+def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
+    """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
+    return Identifier(data, options).solve()
+
+

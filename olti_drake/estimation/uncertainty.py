@@ -1,0 +1,325 @@
+"""Uncertainty of identified parameters and predictions (000 §5, 001 §4.4).
+
+Two methods from one reading-error model built from a budget (000 Table 2,
+001 Table 4):
+
+* **linear** (JCGM 100, the Jacobian method 000 §5 Remark names): the
+  sensitivity of the least-squares solution to every reading, within the
+  gauge and other equality constraints, propagates the per-reading variances.
+* **mc** (JCGM 101): draw every reading's error from the budget, re-solve the
+  nonlinear problem (10), collect the estimates. Trials are solved in batches:
+  the exact gradient J(x)ᵀr(x) of every trial with the Hessian factorized once
+  at the solution -- a chord iteration that converges to each trial's own
+  least-squares solution -- over worker processes on the machine's cores.
+
+Reading errors (per reading k at reflector distance D_k):
+``reading`` contributors add along the beam; ``pose`` contributors displace
+the laser head isotropically, so their along-beam part adds; ``beam_direction``
+contributors tilt the beam by ψ, which shortens the reading by D ψ²/2 (the
+cosine error). Units: mm and degrees; angles of the budget in rad.
+"""
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+import scipy.sparse as sp
+
+from olti_drake.io.budget import Budget
+from olti_drake.io.csvio import InputError
+from olti_drake.estimation.threads import single_thread_blas
+
+#: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
+BATCH = 250
+#: Batches per round of the adaptive procedure (at least; more when the coverage probability needs them):
+#: fixed, so adaptive results do not depend on the workers.
+ROUND_BATCHES = 4
+#: Default cap on the trials of the adaptive procedure (``olti uncertainty --max-trials``).
+MAX_TRIALS = 50_000
+
+
+def trials_for_intervals(coverage: float) -> int:
+    """JCGM 101 §7.2.2: M large compared with 1/(1 − p), e.g. 10^4/(1 − p) trials for a coverage interval
+    (200 000 for p = 0.95); fewer give intervals whose endpoints are not reliable."""
+    return int(np.ceil(1e4 / (1.0 - coverage) - 1e-6))
+
+
+def round_trials(coverage: float) -> int:
+    """Trials per adaptive round: at least :data:`ROUND_BATCHES` batches and J = 100/(1 − p) (JCGM 101 §7.9.4 b),
+    in whole batches."""
+    need = max(ROUND_BATCHES * BATCH, int(np.ceil(100.0 / (1.0 - coverage) - 1e-6)))
+    return BATCH * int(np.ceil(need / BATCH))
+
+
+@dataclass
+class ReadingErrors:
+    """The budget as per-reading error distributions (lengths mm, angles rad)."""
+
+    budget: Budget
+
+    def __post_init__(self):  # a constructed budget is checked before it is propagated, as a loaded one is
+        self.budget.validate()
+
+    def _terms(self, acts_on):
+        return [c for c in self.budget.contributors if c.acts_on == acts_on]
+
+    def std(self, distance_mm) -> np.ndarray:
+        """Standard uncertainty of every reading (K,) mm -- the linear method's input.
+
+        The cosine error -D ψ²/2 of ψ ~ N(0, u_ψ²) has standard deviation D u_ψ²/√2.
+        """
+        D = np.asarray(distance_mm, dtype=float)
+        u_psi = self.budget.combined("beam_direction")
+        return np.sqrt(self.budget.combined("reading") ** 2 + self.budget.combined("pose") ** 2
+                       + (D * u_psi ** 2) ** 2 / 2)
+
+    def draw(self, rng: np.random.Generator, distance_mm, trials: int) -> np.ndarray:
+        """(trials, K) reading errors, mm: every contributor drawn independently (JCGM 101)."""
+        D = np.asarray(distance_mm, dtype=float)
+        shape = (trials, D.size)
+        err = np.zeros(shape)
+        for c in self._terms("reading") + self._terms("pose"):
+            err += _sample(rng, c.standard(), c.distribution, shape)
+        psi = np.zeros(shape)
+        for c in self._terms("beam_direction"):
+            psi += _sample(rng, c.standard(), c.distribution, shape)
+        return err - D * psi ** 2 / 2
+
+
+def _sample(rng, std, distribution, shape):
+    if distribution == "uniform":  # rectangular with the same standard deviation
+        a = std * np.sqrt(3.0)
+        return rng.uniform(-a, a, shape)
+    return std * rng.standard_normal(shape)
+
+
+def identifier_at_result(result_path, data):
+    """The :class:`Identifier` of a result's model and grids on a campaign, and the result's x.
+
+    Raises InputError when the campaign and the result do not match (reflector count).
+    """
+    from olti_drake.estimation.identification import IdentificationOptions, Identifier
+    from olti_drake.io.result import load_result
+
+    model, P, d0, raw = load_result(result_path, outside="clamp", identified=True)
+    opts = IdentificationOptions(model=raw["model"], nominal_L1_mm=model.L1_mm, nominal_L2_mm=model.L2_mm)
+    if model.is_errormap:
+        opts.grid1_deg, opts.grid2_deg = model.map1.grid_deg, model.map2.grid_deg
+    ident = Identifier(data, opts)
+    if len(P) != ident.n_t or len(d0) != ident.n_t:
+        raise InputError(f"{os.fspath(result_path)}: {len(P)} reflectors, but the campaign {data.source} has "
+                         f"{ident.n_t}")
+    return ident, np.concatenate([model.parameter_vector(), P.ravel(), d0])
+
+
+def _solution_map(ident, x):
+    """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
+    r, J = ident.residuals(x)
+    H = (J.T @ J).toarray() + ident.quadratic_costs()[0]
+    M, N, s = ident.reduced_hessian(H)
+    Ns = N / s[:, None]
+    return Ns @ np.linalg.solve(M, Ns.T), J
+
+
+def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
+    """Covariance (n, n) of the parameters by linear propagation (JCGM 100; 000 §5 Remark, 001 §4.4).
+
+    ``ident``: any :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram`
+    (SCARA identification or multilateration).
+
+    x = argmin ½‖r(x) − d‖² within the constraints gives dx/dd = B Jᵀ, so
+    cov = B Jᵀ diag(u_k²) J B with u_k from the budget at each reading's distance.
+    """
+    B, J = _solution_map(ident, x)
+    u2 = errors.std(ident.beam_lengths(x)) ** 2
+    JtUJ = (J.T @ sp.diags(u2) @ J).toarray()
+    return B @ JtUJ @ B
+
+
+@dataclass
+class MonteCarlo:
+    """Monte Carlo samples (trials, n) of the parameters and how they were made."""
+
+    samples: np.ndarray
+    seed: int
+    #: Adaptive: every estimate, standard uncertainty and coverage-interval endpoint stable (JCGM 101 §7.9.4),
+    #: whether or not the run also reached the cap. Fixed trials: True (nothing to converge).
+    converged: bool = True
+    batches: int = 0
+    notes: list = field(default_factory=list)
+    #: The coverage intervals of probability ``coverage`` are reliable: enough trials (§7.2.2) or stable (§7.9).
+    intervals_adequate: bool = False
+    coverage: float = 0.95
+
+
+# Worker processes inherit the problem through fork: the Identifier holds Drake objects that do not pickle.
+_WORK = {}
+
+
+def _mc_batch(seed, size: int):
+    # seed and size travel with the task: forked workers outlive a round, _WORK keeps only what is fixed.
+    w = _WORK
+    rng = np.random.default_rng(seed)
+    E = w["errors"].draw(rng, w["distance"], size)
+    with single_thread_blas():  # the workers already fill the cores
+        return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
+
+
+def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
+    """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
+
+    Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
+    step is not below the tolerance after ``max_iter`` iterations (or not finite) did not converge: its
+    row is NaN, for :func:`monte_carlo` to refuse.
+    """
+    X = np.tile(x, (len(D), 1))
+    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial is caught below, not warned about
+        for _ in range(max_iter):
+            r, _, vals = ident.residual_rows(X, D)
+            G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
+            step = G @ B
+            X -= step
+            last = np.max(np.abs(step), axis=1)
+            if np.max(last) < tol:
+                break
+    X[~(last < tol)] = np.nan  # also catches NaN steps
+    return X
+
+
+def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int = 0, workers: Optional[int] = None,
+                adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = MAX_TRIALS,
+                progress: Optional[Callable[[int, int], None]] = None, coverage: float = 0.95) -> MonteCarlo:
+    """JCGM 101 Monte Carlo of a least-squares estimate (000 §5; 001 §4.4).
+
+    ``ident``: any :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram` with
+    batched residuals ``residual_rows(X (T, n), readings (K,) or (T, K)) ->
+    (r (T, K), cols (K, m), vals (T, K, m))`` -- the SCARA
+    :class:`~olti_drake.estimation.identification.Identifier` or the
+    :class:`~olti_drake.estimation.multilateration.Multilateration` of 001.
+
+    Readings are the model's own at x plus errors drawn from the budget, so
+    the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
+    of :func:`round_trials` trials until, for every parameter, the estimate, the
+    standard uncertainty and both endpoints of the ``coverage`` interval are
+    stable to the tolerance of ``tolerance_digits`` significant digits of the
+    standard uncertainty (JCGM 101 §7.9.4), or ``max_trials`` are done
+    (then not converged, said in the notes). Batches of :data:`BATCH` trials
+    have their own seeds (from ``seed``): results do not depend on ``workers``.
+    """
+    if trials < 2:
+        raise InputError(f"trials must be >= 2, got {trials}")
+    if adaptive and max_trials < 2 * round_trials(coverage):
+        raise InputError(f"max_trials must be >= {2 * round_trials(coverage)} (two adaptive rounds), got {max_trials}")
+    B, J = _solution_map(ident, x)
+    distance = ident.beam_lengths(x)
+    # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
+    model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
+    Q, q = ident.quadratic_costs()
+    k, m = cols.shape
+    scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
+    _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
+                 q=q, Q=Q, scatter=scatter)
+    workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)
+    seeds = np.random.SeedSequence(seed)
+    out, batches, done = [], 0, 0
+    history, stable = [], False
+    with _pool(workers) as pool:
+        while True:
+            n = trials if not adaptive else round_trials(coverage)
+            sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
+            children = seeds.spawn(len(sizes))
+            results = pool.map(_mc_batch, children, sizes) if pool else map(_mc_batch, children, sizes)
+            for part in results:
+                out.append(part)
+                done += len(part)
+                if progress:
+                    progress(done, trials if not adaptive else max_trials)
+            batches += len(sizes)
+            if not adaptive:
+                break
+            history.append(_round_summary(np.vstack(out[-len(sizes):]), coverage))
+            stable = len(history) >= 2 and _stable(history, tolerance_digits)
+            if stable or done + n > max_trials:
+                break
+    samples = np.vstack(out)
+    _WORK.clear()
+    failed = int(np.isnan(samples).any(axis=1).sum())
+    if failed:
+        from olti_drake.estimation.leastsquares import FitRefused
+
+        raise FitRefused(f"{ident.source}: Monte Carlo refused, nothing written -- {failed} of {len(samples)} trials "
+                         f"did not converge to their own least-squares solution (the budget's errors drive the "
+                         f"problem beyond where it can be re-solved from the estimate: check the budget's units)")
+    notes = []
+    if adaptive:
+        notes.append(f"adaptive (JCGM 101 §7.9): {done} trials in {len(history)} rounds; " + (
+            f"estimates, standard uncertainties and {coverage:g} coverage-interval endpoints stable to "
+            f"{tolerance_digits} significant digit(s) of u" if stable else
+            f"NOT stable to {tolerance_digits} significant digit(s) of u when the cap of {max_trials} trials "
+            f"was reached"))
+    adequate = stable if adaptive else done >= trials_for_intervals(coverage)
+    return MonteCarlo(samples, seed, stable or not adaptive, batches, notes, adequate, coverage)
+
+
+def _pool(workers):
+    import multiprocessing as mp
+    import contextlib
+
+    if workers <= 1:
+        return contextlib.nullcontext(None)
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+
+
+def _round_summary(samples, coverage) -> np.ndarray:
+    """(4, n) of one adaptive round: estimate (mean), standard uncertainty, low and high coverage endpoints."""
+    lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
+    return np.array([samples.mean(axis=0), samples.std(axis=0, ddof=1), lo, hi])
+
+
+def _stable(history, digits) -> bool:
+    """JCGM 101 §7.9.4: for the estimate, u and both interval endpoints, 2·s of the round values (standard
+    deviation of their mean over h rounds) ≤ δ = ½·10^l, δ the numerical tolerance of ``digits``
+    significant digits of u."""
+    H = np.array(history)  # (h, 4, n)
+    u = H[:, 1].mean(axis=0)
+    s = H.std(axis=0, ddof=1) / np.sqrt(len(H))
+    l = np.floor(np.log10(np.maximum(u, 1e-300))) - (digits - 1)
+    return bool(np.all(2 * s <= 0.5 * 10.0 ** l))
+
+
+def prediction_std(ident, cov, x, commands) -> np.ndarray:
+    """Standard uncertainty (N, 2) mm of predicted x, y at commanded poses (linear, k = 1).
+
+    The robot block of the parameter covariance through the kinematic
+    Jacobian: in the result's gauge frame (000 Eq. 3, 7).
+    """
+    n = ident.n_robot
+    model = ident.robot0.with_parameters(x[:n])
+    _, jx, jy = model.positions_and_jacobian(commands)
+    C = cov[:n, :n]
+    var = [np.sum((j @ C) * j, axis=1) for j in (jx.toarray(), jy.toarray())]  # diag(J C Jᵀ)
+    return np.sqrt(np.maximum(np.column_stack(var), 0))
+
+
+def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, samples=None,
+                     coverage: float = 0.95, extra=None, intervals: bool = True) -> dict:
+    """The ``uncertainty`` object of formats.md: result keys and shapes, standard uncertainties (k = 1).
+
+    ``ident``: the program the uncertainties belong to (its :meth:`layout` gives the keys).
+    Adds ``expanded`` (the same layout times ``k``) and, for Monte Carlo with
+    ``intervals`` (enough trials, :attr:`MonteCarlo.intervals_adequate`), the
+    probabilistically symmetric ``coverage_interval`` of probability ``coverage``.
+    """
+    out = {"format": "olti-uncertainty/1", "method": method, "k": 1}
+    out.update(ident.layout(std))
+    out["expanded"] = dict(k=k, **ident.layout(k * std))
+    if samples is not None and intervals:
+        lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
+        out["coverage_interval"] = {"p": coverage, "low": ident.layout(lo), "high": ident.layout(hi)}
+    out["budget"] = budget.name
+    out["parameters"] = {"names": list(ident.names), "std": std.tolist()}
+    out.update(extra or {})
+    return out

@@ -1,0 +1,206 @@
+"""The machine-tool case of paper 001: an XY machine with volumetric errors, measured by an
+"open-loop" tracking interferometer on a rotary table set at several positions.
+
+Units: mm (µm in the error fields, as "thousandths of the command unit" of
+:class:`~olti_drake.model.errormap.HarmonicDeviation`, which serves linear axes too).
+
+* :class:`VolumetricError` -- E_XX, E_YY (linear positioning deviations),
+  E_YX, E_XY (straightness) as smooth functions of the command, the squareness
+  of Y to X; optionally bidirectional through the deviations' backlash terms.
+* :func:`simulate_machine_campaign` -- every station position j, every target
+  i: the rotary table turns the beam toward the *command* target from the
+  *estimated* station (Eq. 1 of 001); the reading is the interferometer model
+  of :mod:`olti_drake.model.interferometer` (cosine error, beam loss, λ/64, budget
+  noise: 001 Table 4).
+"""
+
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+
+from olti_drake.io.csvio import write_table
+from olti_drake.model.errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
+from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
+
+Deviation = Union[HarmonicDeviation, NoDeviation]
+
+
+# A few µm over 100 mm, like 001 Fig. 10: scale errors of tens of µm/m, pitch harmonics, straightness.
+def _exx():
+    return HarmonicDeviation(slope_mdeg_per_deg=0.06, harmonics=[Harmonic(3.0, 80.0, 20.0)])  # 60 µm/m + 3 µm
+
+
+def _eyy():
+    return HarmonicDeviation(slope_mdeg_per_deg=-0.04, harmonics=[Harmonic(2.5, 60.0, -50.0)])
+
+
+def _eyx():
+    return HarmonicDeviation(harmonics=[Harmonic(2.0, 150.0, 0.0)])
+
+
+def _exy():
+    return HarmonicDeviation(harmonics=[Harmonic(1.5, 120.0, 90.0)])
+
+
+@dataclass
+class VolumetricError:
+    """2D volumetric error of an XY machine (ISO 230-1 names), µm over mm commands.
+
+    Actual = command + (E_XX(x) + E_XY(y) − squareness·y, E_YY(y) + E_YX(x)):
+    E_XX, E_YY positioning deviations of X and Y, E_YX straightness of X (a Y
+    deviation along X), E_XY straightness of Y, squareness (µrad) of Y to X.
+    """
+
+    EXX: Deviation = field(default_factory=_exx)
+    EYY: Deviation = field(default_factory=_eyy)
+    EYX: Deviation = field(default_factory=_eyx)
+    EXY: Deviation = field(default_factory=_exy)
+    squareness_urad: float = 8.0
+
+    def actual(self, commands_mm, dir_x=1.0, dir_y=1.0) -> np.ndarray:
+        """Actual positions (N, 2) mm of the commands (N, 2) mm approached in (dir_x, dir_y)."""
+        c = np.atleast_2d(np.asarray(commands_mm, dtype=float))
+        x, y = c[:, 0], c[:, 1]
+        dx = self.EXX(x, dir_x) + self.EXY(y, dir_y) - 1e-6 * self.squareness_urad * y
+        dy = self.EYY(y, dir_y) + self.EYX(x, dir_x)
+        return c + np.column_stack([dx, dy])
+
+
+def square_targets(size_mm: float = 100.0, step_mm: float = 20.0, origin_mm=(0.0, 0.0), perimeter: bool = True):
+    """Command target positions (N_i, 2) mm on a square grid; ``perimeter`` keeps its border only
+    (001 §3.2: 20 positions, 20 mm steps, within 100 × 100 mm)."""
+    n = int(round(size_mm / step_mm))
+    ticks = np.arange(n + 1) * step_mm
+    X, Y = np.meshgrid(ticks, ticks)
+    keep = np.ones_like(X, dtype=bool)
+    if perimeter:
+        keep = (X == 0) | (Y == 0) | (X == ticks[-1]) | (Y == ticks[-1])
+    return np.column_stack([X[keep], Y[keep]]) + np.asarray(origin_mm, dtype=float)
+
+
+def paper001_budget():
+    """001 Table 4 (k = 2) as a :class:`~olti_drake.io.budget.Budget` (the shipped YAML's content)."""
+    from olti_drake.io.budget import load_budget
+
+    from olti_drake.io.resources import shipped
+
+    return load_budget(shipped("data", "budget_paper001.yaml"))
+
+
+@dataclass
+class MachineScenario:
+    """A simulated 001 campaign: machine error, targets, station positions, estimates, instrument.
+
+    ``station_estimate_sigma_um``: error of the rotation-centre estimate of
+    001 §2.2 (11.5 µm at k = 2 in the paper); ``zero_angle_sigma_urad``: of the
+    zero-angle alignment (u41). Defaults: the paper's experiment (Fig. 10).
+    """
+
+    error: VolumetricError = field(default_factory=VolumetricError)
+    size_mm: float = 100.0
+    step_mm: float = 20.0
+    stations_mm: list[list[float]] = field(default_factory=lambda: [[-120.0, -80.0], [220.0, -60.0], [50.0, 240.0]])
+    station_estimate_sigma_um: float = 5.75
+    zero_angle_sigma_urad: float = 2.8
+    stations_estimate_mm: list[list[float]] = field(default_factory=list)
+    zero_angles_urad: list[float] = field(default_factory=list)
+    interferometer: InterferometerOptions = field(default_factory=InterferometerOptions)
+    seed: int = 0
+
+
+@dataclass
+class MachineRun:
+    """A machine campaign as executed: the (station, target) rows in order, and what the steering knows.
+
+    Shared by the numpy twin and the Drake diagram, so both steer and zero
+    their counters identically. mm, rad; directions ±1 per axis.
+    """
+
+    commands_mm: np.ndarray
+    stations_mm: np.ndarray
+    stations_estimate_mm: np.ndarray
+    zero_angle_errors_rad: np.ndarray
+    sequence: dict
+    actual_mm: np.ndarray
+    dead_paths_mm: np.ndarray
+
+    @property
+    def targets_mm(self) -> np.ndarray:
+        """Actual position of every target at its first reading, (N_i, 2) mm."""
+        first = [np.flatnonzero(self.sequence["target"] == i)[0] for i in range(len(self.commands_mm))]
+        return self.actual_mm[first]
+
+
+def machine_sequence(commands_mm, n_stations: int) -> dict:
+    """Every (station, target) row in execution order: targets in order, once per station.
+
+    Directions run over the whole campaign (station j's run starts where
+    j − 1's ended), by the rule of formats.md. Returns dict of (K,) arrays:
+    station, target (int), x_cmd_mm, y_cmd_mm, dir_x, dir_y.
+    """
+    cmd = np.asarray(commands_mm, dtype=float).reshape(-1, 2)
+    i = np.tile(np.arange(len(cmd)), n_stations)
+    d = approach_directions(cmd[i])
+    return {"station": np.repeat(np.arange(n_stations), len(cmd)), "target": i, "x_cmd_mm": cmd[i, 0],
+            "y_cmd_mm": cmd[i, 1], "dir_x": d[:, 0], "dir_y": d[:, 1]}
+
+
+def machine_run(scenario: MachineScenario, rng: np.random.Generator) -> MachineRun:
+    """Sequence, actual positions (bidirectional error applied), steering estimates and counter zeros.
+
+    The station estimates and zero-angle errors are the scenario's own when
+    given (e.g. from :mod:`olti_drake.estimation.station_estimation`), else drawn from
+    ``rng`` (first P̂ − P, N_j × 2, then the zero angles, N_j). The counter of
+    station j is zeroed at its first reading: L0_j is that distance (001 Eq. 3).
+    """
+    s = scenario
+    if not (np.isfinite(s.size_mm) and np.isfinite(s.step_mm) and s.size_mm > 0 and s.step_mm > 0):
+        raise ValueError(f"size_mm and step_mm must be finite and > 0, got {s.size_mm!r}, {s.step_mm!r}")
+    P = np.asarray(s.stations_mm, dtype=float).reshape(-1, 2)
+    if not len(P) or not np.all(np.isfinite(P)):
+        raise ValueError(f"stations_mm must be a non-empty list of finite [x, y] pairs, got {s.stations_mm!r}")
+    P_est = (np.asarray(s.stations_estimate_mm, dtype=float).reshape(-1, 2) if s.stations_estimate_mm else
+             P + 1e-3 * s.station_estimate_sigma_um * rng.standard_normal(P.shape))
+    delta = 1e-6 * (np.asarray(s.zero_angles_urad, dtype=float) if s.zero_angles_urad else
+                    s.zero_angle_sigma_urad * rng.standard_normal(len(P)))
+    if P_est.shape != P.shape or delta.shape != (len(P),):
+        raise ValueError("stations_estimate_mm and zero_angles_urad must give one value per station")
+    cmd = square_targets(s.size_mm, s.step_mm)
+    seq = machine_sequence(cmd, len(P))
+    actual = s.error.actual(cmd[seq["target"]], seq["dir_x"], seq["dir_y"])
+    first = np.array([np.flatnonzero(seq["station"] == j)[0] for j in range(len(P))])
+    return MachineRun(cmd, P, P_est, delta, seq, actual, np.hypot(*(actual[first] - P).T))
+
+
+def simulate_machine_campaign(scenario: MachineScenario, budget=None):
+    """Readings of every target from every station (001 §2, §3.2): (columns dict, truth dict).
+
+    The numpy twin of the Drake diagram (:mod:`olti_drake.sim.machine_station`):
+    the same :func:`machine_run`, the rotary table aiming by Eq. (1) of 001
+    from the estimated station, the interferometer model of
+    :func:`~olti_drake.model.interferometer.simulate_readings`. Columns follow
+    formats.md (station, target, x_cmd_mm, y_cmd_mm, displacement_mm, valid).
+    """
+    rng = np.random.default_rng(scenario.seed)
+    run = machine_run(scenario, rng)
+    seq, P, Pe = run.sequence, run.stations_mm, run.stations_estimate_mm
+    i, j = seq["target"], seq["station"]
+    cmd = run.commands_mm
+    aim = np.degrees(np.arctan2(cmd[i, 1] - Pe[j, 1], cmd[i, 0] - Pe[j, 0]) + run.zero_angle_errors_rad[j])
+    reading, valid, _ = simulate_readings(P[j], aim, run.actual_mm, run.dead_paths_mm[j], scenario.interferometer,
+                                          budget or paper001_budget(), rng)
+    cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
+            "displacement_mm": np.where(valid, reading, np.nan), "valid": valid.astype(int)}
+    truth = {"format": "olti-multilateration/1", "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
+             "dead_paths_mm": run.dead_paths_mm.tolist(), "commands_mm": cmd.tolist(),
+             "gauge": "simulation truth: the machine's command frame", "residual_rms_mm": 0.0,
+             "n_readings": int(valid.sum()), "stations_estimate_mm": Pe.tolist(), "seed": scenario.seed}
+    return cols, truth
+
+
+def write_machine_campaign(columns: dict, path) -> None:
+    """The machine-tool campaign CSV of formats.md."""
+    write_table(path, columns, {"station": "%d", "target": "%d", "x_cmd_mm": "%.6f", "y_cmd_mm": "%.6f",
+                                "displacement_mm": "%.9f", "valid": "%d"},
+                comments=["olti_drake machine-tool campaign (001, formats.md): mm; valid 0 = beam lost"])

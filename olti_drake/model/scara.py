@@ -1,0 +1,258 @@
+"""SCARA kinematics with the bidirectional error map -- the one kinematic model.
+
+Paper 000: Eq. (3) forward kinematics, Eq. (7)-(9) actual angle from the
+command angle through the error map. The simulator (Drake systems) and the
+identifier both call these functions.
+
+Units: lengths in **mm**, angles in **degrees** (arguments, results and
+Jacobians: dp/dθ is in mm/deg). The trigonometry converts internally.
+Frame: origin on the J1 axis, X along the arm at θ1* = θ2* = 0 (000 Fig. 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import scipy.sparse as sp
+
+from olti_drake.model.errormap import ErrorMap
+
+DEG = np.pi / 180.0
+
+#: The paper's robot (Mitsubishi RH-3FRH-5515, 000 Table 1), mm.
+PAPER_L1_MM = 325.0
+PAPER_L2_MM = 225.0
+
+
+@dataclass(frozen=True)
+class JointCommands:
+    """Commanded J1, J2 angles (deg) and approach directions (+1/-1), each (N,)."""
+
+    theta1_deg: np.ndarray
+    theta2_deg: np.ndarray
+    dir1: np.ndarray
+    dir2: np.ndarray
+
+    def __post_init__(self):
+        arrays = [np.asarray(getattr(self, f.name), dtype=float).ravel()
+                  for f in dataclasses.fields(self)]
+        n = arrays[0].size
+        for f, a in zip(dataclasses.fields(self), arrays):
+            if a.size != n:
+                raise ValueError(f"joint commands: {f.name} has {a.size} entries, expected {n}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"joint commands: {f.name} contains a non-finite value")
+            if f.name.startswith("dir") and not np.all(np.isin(a, (-1.0, 1.0))):
+                raise ValueError(f"joint commands: {f.name} must be +1 or -1")
+            object.__setattr__(self, f.name, a)
+
+    def __len__(self) -> int:
+        return self.theta1_deg.size
+
+
+def forward_kinematics(theta1_deg, theta2_deg, L1_mm, L2_mm):
+    """End-effector XY position and its partial derivatives (Eq. 3 of 000).
+
+    ``theta2_deg`` is the angle of link 2 relative to link 1 *including* any
+    offset θ20 (the caller adds it), so p = [L1 c1 + L2 c12, L1 s1 + L2 s12].
+
+    Args:
+        theta1_deg, theta2_deg: (N,) actual joint angles, deg.
+        L1_mm, L2_mm: link lengths, mm.
+
+    Returns:
+        p: (N, 2) position, mm.
+        dp: dict of (N, 2) partials: ``theta1`` and ``theta2`` in mm/deg,
+            ``L1`` and ``L2`` dimensionless.
+    """
+    t1 = np.asarray(theta1_deg, dtype=float) * DEG
+    t12 = t1 + np.asarray(theta2_deg, dtype=float) * DEG
+    u1 = np.stack([np.cos(t1), np.sin(t1)], axis=-1)
+    u12 = np.stack([np.cos(t12), np.sin(t12)], axis=-1)
+    p = L1_mm * u1 + L2_mm * u12
+    perp1 = np.stack([-u1[..., 1], u1[..., 0]], axis=-1)
+    perp12 = np.stack([-u12[..., 1], u12[..., 0]], axis=-1)
+    d_theta2 = L2_mm * perp12 * DEG
+    return p, {"theta1": L1_mm * perp1 * DEG + d_theta2, "theta2": d_theta2,
+               "L1": u1, "L2": u12}
+
+
+def inverse_kinematics(x_mm, y_mm, L1_mm, L2_mm, elbow: int = 1):
+    """Joint angles (deg) that put the end effector at (x, y) mm, nominal Eq. (3).
+
+    ``elbow=+1`` gives θ2 ≥ 0, ``-1`` gives θ2 ≤ 0. Raises ValueError naming the
+    first unreachable row (0-based).
+    """
+    x = np.atleast_1d(np.asarray(x_mm, dtype=float))
+    y = np.atleast_1d(np.asarray(y_mm, dtype=float))
+    c2 = (x**2 + y**2 - L1_mm**2 - L2_mm**2) / (2 * L1_mm * L2_mm)
+    bad = np.flatnonzero(~(np.abs(c2) <= 1 + 1e-12))
+    if bad.size:
+        k = bad[0]
+        raise ValueError(f"target row {k} ({x[k]:g}, {y[k]:g}) mm is outside the reach "
+                         f"[{abs(L1_mm - L2_mm):g}, {L1_mm + L2_mm:g}] mm")
+    t2 = elbow * np.arccos(np.clip(c2, -1, 1))
+    t1 = np.arctan2(y, x) - np.arctan2(L2_mm * np.sin(t2), L1_mm + L2_mm * np.cos(t2))
+    t1 = (t1 + np.pi) % (2 * np.pi) - np.pi
+    return t1 / DEG, t2 / DEG
+
+
+#: Most XY points of a workspace grid (a 1000 x 1000 square: ~0.6 mm steps over the paper robot's reach);
+#: a finer step is a slip that would allocate gigabytes, refused before allocating.
+MAX_WORKSPACE_POINTS = 1_000_000
+
+
+def workspace_grid(L1_mm, L2_mm, theta1_range_deg, theta2_range_deg, step_mm: float, option: str = "step_mm"):
+    """The XY grid points (step mm) the arm reaches with commands inside the given angle ranges.
+
+    Inverse of Eq. (3) of 000 with either elbow (elbow +1 preferred where both
+    fit). Returns (axis_mm (n,), inside (n, n) bool indexed [iy, ix],
+    theta1_deg, theta2_deg of the inside points in row-major order). At most
+    :data:`MAX_WORKSPACE_POINTS` grid points; errors name ``option`` (the step's parameter).
+    """
+    if not (np.isfinite(step_mm) and step_mm > 0):
+        raise ValueError(f"workspace {option} must be finite and > 0, got {step_mm!r}")
+    (a1, b1), (a2, b2) = (sorted((float(np.min(r)), float(np.max(r)))) for r in (theta1_range_deg, theta2_range_deg))
+    reach = L1_mm + L2_mm
+    if (2 * reach / step_mm + 1) ** 2 > MAX_WORKSPACE_POINTS:
+        raise ValueError(f"{option} {step_mm:g} mm gives {(2 * reach / step_mm + 1) ** 2:.3g} workspace grid points "
+                         f"over the {reach:g} mm reach, more than {MAX_WORKSPACE_POINTS:,} (use a coarser step)")
+    n = int(np.floor(reach / step_mm))
+    axis = step_mm * np.arange(-n, n + 1)
+    X, Y = np.meshgrid(axis, axis)
+    r = np.hypot(X, Y)
+    ok = (r >= abs(L1_mm - L2_mm)) & (r <= reach)
+    t1, t2 = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
+    tol = 1e-9
+    for elbow in (-1, 1):  # +1 last: it wins where both elbows fit
+        s1, s2 = np.full(X.shape, np.nan), np.full(X.shape, np.nan)
+        s1[ok], s2[ok] = inverse_kinematics(X[ok], Y[ok], L1_mm, L2_mm, elbow=elbow)
+        with np.errstate(invalid="ignore"):
+            fit = (s1 >= a1 - tol) & (s1 <= b1 + tol) & (s2 >= a2 - tol) & (s2 <= b2 + tol)
+        t1[fit], t2[fit] = np.clip(s1[fit], a1, b1), np.clip(s2[fit], a2, b2)
+    inside = np.isfinite(t1)
+    return axis, inside, t1[inside], t2[inside]
+
+
+@dataclass(frozen=True)
+class ScaraModel:
+    """Robot part of the D-H model (Eq. 4) or of the error-map model (Eq. 6) of 000.
+
+    * D-H: ``L1_mm``, ``L2_mm``, ``theta20_deg``; maps are None.
+    * Error map: ``L1_mm``, ``L2_mm`` and maps for J1 and J2 (θ20 absorbed in
+      the J2 map, so ``theta20_deg`` is None).
+
+    The parameter vector (:meth:`parameter_names`) is ordered as in Eq. (4)/(6):
+    lengths mm, angles deg.
+    """
+
+    L1_mm: float = PAPER_L1_MM
+    L2_mm: float = PAPER_L2_MM
+    theta20_deg: Optional[float] = 0.0
+    map1: Optional[ErrorMap] = None
+    map2: Optional[ErrorMap] = None
+
+    def __post_init__(self):
+        if (self.map1 is None) != (self.map2 is None):
+            raise ValueError("error-map model needs maps for both J1 and J2")
+        if self.map1 is not None and self.theta20_deg is not None:
+            raise ValueError("error-map model absorbs theta20 in the J2 map: set theta20_deg=None")
+
+    @property
+    def is_errormap(self) -> bool:
+        return self.map1 is not None
+
+    def parameter_names(self) -> list[str]:
+        """Names of the robot parameters, e.g. ``L1_mm``, ``J2_reverse_deg[3]``."""
+        names = ["L1_mm", "L2_mm"]
+        if not self.is_errormap:
+            return names + ["theta20_deg"]
+        for axis, m in (("J1", self.map1), ("J2", self.map2)):
+            for block in ("forward", "reverse"):
+                names += [f"{axis}_{block}_deg[{i}]" for i in range(m.n_nodes)]
+        return names
+
+    def parameter_vector(self) -> np.ndarray:
+        head = [self.L1_mm, self.L2_mm]
+        if not self.is_errormap:
+            return np.array(head + [self.theta20_deg])
+        return np.concatenate([head, self.map1.values, self.map2.values])
+
+    def with_parameters(self, x) -> "ScaraModel":
+        """A copy with the parameter vector ``x`` (same layout as :meth:`parameter_names`)."""
+        x = np.asarray(x, dtype=float)
+        if x.size != len(self.parameter_names()):
+            raise ValueError(f"expected {len(self.parameter_names())} parameters, got {x.size}")
+        if not self.is_errormap:
+            return ScaraModel(float(x[0]), float(x[1]), float(x[2]))
+        n1 = 2 * self.map1.n_nodes
+        return ScaraModel(float(x[0]), float(x[1]), None,
+                          self.map1.with_values(x[2:2 + n1]), self.map2.with_values(x[2 + n1:]))
+
+    def positions(self, cmd: JointCommands) -> np.ndarray:
+        """Predicted actual end-effector positions (N, 2) mm (Eq. 3 with Eq. 7)."""
+        return self.jacobian_rows(cmd)[0]
+
+    def jacobian_rows(self, cmd: JointCommands, X=None):
+        """Positions and the Jacobian in row-compressed form (Eq. 3 with Eq. 7-9 of 000).
+
+        Every row has the same few non-zeros: L1, L2 and θ20 (D-H), or L1, L2
+        and the two bracketing nodes of each map (error map).
+
+        Args:
+            cmd: N commands.
+            X: optional (T, P) parameter vectors (layout of :meth:`parameter_names`)
+                evaluated at once -- the grid, hence the interpolation, is shared;
+                default: this model's own parameters.
+
+        Returns:
+            p (N, 2) mm; cols (N, m) parameter indices; dx, dy (N, m) the
+            matching entries of dx/dparams and dy/dparams (mm/mm, mm/deg).
+            With X: p, dx, dy get a leading trial axis (T, ...).
+        """
+        batch = X is not None
+        X = np.atleast_2d(self.parameter_vector() if X is None else np.asarray(X, dtype=float))
+        n = len(cmd)
+        L1, L2 = X[:, :1, None], X[:, 1:2, None]
+        if not self.is_errormap:
+            t1 = np.broadcast_to(cmd.theta1_deg, (len(X), n))
+            p, dp = forward_kinematics(t1, cmd.theta2_deg + X[:, 2:3], L1, L2)
+            cols = np.broadcast_to(np.arange(3), (n, 3))
+            d = [np.stack(np.broadcast_arrays(dp["L1"][..., c], dp["L2"][..., c], dp["theta2"][..., c]), -1)
+                 for c in (0, 1)]
+        else:
+            c1, w1 = self.map1.interpolation(cmd.theta1_deg, cmd.dir1)
+            c2, w2 = self.map2.interpolation(cmd.theta2_deg, cmd.dir2)
+            off2 = 2 + 2 * self.map1.n_nodes
+            t1 = cmd.theta1_deg + np.sum(w1 * X[:, 2 + c1], axis=-1)  # Eq. (7)
+            t2 = cmd.theta2_deg + np.sum(w2 * X[:, off2 + c2], axis=-1)
+            p, dp = forward_kinematics(t1, t2, L1, L2)
+            cols = np.column_stack([np.zeros(n, int), np.ones(n, int), 2 + c1, off2 + c2])
+            d = [np.concatenate([dp["L1"][..., c:c + 1], dp["L2"][..., c:c + 1], dp["theta1"][..., c:c + 1] * w1,
+                                 dp["theta2"][..., c:c + 1] * w2], axis=-1) for c in (0, 1)]
+        if batch:
+            return p, cols, d[0], d[1]
+        return p[0], cols, d[0][0], d[1][0]
+
+    def positions_batch(self, cmd: JointCommands, X) -> np.ndarray:
+        """Positions (T, N, 2) mm for T parameter vectors X (T, P) at once (Eq. 3 with Eq. 7)."""
+        return self.jacobian_rows(cmd, X)[0]
+
+    def positions_and_jacobian(self, cmd: JointCommands):
+        """Positions (N, 2) mm and sparse Jacobians d x/d params, d y/d params.
+
+        Returns ``(p, Jx, Jy)``; Jx, Jy are CSR (N, P) in the units of
+        :meth:`parameter_names` (mm/mm, mm/deg). Analytic: Eq. (3) chain-ruled
+        through the interpolation weights of Eq. (7)-(9).
+        """
+        p, cols, dx, dy = self.jacobian_rows(cmd)
+        return p, rows_to_csr(cols, dx, len(self.parameter_names())), rows_to_csr(cols, dy, len(self.parameter_names()))
+
+
+def rows_to_csr(cols, values, n_cols: int) -> sp.csr_matrix:
+    """CSR matrix from a row-compressed (N, m) column/value layout (duplicates add up)."""
+    n, m = values.shape
+    return sp.csr_matrix((values.ravel(), np.asarray(cols).ravel(), np.arange(0, n * m + 1, m)), shape=(n, n_cols))

@@ -1,0 +1,283 @@
+"""Drake systems of the open-loop tracking interferometer campaign (paper 000 §2).
+
+Thin ``LeafSystem`` wrappers over the numpy modules (error map, steering,
+interferometer), so the simulation and the identifier share one model.
+
+Ports carry **SI units** as Drake's MultibodyPlant does: joint angles in rad,
+J3 stroke and the displacement in m. Files and the CLI stay in mm/deg; the
+conversion happens at these ports only.
+
+One clock drives a campaign: every ``period_s`` the :class:`PlanSequencer`
+steps to the next plan row (move), and half a period later the
+:class:`CampaignRecorder` takes the reading (settle, read).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, List, NamedTuple, Optional, Sequence
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+
+from olti_drake.io.budget import Budget
+from olti_drake.model.errormap import approach_directions
+from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
+from olti_drake.model.steering import beam_command_deg
+
+M_TO_MM = 1e3
+
+
+class ReadStatus(NamedTuple):
+    """How one interferometer reading was obtained (the stations' abstract ``status`` output).
+
+    ``raw``: the counter's raw status, logged and never interpreted (docs/protocol.md READ; the
+    simulated counter uses the emulator's register: ``0000`` good, ``8001`` no beam); ``reads``:
+    READ requests made for this reading (1 + re-reads); ``rezeros``: counter re-zeroings at the
+    run's reference pose made for it (the beam-loss policy, :mod:`olti_drake.hardware.station`).
+    """
+
+    raw: str = ""
+    reads: int = 0
+    rezeros: int = 0
+
+
+def _deg_mm(values, revolute):
+    """Port values (rad, m) -> (deg, mm), per axis."""
+    return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
+
+
+class ApproachErrorSystem(LeafSystem):
+    """Commanded -> actual positions through an error model that depends on the approach direction.
+
+    Input ``command`` (n): commanded positions (rad for revolute axes, m
+    otherwise). State: the last command and the approach direction of every
+    axis, updated every simulator step by the spec's rule (an axis that did
+    not move keeps its direction). Outputs ``position`` (n): the actual
+    positions; ``direction`` (n): ±1. Outputs combine the stored state with
+    the *current* input, so they are right at the instant a command changes,
+    whatever the event ordering. Subclasses give :meth:`actual` in deg/mm.
+    """
+
+    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
+        super().__init__()
+        self._revolute = np.asarray(revolute, dtype=bool)
+        n = self._n = len(self._revolute)
+        self.DeclareVectorInputPort("command", n)
+        self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
+        self.DeclarePerStepDiscreteUpdateEvent(self._remember)
+        self.DeclareVectorOutputPort("position", n, self._calc_position)
+        self.DeclareVectorOutputPort("direction", n, self._calc_direction)
+
+    def actual(self, command, direction) -> np.ndarray:
+        """Actual positions (n,) deg/mm of ``command`` (n,) deg/mm approached in ``direction`` (n,)."""
+        raise NotImplementedError
+
+    def _command_and_direction(self, context):
+        cmd = _deg_mm(self.get_input_port(0).Eval(context), self._revolute)
+        s = context.get_discrete_state_vector().value()
+        return cmd, approach_directions(cmd[None], s[:self._n], s[self._n:])[0]
+
+    def _remember(self, context, discrete_state):
+        cmd, direction = self._command_and_direction(context)
+        discrete_state.set_value(np.concatenate([cmd, direction]))
+
+    def _calc_direction(self, context, output: BasicVector):
+        output.SetFromVector(self._command_and_direction(context)[1])
+
+    def _calc_position(self, context, output: BasicVector):
+        actual = self.actual(*self._command_and_direction(context))
+        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+
+
+class ErrorMapJoint(ApproachErrorSystem):
+    """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+
+    One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
+    continuous truth, or None for a perfect axis); ports as
+    :class:`ApproachErrorSystem`.
+    """
+
+    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
+                 initial_direction: float = 1.0):
+        super().__init__(revolute, initial_direction)
+        self._dev = list(deviations)
+
+    def actual(self, command, direction) -> np.ndarray:
+        out = command.copy()
+        for i, dev in enumerate(self._dev):
+            if dev is not None:
+                out[i] += dev(command[i:i + 1], direction[i:i + 1])[0]
+        return out
+
+
+class BeamSteering(LeafSystem):
+    """Open-loop J4 command toward the *estimated* reflector (000 Eq. 1).
+
+    Inputs ``arm_command`` (2): θ1*, θ2* (rad); ``reflector`` (1): index j.
+    Output ``joint_command`` (4): θ1*, θ2*, J3 stroke (m), θ4* (rad).
+    Uses the nominal link lengths (mm) -- the command position -- and the
+    estimates of the reflector positions (mm) and θ40 (deg).
+    """
+
+    def __init__(self, L1_mm: float, L2_mm: float, reflectors_estimate_mm, theta40_estimate_deg: float,
+                 stroke_m: float = 0.0):
+        super().__init__()
+        self._L = (L1_mm, L2_mm)
+        self._P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
+        self._theta40 = theta40_estimate_deg
+        self._stroke = stroke_m
+        self.DeclareVectorInputPort("arm_command", 2)
+        self.DeclareVectorInputPort("reflector", 1)
+        self.DeclareVectorOutputPort("joint_command", 4, self._calc)
+
+    def _calc(self, context, output: BasicVector):
+        t1, t2 = np.degrees(self.get_input_port(0).Eval(context))
+        j = int(self.get_input_port(1).Eval(context)[0])
+        t4 = beam_command_deg(t1, t2, self._P[j], *self._L, self._theta40)
+        output.SetFromVector([np.radians(t1), np.radians(t2), self._stroke, np.radians(float(np.ravel(t4)[0]))])
+
+
+class LaserInterferometer(LeafSystem):
+    """The laser range sensor on J4 (000 §2, §5; Table 2 noise).
+
+    Inputs ``geometry_query`` (QueryObject of the SceneGraph holding the
+    robot: the laser head pose comes from the flange body's pose, the
+    reflector centres from the reflector bodies') and ``reflector`` (1):
+    index j of the reflector in use.
+    Outputs ``displacement`` (1, m): reading with the counter zero at
+    ``dead_paths_mm[j]``; ``valid`` (1): 0 when the beam misses the cat's eye
+    centre by more than the acceptance; ``miss`` (1, m): that miss.
+
+    Noise is a deterministic function of (seed, sample count): the count is a
+    discrete state stepped every ``period_s``, so re-evaluating a port gives
+    the same reading and the same seed gives the same campaign.
+    """
+
+    def __init__(self, flange_frame_id, X_FL, reflector_frame_ids, dead_paths_mm,
+                 options: InterferometerOptions, budget: Budget, seed: int, period_s: float):
+        super().__init__()
+        self._frame = flange_frame_id
+        self._X_FL = X_FL
+        self._reflectors = list(reflector_frame_ids)
+        self._d0 = np.asarray(dead_paths_mm, dtype=float)
+        self._options, self._budget, self._seed = options, budget, int(seed)
+        self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.DeclareVectorInputPort("reflector", 1)
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
+        self._reading = self.DeclareCacheEntry(
+            "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc),
+            {self.all_sources_ticket()})
+        for i, name in enumerate(("displacement", "valid", "miss")):
+            self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+        self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+    def _calc_status(self, context, value):
+        valid = self._reading.Eval(context)[1] > 0.5
+        value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
+
+    def _count(self, context, discrete_state):
+        discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
+
+    def _calc(self, context, value):
+        query = self.get_input_port(0).Eval(context)
+        X_WL = query.GetPoseInWorld(self._frame) @ self._X_FL
+        j = int(self.get_input_port(1).Eval(context)[0])
+        P = query.GetPoseInWorld(self._reflectors[j]).translation()[:2] * M_TO_MM
+        origin = X_WL.translation()[:2] * M_TO_MM
+        x_axis = X_WL.rotation().matrix()[:2, 0]
+        angle = np.degrees(np.arctan2(x_axis[1], x_axis[0]))
+        rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
+        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self._d0[j]],
+                                                 self._options, self._budget, rng)
+        value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
+
+
+class RowSequencer(LeafSystem):
+    """One row of every output table per period: the clock of a campaign (move every ``period_s``).
+
+    ``tables``: output port name -> (K,) or (K, n) array, one row per step;
+    the row index advances every period and holds at the last row.
+    """
+
+    def __init__(self, tables: dict, period_s: float):
+        super().__init__()
+        self.period_s = period_s
+        self.n_steps = len(next(iter(tables.values())))
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, period_s, self._advance)
+        for name, table in tables.items():
+            table = np.asarray(table, dtype=float)
+            size = table.shape[1] if table.ndim == 2 else 1
+            self.DeclareVectorOutputPort(name, size, lambda c, o, t=table: o.SetFromVector(
+                np.atleast_1d(t[self._index(c)])))
+
+    def _index(self, context) -> int:
+        return int(context.get_discrete_state_vector()[0])
+
+    def _advance(self, context, discrete_state):
+        discrete_state.set_value([min(self._index(context) + 1, self.n_steps - 1)])
+
+    @property
+    def duration_s(self) -> float:
+        """Simulated time that covers every row and its reading."""
+        return self.n_steps * self.period_s
+
+
+class PlanSequencer(RowSequencer):
+    """Walks the measurement plan once per reflector position, one row per period.
+
+    Outputs ``arm_command`` (2, rad), ``reflector`` (1), ``measure`` (1, 0/1)
+    and ``row`` (1, the plan row within the current reflector's run).
+    """
+
+    def __init__(self, theta1_deg, theta2_deg, measure, n_reflectors: int, period_s: float):
+        k = len(theta1_deg)
+        super().__init__({
+            "arm_command": np.radians(np.column_stack([np.tile(theta1_deg, n_reflectors),
+                                                       np.tile(theta2_deg, n_reflectors)])),
+            "reflector": np.repeat(np.arange(n_reflectors, dtype=float), k),
+            "measure": np.tile(np.asarray(measure, dtype=float), n_reflectors),
+            "row": np.tile(np.arange(k, dtype=float), n_reflectors)}, period_s)
+
+
+class CampaignRecorder(LeafSystem):
+    """Takes the reading half a period after each move and keeps measured rows.
+
+    Inputs ``joint_command`` (4), ``direction`` (4), ``displacement`` (1, m),
+    ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1), and
+    optionally ``status`` (a :class:`ReadStatus`). Each kept row is
+    (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid, plan row)
+    in mm/deg, appended to :attr:`rows` and handed to ``sink(row, status)``
+    if given (``olti run`` writes it to disk there, as it arrives).
+    """
+
+    COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm",
+               "theta4_deg", "valid", "plan_row")
+
+    def __init__(self, period_s: float, sink: Optional[Callable[[tuple, ReadStatus], None]] = None):
+        super().__init__()
+        self.rows: List[tuple] = []
+        self.sink = sink
+        for name, size in (("joint_command", 4), ("direction", 4), ("displacement", 1), ("valid", 1),
+                           ("reflector", 1), ("measure", 1), ("row", 1)):
+            self.DeclareVectorInputPort(name, size)
+        self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
+        self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
+
+    def _record(self, context):
+        u = [self.get_input_port(i).Eval(context) for i in range(7)]
+        cmd, direction, disp, valid, refl, measure, row = u
+        if measure[0] < 0.5:
+            return
+        ok = valid[0] > 0.5
+        # A lost beam has no reading: NaN, never a plausible-looking number.
+        record = (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
+                  int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
+                  int(ok), int(row[0]))
+        self.rows.append(record)
+        if self.sink is not None:
+            status = self._status.Eval(context) if self._status.HasValue(context) else ReadStatus()
+            self.sink(record, status)
