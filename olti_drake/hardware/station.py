@@ -33,7 +33,7 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 
 from olti_drake.io.csvio import InputError
 from olti_drake.model.errormap import approach_directions
-from olti_drake.hardware.drivers import AlarmActive, DriverError
+from olti_drake.hardware.drivers import AlarmActive, DriverError, open_serial  # open_serial: re-exported
 from olti_drake.hardware.protocol import ProtocolError, expect_ack, movj_fields
 from olti_drake.sim.systems import ReadStatus
 
@@ -273,17 +273,6 @@ def make_hardware_station(builder, setup, devices, set_reflector=None, name: str
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
                                                            set_reflector, policy=policy))
     return station
-
-
-def open_serial(port: str, baud: int, what: str):
-    """``serial.Serial(port, baud, timeout=0.05)``, or a one-line InputError naming the port."""
-    import serial
-
-    try:
-        return serial.Serial(port, baud, timeout=0.05)
-    except (OSError, ValueError) as e:  # SerialException is an OSError
-        detail = " ".join(str(e).split())
-        raise InputError(f"station: cannot open the {what} port {port}: {detail}") from None
 
 
 #: Noise stream of an emulator started for a resumed session (campaign.stream_seed).

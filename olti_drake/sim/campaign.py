@@ -48,7 +48,10 @@ class Setup:
 
 
 def prepare(scenario: Scenario) -> Setup:
-    """Estimate the reflectors (as the scenario says) and fix the counter zeros."""
+    """Validate the scenario (one-line InputError naming the field, before anything is built), estimate the
+    reflectors (as the scenario says) and fix the counter zeros."""
+    source = getattr(scenario, "source_file", None)
+    scenario.validate(f"scenario {source}" if source else "scenario")
     plan = scenario.load_plan()
     robot = scenario.robot.true_robot()
     P = np.asarray(scenario.reflectors_mm, dtype=float)
