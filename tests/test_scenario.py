@@ -228,3 +228,32 @@ def test_no_import_circles_between_the_scenario_the_hardware_and_the_cli():
     from olti_drake.sim import scenario
     from olti_drake.hardware import drivers
     assert Faults is scenario.Faults and open_serial is drivers.open_serial
+
+
+# -- NEW (issue 12): one seeding mechanism, named streams ----------------------------------------------------
+def test_named_seed_streams_are_independent_and_reproducible(tmp_path):
+    """Every random source draws from its own named stream of the scenario seed: a consumer that draws
+    more numbers from its stream (a perturbed estimate of sigma 0 draws, the exact one does not) leaves
+    the laser's noise where it was; the same seed gives identical bytes, another seed other bytes."""
+    from olti_drake.sim.scenario import (SEED_STREAMS, ExactEstimate, PerturbedEstimate, stream_key, stream_rng,
+                                         stream_seed)
+
+    assert len(set(SEED_STREAMS.values())) == len(SEED_STREAMS)
+    assert stream_key("laser") == SEED_STREAMS["laser"] and stream_key(11) == 11
+    with pytest.raises(KeyError, match="not one of"):
+        stream_key("lazer")
+    a = stream_rng(3, "emulator_noise").standard_normal(4)
+    assert (a == stream_rng(3, "emulator_noise").standard_normal(4)).all()
+    assert not (a == stream_rng(3, "emulator_faults", 0).standard_normal(4)).any()
+    assert stream_seed(3, "laser") != stream_seed(4, "laser") != stream_seed(3, "reflector_estimate")
+    base = dict(seed=5, reflector_estimate=ExactEstimate())
+    exact = _campaign_bytes(Scenario(**base), tmp_path / "exact")
+    drawing = _campaign_bytes(Scenario(**{**base, "reflector_estimate": PerturbedEstimate(0.0, 0.0)}),
+                              tmp_path / "drawing")
+    assert exact == drawing                                    # the estimate stream's draws shift nothing else
+    assert exact == _campaign_bytes(Scenario(**base), tmp_path / "again")
+    assert exact != _campaign_bytes(Scenario(**{**base, "seed": 6}), tmp_path / "other")
+    # The emulator's streams are the registry's (its noise and faults by name).
+    from olti_drake.hardware import emulator
+    assert (emulator.STREAM_NOISE, emulator.STREAM_FAULTS) == (SEED_STREAMS["emulator_noise"],
+                                                               SEED_STREAMS["emulator_faults"])

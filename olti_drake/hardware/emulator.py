@@ -40,7 +40,7 @@ from typing import Optional
 import numpy as np
 
 from olti_drake.model.errormap import approach_directions
-from olti_drake.sim.scenario import Faults, Scenario, load_scenario  # Faults: re-exported here
+from olti_drake.sim.scenario import SEED_STREAMS, Faults, Scenario, load_scenario, stream_rng  # Faults: re-exported
 from olti_drake.model.interferometer import beam_geometry, simulate_readings
 from olti_drake.hardware.protocol import (ChecksumError, Frame, FrameParser, Joints, NakError, Responder, alm_fields,
                        decode_alrm, decode_movj, decode_wait, dis_fields, encode, fmt_deg, fmt_mm,
@@ -71,9 +71,9 @@ STATUS_COUNT_LOST = 0x0004  # latch_beam_loss: the beam was lost at a READ since
 STATUS_INJECTED = 0x0010    # the beam loss was injected by the fault switch
 STATUS_INVALID = 0x8000     # the displacement is not trustworthy (valid = 0)
 
-#: Random streams: np.random.default_rng([seed, stream, ...]).
-STREAM_NOISE = 10  # the counter's noise: default_rng([seed, STREAM_NOISE])
-STREAM_FAULTS = 11  # fault draws of line k (0 robot, 1 counter): default_rng([seed, STREAM_FAULTS, k])
+#: Random streams (sim.scenario.SEED_STREAMS): stream_rng(seed, name, ...) = default_rng([seed, key, ...]).
+STREAM_NOISE = SEED_STREAMS["emulator_noise"]    # the counter's noise
+STREAM_FAULTS = SEED_STREAMS["emulator_faults"]  # fault draws of line k (0 robot, 1 counter)
 
 # Uniform draws per received frame (always all of them, so one switch does not shift the others).
 _U_DROP_REQ, _U_NAK_CRC, _U_DROP_REPLY, _U_BAD_CRC, _U_GARBLE, _U_GARBLE_POS, _U_GARBLE_VAL, \
@@ -123,7 +123,7 @@ class _Line:
         self.device = _Device(emulator, role)
         self.responder = Responder(self.device)
         self.parser = FrameParser()
-        self.rng = np.random.default_rng([seed, STREAM_FAULTS, ROLES.index(role)])
+        self.rng = stream_rng(seed, "emulator_faults", ROLES.index(role))
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)  # no echo, no line editing, no CR/LF translation, whoever opens it
         self.path = os.ttyname(self.slave)
@@ -191,7 +191,7 @@ class Emulator:
         self.link = link
         self.latch_beam_loss = bool(latch_beam_loss)
         self.clock = clock
-        self._noise = np.random.default_rng([self.seed, STREAM_NOISE])
+        self._noise = stream_rng(self.seed, "emulator_noise")
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self.disconnected = threading.Event()

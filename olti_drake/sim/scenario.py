@@ -27,6 +27,39 @@ from olti_drake.model.plan import BidirectionalGrid, Plan, load_plan
 from olti_drake.model.truth import TrueRobot
 
 
+#: Every random source of a scenario, by name, and its stream key under the scenario ``seed``: each
+#: draws from ``numpy.random.default_rng([seed, key, *sub])`` (:func:`stream_rng`) or from a generator
+#: seeded :func:`stream_seed`\ ``(seed, name, *sub)``, so no source shifts another however many numbers
+#: it draws. The ONE place that lists them (docs/runner.md, "Seeds"); keys are never renumbered (a
+#: campaign's bytes depend on them). Sources: ``laser`` -- the simulated counter's noise, one generator
+#: per sample ``n`` (``[stream_seed(seed, "laser"), n]``); ``reflector_estimate`` -- the Eq. (2) search
+#: or the perturbed estimate; ``emulator_session`` -- the emulator's seed in resumed session ``k``
+#: (``stream_seed(seed, "emulator_session", k)``); ``emulator_noise`` -- the emulator counter's noise;
+#: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter).
+SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
+                "emulator_noise": 10, "emulator_faults": 11}
+
+
+def stream_key(name) -> int:
+    """The stream key of a named random source (an int key passes through: older callers)."""
+    if isinstance(name, (int, np.integer)):
+        return int(name)
+    try:
+        return SEED_STREAMS[name]
+    except KeyError:
+        raise KeyError(f"random stream {name!r}: not one of {', '.join(SEED_STREAMS)}") from None
+
+
+def stream_rng(seed: int, name, *sub: int) -> np.random.Generator:
+    """The generator of one named random source under the scenario ``seed`` (``sub``: e.g. a line)."""
+    return np.random.default_rng([int(seed), stream_key(name), *sub])
+
+
+def stream_seed(seed: int, name, *sub: int) -> int:
+    """An independent, reproducible seed for one named random source of a scenario seeded ``seed``."""
+    return int(np.random.SeedSequence([int(seed), stream_key(name), *sub]).generate_state(1)[0])
+
+
 @dataclass
 class MapTable:
     """A deviation given as a table (deg), linearly interpolated like an identified map."""
