@@ -223,6 +223,8 @@ def test_no_import_circles_between_the_scenario_the_hardware_and_the_cli():
     assert not {m for m in _imports(os.path.join(pkg, "sim", "scenario.py")) if m.startswith("olti_drake.hardware")}
     assert not {m for m in _imports(os.path.join(pkg, "hardware", "drivers.py"))
                 if m.startswith("olti_drake.hardware.station")}
+    assert not {m for m in _imports(os.path.join(pkg, "hardware", "station.py"))   # seeds: sim.scenario
+                if m.startswith("olti_drake.sim.campaign")}
     from olti_drake.hardware.emulator import Faults
     from olti_drake.hardware.station import open_serial
     from olti_drake.sim import scenario
