@@ -55,7 +55,7 @@ def _timed_requests():
 def _run(scenario, tmp, name):
     out = os.path.join(tmp, name)
     t0 = time.perf_counter()
-    summary = run(None, out, scenario=scenario)
+    summary = run(scenario, out)
     assert summary.complete and summary.on_disk == 1056
     return time.perf_counter() - t0
 

@@ -409,7 +409,7 @@ def test_realistic_speed_moves_take_time():
 
 def test_module_runs_as_a_program(tmp_path):
     link = str(tmp_path / "emu")
-    proc = subprocess.Popen([sys.executable, "-m", "olti_drake.hardware.emulator", "--seed", "3", "--link", link],
+    proc = subprocess.Popen([sys.executable, "-m", "olti_drake.cli.emulator", "--seed", "3", "--link", link],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         lines = [proc.stdout.readline() for _ in range(3)]

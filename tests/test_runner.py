@@ -407,3 +407,80 @@ def test_a_resume_that_finds_every_reading_on_disk_marks_the_run_complete(tmp_pa
     assert os.path.exists(os.path.join(out, "truth.json"))
     r = _run(scenario, "--out", out, "--resume")
     assert r.returncode == 0 and "already complete" in r.stdout
+
+
+# -- NEW (issue 12): the runner from Python ---------------------------------------------------------------------
+def test_run_from_python_stops_when_another_thread_asks_and_resume_completes_it(tmp_path, simulated_run):
+    """should_stop set from another thread ends the session between readings (none half-written, none
+    lost); the result carries the diagram, its context and the log; resume completes the campaign."""
+    import threading
+
+    from olti_drake.hardware.runner import run
+    from olti_drake.sim.scenario import load_scenario
+
+    scenario, whole = simulated_run
+    out = str(tmp_path / "stopped")
+    stop = threading.Event()
+    seen = []
+
+    def progress(done, planned):
+        seen.append(done)
+        if done == 200:           # another thread asks; the runner only sees the flag when it polls
+            threading.Thread(target=stop.set).start()
+
+    s = run(load_scenario(scenario), out, should_stop=stop.is_set, progress=progress)
+    assert s.stopped == "should_stop" and not s.complete
+    assert 200 <= s.on_disk < PLANNED and s.on_disk == s.taken == len(_table(out)["step"])
+    assert s.log_path == os.path.join(out, "campaign.csv")
+    assert s.diagram.GetSubsystemByName("plan_sequencer") is not None
+    assert s.context.get_time() > 0
+    manifest = json.load(open(os.path.join(out, "run.json")))
+    assert manifest["sessions"][-1]["outcome"] == "interrupted (should_stop)" and not manifest["complete"]
+    done = run(scenario, out, resume=True, should_stop=lambda: False)
+    assert done.complete and done.stopped is None and done.taken == PLANNED - s.on_disk
+    a, b = _table(out), _table(whole)
+    assert np.array_equal(a["step"], b["step"])
+    np.testing.assert_array_equal(a["displacement_mm"], b["displacement_mm"])
+
+
+def test_olti_run_takes_a_named_scenario_and_overrides(tmp_path):
+    """olti run FILE --scenario NAME --scenario-text YAML: the named scenario, overridden; the resume hint
+    repeats both options."""
+    named = tmp_path / "named.yaml"
+    named.write_text(f"quick:\n  base: {os.path.join(os.path.dirname(__file__), '..', 'diagrams', 'paper000_scara.yaml')}\n"
+                     "  plan: !BidirectionalGrid {theta1_step: 100.0, theta2_step: 70.0}\n"
+                     "  reflector_estimate: !ExactEstimate {}\n")
+    out = tmp_path / "run"
+    r = _run(str(named), "--scenario", "quick", "--scenario-text", "{seed: 5}", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    manifest = json.load(open(out / "run.json"))
+    assert manifest["seed"] == 5 and manifest["readings_planned"] < PLANNED / 4
+    r = _run(str(named), "--scenario", "nope", "--out", str(tmp_path / "other"))
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "no scenario named 'nope'" in r.stderr
+
+
+def test_the_bench_driver_sends_refl_so_a_hardware_scenario_runs_on_a_separate_emulator(tmp_path, reference):
+    """NEW (issue 12): ``counter_driver: bench`` (olti_drake.hardware.drivers.BenchCounter) sets each
+    reflector position with REFL: a !Hardware scenario on an emulator started on its own runs the whole
+    campaign unattended (the plain olti counter driver prompts an operator instead) and reads what the
+    in-process emulated station reads."""
+    from olti_drake.hardware.drivers import BenchCounter, driver_class
+    from olti_drake.hardware.emulator import Emulator
+    from olti_drake.hardware.runner import run
+
+    assert driver_class("bench", 1) is BenchCounter
+    with Emulator(_scenario(tmp_path, "emu.yaml")) as emu:
+        seen = []
+        original = emu.on_REFL
+
+        def on_refl(frame):
+            seen.append(tuple(frame.fields))
+            return original(frame)
+
+        emu.on_REFL = on_refl
+        ports = f"robot_port: {emu.robot_port}, counter_port: {emu.counter_port}"
+        bench = _scenario(tmp_path, "bench.yaml", station=f"!Hardware {{{ports}, counter_driver: bench}}")
+        s = run(bench, str(tmp_path / "bench"))
+        assert s.complete and s.on_disk == PLANNED
+        assert seen == [("0",), ("1",), ("2",)] and emu.reflector == 2   # one REFL per reflector run
+        _assert_same_campaign(_table(str(tmp_path / "bench")), reference)

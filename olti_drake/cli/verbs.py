@@ -6,6 +6,7 @@ Bad input ends with one line ``error: ...`` on stderr and exit status 2.
 """
 
 import argparse
+import shlex
 import os
 import sys
 import time
@@ -45,7 +46,7 @@ def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None,
     from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
     from olti_drake.sim.scenario import Hardware, load_scenario
 
-    scenario = load_scenario(scenario_path)
+    scenario = load_scenario(scenario_path, getattr(args, "scenario_name", None), getattr(args, "scenario_text", None))
     if isinstance(scenario.station, Hardware):
         raise ValueError(f"scenario {scenario_path}: station !Hardware: olti {args.verb} runs the simulated "
                          f"station; drive the hardware with: olti run {scenario_path} --out DIR")
@@ -109,6 +110,13 @@ def _add_meshcat_options(p):
                    help="simulated/wall time, to watch (default: 20 with --meshcat, else as fast as possible)")
     p.add_argument("--error-scale", type=cliargs.real(0, 1e6, lo_open=True), default=500.0,
                    help="magnification of the error vectors in the view (default 500, 000 Fig. 11 style)")
+
+
+def _add_scenario_options(p) -> None:
+    p.add_argument("--scenario", dest="scenario_name", metavar="NAME", default=None,
+                   help="the scenario named NAME in a file of named scenarios (e.g. diagrams/scenarios.yaml)")
+    p.add_argument("--scenario-text", metavar="YAML", default=None,
+                   help="YAML overrides over the scenario, e.g. '{seed: 3, station: !Emulated {drop: 0.01}}'")
 
 
 def cmd_simulate(args) -> int:
@@ -665,9 +673,25 @@ def cmd_compensate(args) -> int:
     return 0
 
 
+def _stop_on_signals():
+    """(should_stop, restore): a flag that SIGINT/SIGTERM set (a second Ctrl-C stops at once) and a
+    function that puts the previous handlers back. The runner polls the flag between readings."""
+    import signal
+
+    stop = {"signal": None}
+
+    def on_signal(signum, frame):
+        if stop["signal"] is not None:
+            raise KeyboardInterrupt     # a second Ctrl-C: stop at once
+        stop["signal"] = signal.Signals(signum).name
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    return (lambda: stop["signal"]), (lambda: [signal.signal(s, h) for s, h in old.items()])
+
+
 def cmd_run(args) -> int:
     from olti_drake.hardware.station import StationError
-    from olti_drake.hardware.runner import RunInterrupted, run
+    from olti_drake.hardware.runner import run
 
     import logging
 
@@ -681,17 +705,27 @@ def cmd_run(args) -> int:
             sys.stderr.write(f"\r  readings on disk {done}/{planned}")
             sys.stderr.flush()
 
+    from olti_drake.sim.scenario import load_scenario
+
+    for flag, value in (("--scenario", args.scenario_name), ("--scenario-text", args.scenario_text)):
+        if value:
+            resume_hint += f" {flag} {shlex.quote(value)}"
+    scenario = load_scenario(args.scenario, args.scenario_name, args.scenario_text)
+    should_stop, restore = _stop_on_signals()
     try:
         extend, rate = _meshcat_view(args)
-        s = run(args.scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress,
-                extend=extend, realtime_rate=rate)
-    except RunInterrupted as e:
-        print(f"{nl}error: {e}; continue with: {resume_hint}", file=sys.stderr)
-        return 130
+        s = run(scenario, args.out, resume=args.resume, fsync=not args.no_fsync, progress=progress,
+                extend=extend, realtime_rate=rate, should_stop=should_stop)
     except StationError as e:
         print(f"{nl}error: {' '.join(str(e).split())}; every reading taken is on disk; after fixing it continue "
               f"with: {resume_hint}", file=sys.stderr)
         return 3
+    finally:
+        restore()
+    if s.stopped:
+        print(f"{nl}error: interrupted by {s.stopped}: {s.on_disk} of {s.planned} readings on disk in "
+              f"{s.log_path}; continue with: {resume_hint}", file=sys.stderr)
+        return 130
     if sys.stderr.isatty():
         sys.stderr.write("\n")
     if s.taken == 0 and s.complete:
@@ -699,7 +733,7 @@ def cmd_run(args) -> int:
         return 0
     print(f"session {s.session}: {s.taken} readings taken ({s.invalid} invalid) from step {s.start_step} in "
           f"{s.elapsed_s:.2f} s; {s.on_disk} of {s.planned} planned readings in "
-          f"{os.path.join(args.out, 'campaign.csv')}" + ("" if s.complete else " (incomplete)"))
+          f"{s.log_path}" + ("" if s.complete else " (incomplete)"))
     return 0 if s.complete else 1
 
 
@@ -730,6 +764,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "whole measurement plan, write DIR/campaign.csv and DIR/truth.json. "
                                    "Without a scenario: the paper-000 SCARA experiment (diagrams/).")
     p.add_argument("scenario", nargs="?", default=None, help="scenario YAML (default: paper 000)")
+    _add_scenario_options(p)
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=cliargs.seed, default=None, help="override the scenario's seed")
     _add_meshcat_options(p)
@@ -905,6 +940,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "none duplicated (docs/runner.md). Exit 0 complete, 130 interrupted, "
                                    "3 station failure, 2 bad input.")
     p.add_argument("scenario", help="scenario YAML (e.g. diagrams/paper000_emulated.yaml)")
+    _add_scenario_options(p)
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="continue the interrupted campaign in --out")
     p.add_argument("--no-fsync", action="store_true",

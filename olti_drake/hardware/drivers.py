@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import Protocol, Sequence
 
+from olti_drake.io.csvio import InputError
 from olti_drake.hardware.protocol import (NakError, Position, ProtocolError, Reading, Transport, decode_alarms, decode_pong,
                        decode_position, decode_reading, expect_ack, movj_fields, wait_fields)
 
@@ -61,6 +62,17 @@ class CounterDriver(Protocol):
         """Zero the displacement here; False if there is no beam to zero on."""
 
 
+def open_serial(port: str, baud: int, what: str):
+    """``serial.Serial(port, baud, timeout=0.05)``, or a one-line InputError naming the port."""
+    import serial
+
+    try:
+        return serial.Serial(port, baud, timeout=0.05)
+    except (OSError, ValueError) as e:  # SerialException is an OSError
+        detail = " ".join(str(e).split())
+        raise InputError(f"station: cannot open the {what} port {port}: {detail}") from None
+
+
 class _OltiDevice:
     """A device on an olti-protocol line: ``open`` checks its role with ``PING``."""
 
@@ -72,8 +84,6 @@ class _OltiDevice:
     @classmethod
     def open(cls, port: str, baud: int, timeout_s: float, retries: int):
         """Open the serial ``port`` (pyserial), check the device's role; a one-line error if not."""
-        from olti_drake.hardware.station import open_serial
-
         stream = open_serial(port, baud, cls.role.lower())
         try:
             transport = Transport(stream, timeout_s=timeout_s, retries=retries)
@@ -144,6 +154,20 @@ class OltiCounter(_OltiDevice):
         return True
 
 
+class BenchCounter(OltiCounter):
+    """:class:`CounterDriver` of a test bench: the olti counter whose reflector position is set by a
+    command, ``REFL,<j>`` (the emulator's bench verb, docs/emulator.md), instead of an operator prompt.
+
+    Named ``counter_driver: bench`` in a ``!Hardware`` scenario, it runs the whole campaign against a
+    separately started emulator (``python -m olti_drake.cli.emulator``) or a bench that speaks ``REFL``
+    with nobody at the console. The station calls :meth:`set_up_reflector` between reflector runs.
+    """
+
+    def set_up_reflector(self, j: int) -> None:
+        """Aim at reflector position ``j`` (0-based); the counter needs a ZERO afterwards (the station's)."""
+        expect_ack(self.transport.request("REFL", str(int(j))))
+
+
 def check_role(transport: Transport, role: str, port: str = "") -> str:
     """PING an olti-protocol device and check its role (``ROBOT``/``COUNTER``); returns its model."""
     where = f" on {port}" if port else ""
@@ -157,16 +181,17 @@ def check_role(transport: Transport, role: str, port: str = "") -> str:
 
 
 #: Drivers named in scenarios by a short name; others by ``module:Class``.
-DRIVERS = {"olti": (OltiRobot, OltiCounter)}
+DRIVERS = {"olti": (OltiRobot, OltiCounter), "bench": (OltiRobot, BenchCounter)}
 
 
 def driver_class(name: str, kind: int):
-    """The driver class a scenario names: ``olti`` or ``package.module:Class`` (kind 0 robot, 1 counter)."""
+    """The driver class a scenario names: ``olti``, ``bench`` (the olti robot and :class:`BenchCounter`) or
+    ``package.module:Class`` (kind 0 robot, 1 counter)."""
     if name in DRIVERS:
         return DRIVERS[name][kind]
     module, _, cls = name.partition(":")
     if not module or not cls:
-        raise ValueError(f"driver {name!r}: expected 'olti' or 'package.module:Class'")
+        raise ValueError(f"driver {name!r}: expected {' or '.join(repr(k) for k in DRIVERS)} or 'package.module:Class'")
     try:
         return getattr(importlib.import_module(module), cls)
     except (ImportError, AttributeError) as e:

@@ -14,7 +14,7 @@ device, because the protocol gives each serial line one device (``PING`` reports
   counter zero taken by ``ZERO`` at the pose of that moment.
 
 Use it as a thread (``with Emulator(scenario) as emu: serial.Serial(emu.robot_port) ...``) or as a
-program: ``python -m olti_drake.hardware.emulator [SCENARIO.yaml] [--speed fast|realistic] [--seed N]
+program: ``python -m olti_drake.cli.emulator [SCENARIO.yaml] [--speed fast|realistic] [--seed N]
 [--link PREFIX] [fault flags]``. Faults (latency, lost, garbled, bad-checksum and cut frames,
 beam loss, an alarm, a disconnect) are injected from a seeded generator, so a run is reproducible.
 
@@ -23,7 +23,6 @@ Units: mm and degrees, as on the wire.
 
 from __future__ import annotations
 
-import argparse
 import array
 import dataclasses
 import errno
@@ -31,8 +30,6 @@ import fcntl
 import logging
 import os
 import select
-import signal
-import sys
 import termios
 import threading
 import time
@@ -42,8 +39,8 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.cli import args as cliargs
 from olti_drake.model.errormap import approach_directions
+from olti_drake.sim.scenario import SEED_STREAMS, Faults, Scenario, load_scenario, stream_rng  # Faults: re-exported
 from olti_drake.model.interferometer import beam_geometry, simulate_readings
 from olti_drake.hardware.protocol import (ChecksumError, Frame, FrameParser, Joints, NakError, Responder, alm_fields,
                        decode_alrm, decode_movj, decode_wait, dis_fields, encode, fmt_deg, fmt_mm,
@@ -74,9 +71,9 @@ STATUS_COUNT_LOST = 0x0004  # latch_beam_loss: the beam was lost at a READ since
 STATUS_INJECTED = 0x0010    # the beam loss was injected by the fault switch
 STATUS_INVALID = 0x8000     # the displacement is not trustworthy (valid = 0)
 
-#: Random streams: np.random.default_rng([seed, stream, ...]).
-STREAM_NOISE = 10  # the counter's noise: default_rng([seed, STREAM_NOISE])
-STREAM_FAULTS = 11  # fault draws of line k (0 robot, 1 counter): default_rng([seed, STREAM_FAULTS, k])
+#: Random streams (sim.scenario.SEED_STREAMS): stream_rng(seed, name, ...) = default_rng([seed, key, ...]).
+STREAM_NOISE = SEED_STREAMS["emulator_noise"]    # the counter's noise
+STREAM_FAULTS = SEED_STREAMS["emulator_faults"]  # fault draws of line k (0 robot, 1 counter)
 
 # Uniform draws per received frame (always all of them, so one switch does not shift the others).
 _U_DROP_REQ, _U_NAK_CRC, _U_DROP_REPLY, _U_BAD_CRC, _U_GARBLE, _U_GARBLE_POS, _U_GARBLE_VAL, \
@@ -86,53 +83,8 @@ _N_DRAWS = 9
 ALARM_CODE = "EMU_INJECTED"
 
 
-@dataclass
-class Faults:
-    """Fault injection switches; all random choices come from the emulator's seeded generator.
-
-    ``latency_s``: delay before every reply. ``drop``: probability that a frame is lost, drawn
-    separately for the request (not executed) and for its reply (executed, not answered).
-    ``garble``: probability that one byte of a reply is changed. ``nak_crc``: probability that a
-    request is taken as corrupted on the line (``NAK,CRC``, not executed). ``bad_crc``: probability
-    that a reply goes out with a wrong checksum. ``partial``: probability that only the first half of
-    a reply is written; the rest follows after ``partial_delay_s`` seconds, or never if None.
-    ``beam_loss``: probability that a READ reports no beam (valid 0). ``alarm_at``: the N-th MOVJ
-    (1-based, retries not counted) raises an alarm: it and every MOVJ/WAIT after it get
-    ``NAK,ALARM`` until ``ALRM,CLR``. ``disconnect_after``: close both pseudo-terminals after
-    answering N request frames (both lines, retries included).
-    """
-
-    latency_s: float = 0.0
-    drop: float = 0.0
-    garble: float = 0.0
-    nak_crc: float = 0.0
-    bad_crc: float = 0.0
-    partial: float = 0.0
-    partial_delay_s: Optional[float] = None
-    beam_loss: float = 0.0
-    alarm_at: Optional[int] = None
-    disconnect_after: Optional[int] = None
-
-    def validate(self) -> "Faults":
-        for key in ("drop", "garble", "nak_crc", "bad_crc", "partial", "beam_loss"):
-            p = getattr(self, key)
-            if not (isinstance(p, (int, float)) and 0.0 <= p <= 1.0):
-                raise ValueError(f"fault {key}: a probability 0..1, got {p!r}")
-        for key in ("latency_s", "partial_delay_s"):
-            v = getattr(self, key)
-            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"fault {key}: seconds >= 0, got {v!r}")
-        for key in ("alarm_at", "disconnect_after"):
-            v = getattr(self, key)
-            if v is not None and not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"fault {key}: an integer >= 1 or None, got {v!r}")
-        return self
-
-
 def _truth_parts(scenario):
     """(TrueRobot, reflectors (n, 2) mm, interferometer options, budget, seed) of a scenario-like input."""
-    from olti_drake.sim.scenario import Scenario, load_scenario
-
     if scenario is None:
         scenario = Scenario()
     elif isinstance(scenario, (str, os.PathLike)):
@@ -171,7 +123,7 @@ class _Line:
         self.device = _Device(emulator, role)
         self.responder = Responder(self.device)
         self.parser = FrameParser()
-        self.rng = np.random.default_rng([seed, STREAM_FAULTS, ROLES.index(role)])
+        self.rng = stream_rng(seed, "emulator_faults", ROLES.index(role))
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)  # no echo, no line editing, no CR/LF translation, whoever opens it
         self.path = os.ttyname(self.slave)
@@ -239,7 +191,7 @@ class Emulator:
         self.link = link
         self.latch_beam_loss = bool(latch_beam_loss)
         self.clock = clock
-        self._noise = np.random.default_rng([self.seed, STREAM_NOISE])
+        self._noise = stream_rng(self.seed, "emulator_noise")
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self.disconnected = threading.Event()
@@ -650,66 +602,3 @@ def _make_link(path: str, target: str) -> str:
         raise FileExistsError(f"--link: {path} exists and is not a symlink; not replacing it")
     os.symlink(target, path)
     return path
-
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m olti_drake.hardware.emulator",
-        description="Emulate the robot controller and the interferometer counter of a scenario on two "
-                    "pseudo-terminals (docs/emulator.md).")
-    p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario)")
-    p.add_argument("--speed", choices=("fast", "realistic"), default="fast",
-                   help="fast: moves complete at once; realistic: distance/speed + settle time")
-    p.add_argument("--seed", type=cliargs.seed, default=None, help="noise and fault seed (default: the scenario's)")
-    p.add_argument("--link", metavar="PREFIX", help="make symlinks PREFIX-robot and PREFIX-counter")
-    p.add_argument("--reflector", type=int, default=0, help="reflector position set up at start (0-based)")
-    g = p.add_argument_group("faults (probabilities per frame, 0..1)")
-    g.add_argument("--latency", type=float, default=0.0, metavar="S", help="delay before every reply, s")
-    g.add_argument("--drop", type=float, default=0.0, metavar="P", help="lose a request or a reply")
-    g.add_argument("--garble", type=float, default=0.0, metavar="P", help="change one byte of a reply")
-    g.add_argument("--nak-crc", type=float, default=0.0, metavar="P",
-                   help="take a request as corrupted: NAK,CRC, not executed")
-    g.add_argument("--bad-crc", type=float, default=0.0, metavar="P", help="send a reply with a wrong checksum")
-    g.add_argument("--partial", type=float, default=0.0, metavar="P", help="write only half of a reply")
-    g.add_argument("--partial-delay", type=float, default=None, metavar="S",
-                   help="send the rest of a cut reply after S seconds (default: never)")
-    g.add_argument("--beam-loss", type=float, default=0.0, metavar="P", help="a READ reports no beam")
-    g.add_argument("--alarm-at", type=int, default=None, metavar="N", help="the N-th MOVJ raises an alarm")
-    g.add_argument("--disconnect-after", type=int, default=None, metavar="N",
-                   help="close both lines after N requests")
-    p.add_argument("--latch-beam-loss", action="store_true",
-                   help="after a READ without beam, every READ is invalid until ZERO (a real counter)")
-    p.add_argument("--exact-encoder", action="store_true", help="POSJ encoder = commanded (no quantization)")
-    p.add_argument("-v", "--verbose", action="count", default=0, help="log faults (-v) and every frame (-vv)")
-    a = p.parse_args(argv)
-    logging.basicConfig(level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(a.verbose, 2)],
-                        format="%(asctime)s %(threadName)s %(message)s", stream=sys.stderr)
-    faults = Faults(latency_s=a.latency, drop=a.drop, garble=a.garble, nak_crc=a.nak_crc, bad_crc=a.bad_crc,
-                    partial=a.partial, partial_delay_s=a.partial_delay, beam_loss=a.beam_loss,
-                    alarm_at=a.alarm_at, disconnect_after=a.disconnect_after)
-    signals = []  # Ctrl-C or kill PID: stop cleanly (close the lines, remove the links), exit 0
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, frame: signals.append(signum))
-    try:
-        emu = Emulator(a.scenario, speed=a.speed, seed=a.seed, reflector=a.reflector, faults=faults,
-                       link=a.link, latch_beam_loss=a.latch_beam_loss,
-                       encoder_resolution=(0, 0, 0, 0) if a.exact_encoder else DEFAULT_ENCODER_RESOLUTION)
-        emu.start()
-    except (ValueError, OSError) as e:  # InputError is a ValueError
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    try:
-        for role, line in emu._lines.items():
-            print(f"{role:8s}{line.path}" + (f"  ({line.link})" if line.link else ""), flush=True)
-        print(f"speed {emu.speed}, seed {emu.seed}, reflector {emu.reflector}; Ctrl-C stops", flush=True)
-        while not signals and not emu.disconnected.is_set():
-            time.sleep(0.1)
-        if emu.disconnected.is_set():
-            print(f"disconnected after {emu.requests} requests (--disconnect-after)", flush=True)
-    finally:
-        emu.stop()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import signal
 import time
 from dataclasses import dataclass
 from typing import Callable, Optional
@@ -28,12 +27,22 @@ from olti_drake.io.csvio import InputError
 
 
 class RunInterrupted(Exception):
-    """Ctrl-C (SIGINT) or SIGTERM stopped the run after the reading in progress was written."""
+    """``olti run``: Ctrl-C (SIGINT) or SIGTERM stopped the run after the reading in progress was written."""
 
 
 @dataclass
-class RunSummary:
-    """What a session did: readings planned, on disk (all sessions), taken now, wall time (s)."""
+class RunResult:
+    """What :func:`run` did and what a script needs afterwards.
+
+    Counts: readings ``planned``, ``on_disk`` (all sessions), ``taken`` in this session
+    (``invalid`` of them without a trustworthy reading), from plan step ``start_step``, in
+    ``elapsed_s`` seconds of wall time; ``session`` is this session's number (0 = the first).
+    ``complete``: every planned reading is on disk. ``stopped``: why the session ended early
+    (``should_stop``'s reason, e.g. ``"SIGINT"``), None if it did not. ``diagram``,
+    ``simulator`` (and its ``context``): the campaign diagram as it was when the session ended
+    (None when there was nothing left to do); its station is closed. ``log_path``: the campaign
+    log ``OUT/campaign.csv`` (mm and degrees); ``run.json`` and ``events.jsonl`` sit beside it.
+    """
 
     out_dir: str
     planned: int
@@ -44,6 +53,21 @@ class RunSummary:
     session: int
     elapsed_s: float
     complete: bool
+    stopped: Optional[str] = None
+    diagram: object = None
+    simulator: object = None
+
+    @property
+    def log_path(self) -> str:
+        return os.path.join(self.out_dir, "campaign.csv")
+
+    @property
+    def context(self):
+        return self.simulator.get_context() if self.simulator is not None else None
+
+
+#: The name the runner's result had before it carried the diagram (kept for callers of that name).
+RunSummary = RunResult
 
 
 def _fingerprint(setup, commands, measured) -> str:
@@ -136,27 +160,41 @@ def _resume_state(diagram, context, setup, commands, step: int, log) -> None:
     laser.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetAtIndex(0, step)
 
 
-def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync: bool = True,
-        progress: Optional[Callable[[int, int], None]] = None, scenario=None, extend=None,
-        realtime_rate: float = 0.0) -> RunSummary:
+def _load(scenario, base_dir=None):
+    """(Scenario, its file or None) of a Scenario object, a YAML path or None (the paper default)."""
+    from olti_drake.sim.scenario import Scenario, load_scenario
+
+    if isinstance(scenario, Scenario):
+        return scenario, getattr(scenario, "source_file", None)
+    if scenario is None:
+        return load_scenario(None), None
+    return load_scenario(scenario), os.fspath(scenario)
+
+
+def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[Callable[[], object]] = None,
+        fsync: bool = True, extend=None, progress: Optional[Callable[[int, int], None]] = None,
+        realtime_rate: float = 0.0) -> RunResult:
     """Run (or resume) the scenario's campaign on its station, logging every reading to ``out_dir``.
 
-    ``progress(on_disk, planned)`` is called after every reading; ``extend``
-    and ``realtime_rate`` as in :func:`~olti_drake.sim.campaign.run_campaign`
-    (e.g. the Meshcat view of :mod:`olti_drake.sim.meshcat_view`). Raises
-    :class:`RunInterrupted` on SIGINT/SIGTERM (after the reading in progress
-    is on disk), :class:`~olti_drake.hardware.station.StationError` when the station
-    fails (line lost, alarm, ...); either way every reading taken is on disk
-    and ``resume=True`` continues. Units: mm and degrees in the files.
+    ``scenario``: a :class:`~olti_drake.sim.scenario.Scenario`, a scenario YAML path, or None
+    (the paper-000 default). ``should_stop()`` is polled between simulator steps (from this
+    thread; it may read a flag another thread or a signal handler sets): a truthy value ends the
+    session after the reading in progress is on disk, and the result says ``stopped`` (a string
+    value is the reason recorded in ``run.json``, e.g. ``"SIGINT"``); ``resume=True`` continues.
+    ``progress(on_disk, planned)`` is called after every reading; ``extend`` and
+    ``realtime_rate`` as in :func:`~olti_drake.sim.campaign.run_campaign` (e.g. the Meshcat view
+    of :mod:`olti_drake.sim.meshcat_view`). Raises
+    :class:`~olti_drake.hardware.station.StationError` when the station fails (line lost, alarm,
+    ...); every reading taken is on disk either way. Units: mm and degrees in the files.
     """
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import EventStatus
 
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.hardware.runlog import CampaignLog
-    from olti_drake.sim.scenario import Hardware, load_scenario
+    from olti_drake.sim.scenario import Hardware
 
-    scenario = scenario or load_scenario(scenario_path)
+    scenario, scenario_path = _load(scenario)
     setup = prepare(scenario)
     commands, measured = _plan(setup)
     steps = _Steps(measured)
@@ -180,11 +218,11 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
                 _write_truth(setup, out_dir)
             log.end_session("complete", complete=True, taken=0)
         log.close()
-        return RunSummary(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), session, 0.0, True)
+        return RunResult(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), session, 0.0, True)
     # A fresh campaign starts at step 0: the plan's first approach is part of the plan.
     start = int(todo[0]) if recorded else 0
     taken = invalid = 0
-    stop = {"signal": None}
+    stop = {"reason": None}
 
     def sink(record, status):
         nonlocal taken, invalid
@@ -197,10 +235,12 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
         if progress:
             progress(len(log.recorded), steps.count)
 
-    def on_signal(signum, frame):
-        if stop["signal"] is not None:
-            raise KeyboardInterrupt     # a second Ctrl-C: stop at once
-        stop["signal"] = signal.Signals(signum).name
+    def monitor(context):
+        if stop["reason"] is None and should_stop is not None:
+            flag = should_stop()
+            if flag:
+                stop["reason"] = flag if isinstance(flag, str) else "should_stop"
+        return EventStatus.ReachedTermination(None, "stop") if stop["reason"] else EventStatus.Succeeded()
 
     # The station (ports, emulator) opens here; a fresh run's directory is made only once it did.
     diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session if log else 0)
@@ -214,39 +254,35 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
     station = diagram.station
     if hasattr(station, "on_event"):
         station.on_event = log.event
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    outcome, complete = "error", False
+    outcome, complete, simulator = "error", False, None
     try:
         log.begin_session(start, station=_station_kind(scenario), resumed=bool(resume))
         simulator = Simulator(diagram)
         simulator.set_target_realtime_rate(realtime_rate)
         _resume_state(diagram, simulator.get_mutable_context(), setup, commands, start, log)
-        simulator.set_monitor(lambda context: EventStatus.ReachedTermination(None, "signal")
-                              if stop["signal"] else EventStatus.Succeeded())
+        simulator.set_monitor(monitor)
         simulator.Initialize()
         simulator.AdvanceTo((len(measured) - start) * scenario.period_s)
-        if stop["signal"]:
-            outcome = f"interrupted ({stop['signal']})"
-            raise RunInterrupted(f"interrupted by {stop['signal']}: {len(log.recorded)} of {steps.count} readings "
-                                 f"on disk in {os.path.join(out_dir, 'campaign.csv')}")
         complete = log.recorded == set(np.flatnonzero(measured).tolist())
-        outcome = "complete" if complete else "incomplete"
+        if stop["reason"] and not complete:
+            outcome = f"interrupted ({stop['reason']})"
+        else:
+            outcome = "complete" if complete else "incomplete"
         if complete and not isinstance(scenario.station, Hardware):
             _write_truth(setup, out_dir)
-    except Exception as e:
+    except BaseException as e:
         if outcome == "error":
-            outcome = f"error: {' '.join(str(e).split())}"
+            outcome = "interrupted (KeyboardInterrupt)" if isinstance(e, KeyboardInterrupt) else \
+                f"error: {' '.join(str(e).split()) or type(e).__name__}"
         raise
     finally:
-        for s, h in old.items():
-            signal.signal(s, h)
         close = getattr(station, "close", None)
         if close is not None:
             close()
         log.end_session(outcome, complete=complete, taken=taken)
         log.close()
-    return RunSummary(out_dir, steps.count, len(log.recorded), taken, invalid, start, log.session,
-                      time.monotonic() - t0, complete)
+    return RunResult(out_dir, steps.count, len(log.recorded), taken, invalid, start, log.session,
+                     time.monotonic() - t0, complete, None if complete else stop["reason"], diagram, simulator)
 
 
 def _write_truth(setup, out_dir) -> None:

@@ -33,8 +33,9 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 
 from olti_drake.io.csvio import InputError
 from olti_drake.model.errormap import approach_directions
-from olti_drake.hardware.drivers import AlarmActive, DriverError
+from olti_drake.hardware.drivers import AlarmActive, DriverError, open_serial  # open_serial: re-exported
 from olti_drake.hardware.protocol import ProtocolError, expect_ack, movj_fields
+from olti_drake.sim.scenario import SEED_STREAMS, stream_seed
 from olti_drake.sim.systems import ReadStatus
 
 M_TO_MM = 1e3
@@ -275,19 +276,8 @@ def make_hardware_station(builder, setup, devices, set_reflector=None, name: str
     return station
 
 
-def open_serial(port: str, baud: int, what: str):
-    """``serial.Serial(port, baud, timeout=0.05)``, or a one-line InputError naming the port."""
-    import serial
-
-    try:
-        return serial.Serial(port, baud, timeout=0.05)
-    except (OSError, ValueError) as e:  # SerialException is an OSError
-        detail = " ".join(str(e).split())
-        raise InputError(f"station: cannot open the {what} port {port}: {detail}") from None
-
-
-#: Noise stream of an emulator started for a resumed session (campaign.stream_seed).
-STREAM_EMULATOR = 2
+#: Noise stream of an emulator started for a resumed session (sim.scenario.SEED_STREAMS).
+STREAM_EMULATOR = SEED_STREAMS["emulator_session"]
 
 
 def make_emulated_station(builder, setup, name: str = "station", session: int = 0):
@@ -295,7 +285,6 @@ def make_emulated_station(builder, setup, name: str = "station", session: int = 
 
     ``session`` > 0 (a resumed campaign) seeds the emulator's noise and faults afresh.
     """
-    from olti_drake.sim.campaign import stream_seed
     from olti_drake.hardware.emulator import Emulator
 
     cfg = setup.scenario.station

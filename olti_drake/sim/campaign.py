@@ -19,12 +19,13 @@ from olti_drake.io.csvio import write_table
 from olti_drake.model.errormap import approach_directions, sample_map
 from olti_drake.model.interferometer import beam_geometry, simulate_readings
 from olti_drake.model.plan import Plan
-from olti_drake.sim.scenario import ExactEstimate, PerturbedEstimate, Scenario, as_plain
+from olti_drake.sim.scenario import SEED_STREAMS, ExactEstimate, PerturbedEstimate, Scenario, as_plain
+from olti_drake.sim.scenario import stream_rng, stream_seed  # stream_seed re-exported (machine_station)
 from olti_drake.model.steering import (SearchData, beam_command_deg, default_search_positions_mm, fit_reflectors,
                        simulate_search)
 
-#: Seeds of the independent random streams derived from the scenario seed.
-STREAM_LASER, STREAM_ESTIMATE = 0, 1
+#: Keys of the independent random streams derived from the scenario seed (sim.scenario.SEED_STREAMS).
+STREAM_LASER, STREAM_ESTIMATE = SEED_STREAMS["laser"], SEED_STREAMS["reflector_estimate"]
 
 
 @dataclass
@@ -48,7 +49,10 @@ class Setup:
 
 
 def prepare(scenario: Scenario) -> Setup:
-    """Estimate the reflectors (as the scenario says) and fix the counter zeros."""
+    """Validate the scenario (one-line InputError naming the field, before anything is built), estimate the
+    reflectors (as the scenario says) and fix the counter zeros."""
+    source = getattr(scenario, "source_file", None)
+    scenario.validate(f"scenario {source}" if source else "scenario")
     plan = scenario.load_plan()
     robot = scenario.robot.true_robot()
     P = np.asarray(scenario.reflectors_mm, dtype=float)
@@ -59,7 +63,7 @@ def prepare(scenario: Scenario) -> Setup:
 
 def _estimate(scenario: Scenario, robot, P):
     est = scenario.reflector_estimate
-    rng = np.random.default_rng([scenario.seed, STREAM_ESTIMATE])
+    rng = stream_rng(scenario.seed, "reflector_estimate")
     if isinstance(est, ExactEstimate):
         return P.copy(), robot.theta40_deg, None
     if isinstance(est, PerturbedEstimate):
@@ -145,7 +149,7 @@ def make_station(builder, setup: Setup, name: str = "station", session: int = 0)
         [r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
     laser = inner.AddNamedSystem("laser_interferometer", LaserInterferometer(
         plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
-        s.interferometer, setup.budget, seed=stream_seed(s.seed, STREAM_LASER), period_s=s.period_s))
+        s.interferometer, setup.budget, seed=stream_seed(s.seed, "laser"), period_s=s.period_s))
     inner.Connect(joints.GetOutputPort("position"), plant.position_input)
     inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
     inner.ExportInput(joints.GetInputPort("command"), "joint_command")
@@ -158,11 +162,6 @@ def make_station(builder, setup: Setup, name: str = "station", session: int = 0)
     station = builder.AddNamedSystem(name, inner.Build())
     station.plant = plant  # keeps the plant (referenced by MultibodyPositionToGeometryPose) alive
     return station
-
-
-def stream_seed(seed: int, *stream: int) -> int:
-    """An independent, reproducible seed for one random stream of a scenario seeded ``seed``."""
-    return int(np.random.SeedSequence([seed, *stream]).generate_state(1)[0])
 
 
 def build_campaign_diagram(setup: Setup, station_factory=None, extend=None, sink=None, session: int = 0):

@@ -27,6 +27,39 @@ from olti_drake.model.plan import BidirectionalGrid, Plan, load_plan
 from olti_drake.model.truth import TrueRobot
 
 
+#: Every random source of a scenario, by name, and its stream key under the scenario ``seed``: each
+#: draws from ``numpy.random.default_rng([seed, key, *sub])`` (:func:`stream_rng`) or from a generator
+#: seeded :func:`stream_seed`\ ``(seed, name, *sub)``, so no source shifts another however many numbers
+#: it draws. The ONE place that lists them (docs/runner.md, "Seeds"); keys are never renumbered (a
+#: campaign's bytes depend on them). Sources: ``laser`` -- the simulated counter's noise, one generator
+#: per sample ``n`` (``[stream_seed(seed, "laser"), n]``); ``reflector_estimate`` -- the Eq. (2) search
+#: or the perturbed estimate; ``emulator_session`` -- the emulator's seed in resumed session ``k``
+#: (``stream_seed(seed, "emulator_session", k)``); ``emulator_noise`` -- the emulator counter's noise;
+#: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter).
+SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
+                "emulator_noise": 10, "emulator_faults": 11}
+
+
+def stream_key(name) -> int:
+    """The stream key of a named random source (an int key passes through: older callers)."""
+    if isinstance(name, (int, np.integer)):
+        return int(name)
+    try:
+        return SEED_STREAMS[name]
+    except KeyError:
+        raise KeyError(f"random stream {name!r}: not one of {', '.join(SEED_STREAMS)}") from None
+
+
+def stream_rng(seed: int, name, *sub: int) -> np.random.Generator:
+    """The generator of one named random source under the scenario ``seed`` (``sub``: e.g. a line)."""
+    return np.random.default_rng([int(seed), stream_key(name), *sub])
+
+
+def stream_seed(seed: int, name, *sub: int) -> int:
+    """An independent, reproducible seed for one named random source of a scenario seeded ``seed``."""
+    return int(np.random.SeedSequence([int(seed), stream_key(name), *sub]).generate_state(1)[0])
+
+
 @dataclass
 class MapTable:
     """A deviation given as a table (deg), linearly interpolated like an identified map."""
@@ -147,11 +180,55 @@ class RunPolicy:
 
 
 @dataclass
+class Faults:
+    """The device emulator's fault injection switches (:mod:`olti_drake.hardware.emulator` re-exports
+    this class; it lives here so the scenario layer never imports the hardware layer); all random choices come from the emulator's seeded generator.
+
+    ``latency_s``: delay before every reply. ``drop``: probability that a frame is lost, drawn
+    separately for the request (not executed) and for its reply (executed, not answered).
+    ``garble``: probability that one byte of a reply is changed. ``nak_crc``: probability that a
+    request is taken as corrupted on the line (``NAK,CRC``, not executed). ``bad_crc``: probability
+    that a reply goes out with a wrong checksum. ``partial``: probability that only the first half of
+    a reply is written; the rest follows after ``partial_delay_s`` seconds, or never if None.
+    ``beam_loss``: probability that a READ reports no beam (valid 0). ``alarm_at``: the N-th MOVJ
+    (1-based, retries not counted) raises an alarm: it and every MOVJ/WAIT after it get
+    ``NAK,ALARM`` until ``ALRM,CLR``. ``disconnect_after``: close both pseudo-terminals after
+    answering N request frames (both lines, retries included).
+    """
+
+    latency_s: float = 0.0
+    drop: float = 0.0
+    garble: float = 0.0
+    nak_crc: float = 0.0
+    bad_crc: float = 0.0
+    partial: float = 0.0
+    partial_delay_s: Optional[float] = None
+    beam_loss: float = 0.0
+    alarm_at: Optional[int] = None
+    disconnect_after: Optional[int] = None
+
+    def validate(self) -> "Faults":
+        for key in ("drop", "garble", "nak_crc", "bad_crc", "partial", "beam_loss"):
+            p = getattr(self, key)
+            if not (isinstance(p, (int, float)) and 0.0 <= p <= 1.0):
+                raise ValueError(f"fault {key}: a probability 0..1, got {p!r}")
+        for key in ("latency_s", "partial_delay_s"):
+            v = getattr(self, key)
+            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"fault {key}: seconds >= 0, got {v!r}")
+        for key in ("alarm_at", "disconnect_after"):
+            v = getattr(self, key)
+            if v is not None and not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"fault {key}: an integer >= 1 or None, got {v!r}")
+        return self
+
+
+@dataclass
 class Emulated:
     """The station is the in-process device emulator (docs/emulator.md), driven over its pseudo-terminals.
 
     ``speed``: ``fast`` or ``realistic``; the fault fields are those of
-    :class:`olti_drake.hardware.emulator.Faults`; ``timeout_s`` and ``retries`` are the
+    :class:`Faults`; ``timeout_s`` and ``retries`` are the
     host transport's (docs/protocol.md); ``policy`` what the station does on
     beam loss and alarms.
     """
@@ -172,9 +249,7 @@ class Emulated:
     policy: RunPolicy = field(default_factory=RunPolicy)
 
     def faults(self):
-        """The fault fields as the emulator's :class:`~olti_drake.hardware.emulator.Faults`, validated by it."""
-        from olti_drake.hardware.emulator import Faults
-
+        """The fault fields as the emulator's :class:`Faults`, validated by it."""
         return Faults(**{f.name: getattr(self, f.name) for f in fields(Faults) if hasattr(self, f.name)}).validate()
 
 
@@ -182,8 +257,10 @@ class Emulated:
 class Hardware:
     """The real robot controller and interferometer counter on two serial ports (docs/protocol.md).
 
-    ``robot_driver``, ``counter_driver``: ``olti`` (the olti serial protocol) or
-    ``package.module:Class`` -- a driver of another device (:mod:`olti_drake.hardware.drivers`).
+    ``robot_driver``, ``counter_driver``: ``olti`` (the olti serial protocol; the operator is prompted to
+    set up each reflector), ``bench`` (the counter sets each reflector with ``REFL``, as the emulator
+    does: an unattended bench) or ``package.module:Class`` -- a driver of another device
+    (:mod:`olti_drake.hardware.drivers`).
     """
 
     robot_port: str = ""
@@ -205,9 +282,18 @@ def _paper_reflectors() -> list[list[float]]:
 class Scenario:
     """A simulated open-loop tracking interferometer campaign (000 §2, §4.1).
 
-    ``budget`` is a budget YAML path (relative to the scenario file); empty
-    means 000 Table 2. ``period_s`` is the simulated time per plan row (move,
+    ``budget`` is a budget YAML path, or (from Python) a :class:`~olti_drake.io.budget.Budget`;
+    empty means 000 Table 2. ``plan`` is a plan generator, a ``!PlanFile``, or (from Python) a
+    :class:`~olti_drake.model.plan.Plan`. ``period_s`` is the simulated time per plan row (move,
     settle, read). ``seed`` makes every random draw reproducible.
+
+    ``base``: a scenario this one overrides (``FILE``, ``FILE#NAME`` or ``#NAME`` for a named
+    scenario of the same file): every field this one does not give is the base's
+    (:func:`load_scenario`).
+
+    Relative paths (``budget``, ``plan.path``, ``base``) have ONE rule: relative to the folder of
+    the YAML file that gives them; a scenario built in Python resolves them against its
+    ``base_dir`` attribute, the current directory unless set (``Scenario(...).at(folder)``).
     """
 
     robot: Robot = field(default_factory=Robot)
@@ -220,18 +306,30 @@ class Scenario:
     seed: int = 0
     period_s: float = 1.0
     station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
+    base: str = ""
+
+    def at(self, base_dir) -> "Scenario":
+        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
+        self.base_dir = os.path.abspath(os.fspath(base_dir))
+        return self
 
     def resolve(self, path: str) -> str:
-        """A path from the scenario, relative to the scenario file's directory."""
-        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", ""), path)
+        """A path from the scenario: relative to ``base_dir`` (the YAML file's folder when loaded from a
+        file; the current directory for a scenario built in Python unless :meth:`at` set it)."""
+        path = os.fspath(path)
+        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
 
     def load_plan(self) -> Plan:
+        if isinstance(self.plan, Plan):
+            return self.plan
         if isinstance(self.plan, PlanFile):
             return load_plan(self.resolve(self.plan.path))
         return self.plan.plan()
 
     def load_budget(self):
-        from olti_drake.io.budget import load_budget, paper000_budget
+        from olti_drake.io.budget import Budget, load_budget, paper000_budget
+        if isinstance(self.budget, Budget):
+            return self.budget
         return load_budget(self.resolve(self.budget)) if self.budget else paper000_budget()
 
     def validate(self, where: str = "scenario") -> "Scenario":
@@ -263,6 +361,9 @@ class Scenario:
             raise InputError(f"{where}: seed must be >= 0, got {self.seed}")
         if isinstance(self.plan, PlanFile) and not self.plan.path:
             raise InputError(f"{where}: plan.path is empty")
+        _check_object(f"{where}: plan", self.plan, (Plan, BidirectionalGrid, PlanFile))
+        from olti_drake.io.budget import Budget
+        _check_object(f"{where}: budget", self.budget, (Budget, str, os.PathLike))
         _check_station(f"{where}: station", self.station)
         if isinstance(self.station, Hardware) and not isinstance(self.reflector_estimate, ExactEstimate):
             raise InputError(f"{where}: a !Hardware station needs reflector_estimate: !ExactEstimate {{}} with "
@@ -297,6 +398,12 @@ def _check_station(name, st):
         _positive(f"{name}.policy.approach_overrun_deg", pol.approach_overrun_deg)
 
 
+def _check_object(name, value, kinds):
+    if not isinstance(value, kinds):
+        raise InputError(f"{name} must be one of {', '.join(k.__name__ for k in kinds)}, "
+                         f"got {type(value).__name__}")
+
+
 def _finite(name, v):
     if not np.isfinite(v):
         raise InputError(f"{name} must be finite, got {v!r}")
@@ -323,27 +430,103 @@ def _check_deviation(name, dev):
             raise InputError(str(e)) from None
 
 
-def load_scenario(path=None) -> Scenario:
-    """Load a scenario YAML (paths inside it relative to it); None gives the paper default."""
-    if path is None:
-        return Scenario().validate("default scenario")
+def load_scenario(path=None, name: Optional[str] = None, text: Optional[str] = None, *,
+                  defaults: Optional[Scenario] = None) -> Scenario:
+    """Load a scenario: a YAML file, optionally one named scenario of it, then overrides.
+
+    The layers, each over the one before (as Drake's ``hardware_sim`` loads its scenarios with
+    ``yaml_load_typed(..., child_name=..., defaults=...)``): ``defaults`` (the paper-000 default
+    when None); the scenario's ``base`` (``FILE``, ``FILE#NAME`` or ``#NAME``), loaded the same
+    way; the file itself (``path``), or its top-level key ``name`` when the file holds several
+    named scenarios; then ``text``, YAML overrides such as ``{seed: 3}`` (``--scenario-text``).
+    Relative paths are relative to the file that gives them; ``text``'s to the file's folder
+    (the current directory without a file). Every value is validated, errors naming the field.
+    """
+    scenario = defaults if defaults is not None else Scenario()
+    where = "default scenario"
+    if path is not None:
+        scenario = _load_layer(os.fspath(path), name, scenario, set())
+        where = f"scenario {os.fspath(path)}" + (f" ({name})" if name else "")
+    elif name:
+        raise InputError(f"scenario name {name!r} given without a scenario file")
+    if text:
+        scenario = _load_text(text, scenario, where)
+        where += f" + scenario text {text!r}"
+    return scenario.validate(where)
+
+
+def _load_layer(name: str, child: Optional[str], defaults: Scenario, seen: set) -> Scenario:
+    """``name`` (its key ``child`` if given) over ``defaults``, after its own ``base`` if it names one."""
+    import copy
+
     from pydrake.common.yaml import yaml_load_typed  # lazy: keeps `olti --help` fast
 
-    name = os.fspath(path)
     if not os.path.isfile(name):
         raise InputError(f"{name}: " + ("is a directory, expected a scenario YAML file" if os.path.isdir(name)
                                         else "scenario file not found"))
-    read_yaml(name, "scenario")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
+    key = (os.path.abspath(name), child)
+    if key in seen:
+        raise InputError(f"scenario {name}: base: {child or name} is its own base (a cycle)")
+    seen = seen | {key}
+    raw = read_yaml(name, "scenario")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
+    label = f"scenario {name}" + (f" ({child})" if child else "")
+    if child is not None:
+        if not isinstance(raw, dict) or child not in raw:
+            names = ", ".join(str(k) for k in raw) if isinstance(raw, dict) else "none"
+            raise InputError(f"scenario {name}: no scenario named {child!r} (names: {names})")
+        raw = raw[child]
+    base = raw.get("base") if isinstance(raw, dict) else None
+    folder = os.path.dirname(os.path.abspath(name))
+    if base:
+        if not isinstance(base, str):
+            raise InputError(f"{label}: base must be FILE, FILE#NAME or #NAME, got {base!r}")
+        file, _, base_child = base.partition("#")
+        file = os.path.join(folder, file) if file else name
+        if not os.path.isfile(file):
+            raise InputError(f"{label}: base: {file}: scenario file not found (relative to the file that names it)")
+        defaults = _rebase(_load_layer(file, base_child or None, defaults, seen), folder)
     try:
-        scenario = yaml_load_typed(schema=Scenario, filename=name)
+        scenario = yaml_load_typed(schema=Scenario, filename=name, child_name=child,
+                                   defaults=copy.deepcopy(defaults))
     except Exception as e:  # pydrake's messages are multi-line and may not name the key
-        where = _locate_bad_field(Scenario, name)
-        raise InputError(f"scenario {name}: {where + ': ' if where else ''}{_first_line(e)}") from None
-    scenario.base_dir = os.path.dirname(os.path.abspath(name))
-    return scenario.validate(f"scenario {name}")
+        where = _locate_bad_field(Scenario, name, child)
+        raise InputError(f"{label}: {where + ': ' if where else ''}{_first_line(e)}") from None
+    scenario.base_dir, scenario.source_file, scenario.base = folder, name, ""
+    return scenario
 
 
-def _locate_bad_field(schema, filename: str) -> str:
+def _load_text(text: str, defaults: Scenario, where: str) -> Scenario:
+    """YAML overrides (``{seed: 3}``) over a loaded scenario; paths in them relative to its folder."""
+    import copy
+
+    from pydrake.common.yaml import yaml_load_typed
+
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text, defaults=copy.deepcopy(defaults))
+    except Exception as e:
+        raise InputError(f"{where}: scenario text {text!r}: {_first_line(e)}") from None
+    for attr in ("base_dir", "source_file"):
+        if hasattr(defaults, attr):
+            setattr(scenario, attr, getattr(defaults, attr))
+    if scenario.base:
+        raise InputError(f"{where}: scenario text: base is for scenario files, not overrides")
+    return scenario
+
+
+def _rebase(scenario: Scenario, folder: str) -> Scenario:
+    """The scenario with its relative file paths made relative to ``folder`` (a base's paths keep
+    naming the files next to the base when a file in another folder overrides it)."""
+    def rel(path):
+        return path if os.path.isabs(path) else os.path.relpath(scenario.resolve(path), folder)
+
+    if isinstance(scenario.budget, str) and scenario.budget:
+        scenario.budget = rel(scenario.budget)
+    if isinstance(scenario.plan, PlanFile) and scenario.plan.path:
+        scenario.plan = PlanFile(rel(scenario.plan.path))
+    return scenario
+
+
+def _locate_bad_field(schema, filename: str, child_name: Optional[str] = None) -> str:
     """Dotted path of the innermost field that does not load on its own ('' if none found).
 
     pydrake reports e.g. a non-integer seed without naming it; this retries the
@@ -388,6 +571,8 @@ def _locate_bad_field(schema, filename: str) -> str:
             raw = yaml.load(f, Loader=_Loader)
     except (yaml.YAMLError, UnicodeDecodeError):
         return ""
+    if child_name is not None:
+        raw = raw.get(child_name) if isinstance(raw, dict) else None
 
     def loads(cls, key, value) -> bool:
         try:

@@ -1,0 +1,78 @@
+"""``python -m olti_drake.cli.emulator``: the device emulator as a program (docs/emulator.md).
+
+Parses the command line and starts :class:`olti_drake.hardware.emulator.Emulator` on two
+pseudo-terminals until Ctrl-C. The program lives in ``cli/`` so that ``hardware/`` never imports
+the command-line layer.
+"""
+
+import argparse
+import logging
+import signal
+import sys
+import time
+
+from olti_drake.cli import args as cliargs
+from olti_drake.hardware.emulator import DEFAULT_ENCODER_RESOLUTION, Emulator, Faults
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m olti_drake.cli.emulator",
+        description="Emulate the robot controller and the interferometer counter of a scenario on two "
+                    "pseudo-terminals (docs/emulator.md).")
+    p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario)")
+    p.add_argument("--speed", choices=("fast", "realistic"), default="fast",
+                   help="fast: moves complete at once; realistic: distance/speed + settle time")
+    p.add_argument("--seed", type=cliargs.seed, default=None, help="noise and fault seed (default: the scenario's)")
+    p.add_argument("--link", metavar="PREFIX", help="make symlinks PREFIX-robot and PREFIX-counter")
+    p.add_argument("--reflector", type=int, default=0, help="reflector position set up at start (0-based)")
+    g = p.add_argument_group("faults (probabilities per frame, 0..1)")
+    g.add_argument("--latency", type=float, default=0.0, metavar="S", help="delay before every reply, s")
+    g.add_argument("--drop", type=float, default=0.0, metavar="P", help="lose a request or a reply")
+    g.add_argument("--garble", type=float, default=0.0, metavar="P", help="change one byte of a reply")
+    g.add_argument("--nak-crc", type=float, default=0.0, metavar="P",
+                   help="take a request as corrupted: NAK,CRC, not executed")
+    g.add_argument("--bad-crc", type=float, default=0.0, metavar="P", help="send a reply with a wrong checksum")
+    g.add_argument("--partial", type=float, default=0.0, metavar="P", help="write only half of a reply")
+    g.add_argument("--partial-delay", type=float, default=None, metavar="S",
+                   help="send the rest of a cut reply after S seconds (default: never)")
+    g.add_argument("--beam-loss", type=float, default=0.0, metavar="P", help="a READ reports no beam")
+    g.add_argument("--alarm-at", type=int, default=None, metavar="N", help="the N-th MOVJ raises an alarm")
+    g.add_argument("--disconnect-after", type=int, default=None, metavar="N",
+                   help="close both lines after N requests")
+    p.add_argument("--latch-beam-loss", action="store_true",
+                   help="after a READ without beam, every READ is invalid until ZERO (a real counter)")
+    p.add_argument("--exact-encoder", action="store_true", help="POSJ encoder = commanded (no quantization)")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="log faults (-v) and every frame (-vv)")
+    a = p.parse_args(argv)
+    logging.basicConfig(level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(a.verbose, 2)],
+                        format="%(asctime)s %(threadName)s %(message)s", stream=sys.stderr)
+    faults = Faults(latency_s=a.latency, drop=a.drop, garble=a.garble, nak_crc=a.nak_crc, bad_crc=a.bad_crc,
+                    partial=a.partial, partial_delay_s=a.partial_delay, beam_loss=a.beam_loss,
+                    alarm_at=a.alarm_at, disconnect_after=a.disconnect_after)
+    signals = []  # Ctrl-C or kill PID: stop cleanly (close the lines, remove the links), exit 0
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: signals.append(signum))
+    try:
+        emu = Emulator(a.scenario, speed=a.speed, seed=a.seed, reflector=a.reflector, faults=faults,
+                       link=a.link, latch_beam_loss=a.latch_beam_loss,
+                       encoder_resolution=(0, 0, 0, 0) if a.exact_encoder else DEFAULT_ENCODER_RESOLUTION)
+        emu.start()
+    except (ValueError, OSError) as e:  # InputError is a ValueError
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    try:
+        for role, line in emu._lines.items():
+            print(f"{role:8s}{line.path}" + (f"  ({line.link})" if line.link else ""), flush=True)
+        print(f"speed {emu.speed}, seed {emu.seed}, reflector {emu.reflector}; Ctrl-C stops", flush=True)
+        while not signals and not emu.disconnected.is_set():
+            time.sleep(0.1)
+        if emu.disconnected.is_set():
+            print(f"disconnected after {emu.requests} requests (--disconnect-after)", flush=True)
+    finally:
+        emu.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
