@@ -234,10 +234,9 @@ def cmd_multilaterate(args) -> int:
     if args.budget == "residuals":
         budget = None
     else:
-        from olti_drake.io.budget import load_budget
-        from olti_drake.model.machine import paper001_budget
+        from olti_drake.io.budget import budget_or_default
 
-        budget = paper001_budget() if args.budget is None else load_budget(args.budget)
+        budget = budget_or_default(args.budget, "machine")
     res = multilaterate(data, options, budget)
     write_json(args.out, res.to_dict())
     dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
@@ -352,9 +351,8 @@ def _uncertainty_multilateration(args, t0) -> int:
     """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
     import numpy as np
 
-    from olti_drake.io.budget import load_budget
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.report.figures import plot_target_uncertainty
-    from olti_drake.model.machine import paper001_budget
     from olti_drake.io.campaign_io import check_campaign_matches
     from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
     from olti_drake.io.outputs import write_json
@@ -363,7 +361,7 @@ def _uncertainty_multilateration(args, t0) -> int:
     if args.maps:
         raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
     res = load_result(args.result)
-    budget = load_budget(args.budget) if args.budget else paper001_budget()
+    budget = budget_or_default(args.budget, "machine")
     data = load_machine_campaign(args.campaign)
     campaign_note = check_campaign_matches(res, data, args.result)
     ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
@@ -413,7 +411,7 @@ def cmd_uncertainty(args) -> int:
 
     import numpy as np
 
-    from olti_drake.io.budget import load_budget, paper000_budget
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
@@ -428,7 +426,7 @@ def cmd_uncertainty(args) -> int:
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
-    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    budget = budget_or_default(args.budget, "scara")
     data = load_campaign(args.campaign)
     campaign_note = check_campaign_matches(read_json(args.result, None), data, args.result)
     ident, x = identifier_at_result(args.result, data)
@@ -504,7 +502,7 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
-    from olti_drake.io.budget import load_budget, paper000_budget
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.estimation.design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
                          workspace_commands)
     from olti_drake.estimation.identification import UnidentifiableError
@@ -516,7 +514,7 @@ def cmd_design(args) -> int:
     model, P, _, _ = load_result(args.result, outside="clamp")
     plan = load_plan(args.plan) if args.plan else bidirectional_grid()
     plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
-    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    budget = budget_or_default(args.budget, "scara")
     regions = load_regions(args.regions)
     n = len(P) if args.reflectors is None else args.reflectors
     if n < 3:

@@ -49,7 +49,7 @@ from olti_drake.io.csvio import InputError, read_yaml, unit_bound
 from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid
 from olti_drake.model.plan import Plan
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.threads import single_thread_blas
 
 #: Default minimum distance between two reflectors, mm.
 MIN_SEPARATION_MM = 100.0
