@@ -1,4 +1,4 @@
-"""CSV tables in the shared format (shared/spec/formats.md).
+"""CSV tables of the tool's files (campaigns, plans, maps; their columns are listed where each is read).
 
 Comma separated, one header row, ``#`` starts a comment line, UTF-8; required
 columns in any order, extra columns ignored. Every error is one line
