@@ -149,3 +149,40 @@ def test_public_names_at_the_top_and_import_stays_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["olti_drake.estimation.identification", "olti_drake.io.campaign_io"]
+
+
+def test_calibration_over_the_serial_chain_model_solves_a_synthetic_campaign():
+    """The N-joint chain plugs in as another position model: Calibration(DistanceMeasurement) recovers a
+    truth of the model family from its noise-free readings, by LM and by Solve(prog), with no change to
+    the program."""
+    from pathlib import Path
+
+    import olti_drake
+    from pydrake.solvers import Solve
+
+    from olti_drake.estimation.calibration import Calibration
+    from olti_drake.estimation.leastsquares import SolverOptions
+    from olti_drake.model.chain import load_serial_chain
+    from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
+                                         synthetic_truth)
+
+    chain = load_serial_chain(Path(olti_drake.__file__).parent / "models" / "ur5.urdf", "tool0")
+    ranges = np.array([[-100.0, 80.0], [-170.0, -10.0], [-120.0, 120.0], [-90.0, 90.0], [-60.0, 150.0],
+                       [-180.0, 180.0]])
+    truth = synthetic_truth(chain, seed=3, tool_offset_mm=(40.0, -25.0, 60.0))
+    camp = synthetic_campaign(truth, 200, seed=12, ranges_deg=ranges, directions=False)
+    model = build_position_model(chain, camp.commands, None, kind="dh", tool_offset_mm=(40.0, -25.0, 60.0))
+    meas = DistanceMeasurement(model, camp.distance_commands, None, camp.station, camp.displacement_mm,
+                               truth.stations_mm, truth.dead_paths_mm)
+    gauge = find_gauge(meas)
+    rng = np.random.default_rng(13)
+    x_true = meas.start_vector() + np.where([n.endswith("_mm") for n in meas.names], 0.3, 0.05) * rng.normal(
+        size=len(meas.names))
+    x_true -= np.linalg.lstsq(gauge.A, gauge.A @ x_true - gauge.b, rcond=None)[0]  # obey the gauge
+    meas.displacement = meas.predict(x_true)
+    fit = Calibration(meas, SolverOptions(), gauge, "synthetic UR5").fit()
+    assert np.abs(fit.x - x_true).max() < 1e-6
+    assert np.abs(fit.residuals).max() < 1e-8
+    cal = Calibration(meas, SolverOptions(), gauge, "synthetic UR5")
+    x = Solve(cal.prog).GetSolution(cal.variables)
+    assert np.abs(x - x_true).max() < 1e-5

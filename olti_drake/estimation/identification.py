@@ -29,7 +29,7 @@ from olti_drake.io.csvio import InputError, check_spread, unit_bound
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
-from olti_drake.estimation.calibration import station_fit
+from olti_drake.estimation.calibration import distance_rows, station_fit
 
 
 @dataclass
@@ -353,14 +353,8 @@ class Identifier(LeastSquaresProgram):
         n, n_t, j = self.n_robot, self.n_t, self.data.reflector
         p, cols, dx, dy = self.robot0.jacobian_rows(self.data.commands, X[:, :n])
         P = X[:, n:n + 2 * n_t].reshape(len(X), n_t, 2)
-        diff = p - P[:, j]
-        dist = np.hypot(diff[..., 0], diff[..., 1])
-        u = diff / dist[..., None]
         d = self.data.displacement_mm if displacement_mm is None else displacement_mm
-        r = dist - X[:, n + 2 * n_t:][:, j] - d
-        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * n_t + j])
-        vals = np.concatenate([u[..., :1] * dx + u[..., 1:] * dy, -u, -np.ones(r.shape + (1,))], axis=-1)
-        return r, cols, vals
+        return distance_rows(p, cols, dx, dy, P, X[:, n + 2 * n_t:], j, d, n, n + 2 * n_t)
 
     def residuals(self, x):
         """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and the sparse dr/dx."""

@@ -25,12 +25,14 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
                     json_numbers, read_json,
                     read_table)
 from olti_drake.model.scara import rows_to_csr
-from olti_drake.estimation.calibration import station_fit  # noqa: F401 (re-exported)
+from olti_drake.estimation.calibration import distance_rows, station_fit  # noqa: F401 (station_fit re-exported)
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
 FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
 GAUGES = ("best-fit", "first-two")
+#: ∂p/∂(p_x, p_y) of a free point: the identity, as the rows of :func:`calibration.distance_rows`.
+_UNIT_X, _UNIT_Y = np.array([1.0, 0.0]), np.array([0.0, 1.0])
 
 
 @dataclass(frozen=True)
@@ -234,17 +236,12 @@ class Multilateration(LeastSquaresProgram):
         X = np.atleast_2d(X)
         d = self.data
         n_i, n_j = d.n_targets, d.n_stations
-        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]
-        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)[:, d.station]
-        diff = p - P
-        dist = np.hypot(diff[..., 0], diff[..., 1])
-        u = diff / dist[..., None]
+        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]  # free points: the position model is x itself
+        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)
         readings = d.displacement_mm if displacement_mm is None else displacement_mm
-        r = dist - X[:, 2 * n_i + 2 * n_j:][:, d.station] - readings
-        i2, j2 = 2 * d.target, 2 * n_i + 2 * d.station
-        cols = np.column_stack([i2, i2 + 1, j2, j2 + 1, 2 * n_i + 2 * n_j + d.station])
-        vals = np.concatenate([u, -u, -np.ones(r.shape + (1,))], axis=-1)
-        return r, cols, vals
+        pcols = np.column_stack([2 * d.target, 2 * d.target + 1])
+        return distance_rows(p, pcols, _UNIT_X, _UNIT_Y, P, X[:, 2 * n_i + 2 * n_j:], d.station, readings,
+                             2 * n_i, 2 * n_i + 2 * n_j)
 
     def residuals(self, x):
         """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
