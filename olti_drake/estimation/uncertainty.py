@@ -58,10 +58,12 @@ def round_trials(coverage: float) -> int:
 def _solution_map(ident, x):
     """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
     r, J = ident.residuals(x)
-    H = (J.T @ J).toarray() + ident.quadratic_costs()[0]
+    n = len(x)
+    Q = ident.quadratic_costs()[0]  # over all decision variables: the user's own follow the parameters
+    H = np.pad((J.T @ J).toarray(), ((0, len(Q) - n), (0, len(Q) - n))) + Q
     M, N, s = ident.reduced_hessian(H)
     Ns = N / s[:, None]
-    return Ns @ np.linalg.solve(M, Ns.T), J
+    return (Ns @ np.linalg.solve(M, Ns.T))[:n, :n], J  # the parameters' rows: the readings move only them
 
 
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
@@ -159,6 +161,7 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
     model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
     Q, q = ident.quadratic_costs()
+    Q, q = Q[:len(x), :len(x)], q[:len(x)]  # priors on the parameters (a user's own variables: in B)
     k, m = cols.shape
     scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
     _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
