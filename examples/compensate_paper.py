@@ -32,6 +32,7 @@ import time
 import numpy as np
 
 from olti_drake.estimation import compensation as comp
+from olti_drake.sim.compensation_check import drake_end_effector
 from olti_drake.report import validation as v
 from olti_drake.sim.campaign import prepare, run_campaign
 from olti_drake.estimation.identification import IdentificationOptions, identify
@@ -146,7 +147,7 @@ def main(argv=None) -> int:
     grid_name = next(iter(results))
     after = results[grid_name]["after (error map)"]
     c = after["compensation"].commands
-    p_drake, d_drake = comp.drake_end_effector(truth, c)
+    p_drake, d_drake = drake_end_effector(truth, c)
     p_numpy = truth.end_effector(c.theta1_deg, c.theta2_deg, c.dir1, c.dir2)
     same = np.array_equal(d_drake, np.column_stack([c.dir1, c.dir2]))
     print(f"\nDrake diagram on the grid commands: max |plant - numpy truth| {np.abs(p_drake - p_numpy).max():.1e} mm, "

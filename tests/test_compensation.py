@@ -13,6 +13,7 @@ import pytest
 from olti_drake.estimation import compensation as comp
 from olti_drake.report import validation as v
 from olti_drake.sim.campaign import prepare, simulate_vectorized
+from olti_drake.sim.compensation_check import drake_end_effector
 from olti_drake.model.errormap import ErrorMap, approach_directions
 from olti_drake.estimation.identification import IdentificationOptions, identify
 from olti_drake.model.scara import ScaraModel, inverse_kinematics
@@ -95,7 +96,7 @@ def test_derived_directions_are_a_fixed_point_and_drake_agrees(exact):
     assert not c.needs_approach.any()
     assert np.max(np.hypot(*comp.positioning_errors(truth, cmd, grid.xy_cmd_mm).T)) < 1e-6
     # The Drake diagram (ErrorMapJoint + MultibodyPlant) derives the directions from the sequence itself.
-    p, d = comp.drake_end_effector(truth, cmd)
+    p, d = drake_end_effector(truth, cmd)
     np.testing.assert_array_equal(d, derived)
     np.testing.assert_allclose(p, grid.xy_cmd_mm, rtol=0, atol=1e-6)
 

@@ -1,4 +1,4 @@
-"""The ``olti`` command (shared/spec/cli.md).
+"""The ``olti`` command (README.md "Command line"; ``olti VERB --help``).
 
 Only argparse is imported at start-up, so ``olti --help`` answers at once;
 each verb imports what it needs (pydrake, matplotlib) when it runs.
@@ -242,10 +242,9 @@ def cmd_multilaterate(args) -> int:
     if args.budget == "residuals":
         budget = None
     else:
-        from olti_drake.io.budget import load_budget
-        from olti_drake.model.machine import paper001_budget
+        from olti_drake.io.budget import budget_or_default
 
-        budget = paper001_budget() if args.budget is None else load_budget(args.budget)
+        budget = budget_or_default(args.budget, "machine")
     res = multilaterate(data, options, budget)
     write_json(args.out, res.to_dict())
     dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
@@ -360,9 +359,8 @@ def _uncertainty_multilateration(args, t0) -> int:
     """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
     import numpy as np
 
-    from olti_drake.io.budget import load_budget
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.report.figures import plot_target_uncertainty
-    from olti_drake.model.machine import paper001_budget
     from olti_drake.io.campaign_io import check_campaign_matches
     from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
     from olti_drake.io.outputs import write_json
@@ -371,7 +369,7 @@ def _uncertainty_multilateration(args, t0) -> int:
     if args.maps:
         raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
     res = load_result(args.result)
-    budget = load_budget(args.budget) if args.budget else paper001_budget()
+    budget = budget_or_default(args.budget, "machine")
     data = load_machine_campaign(args.campaign)
     campaign_note = check_campaign_matches(res, data, args.result)
     ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
@@ -421,7 +419,7 @@ def cmd_uncertainty(args) -> int:
 
     import numpy as np
 
-    from olti_drake.io.budget import load_budget, paper000_budget
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
@@ -436,7 +434,7 @@ def cmd_uncertainty(args) -> int:
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
-    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    budget = budget_or_default(args.budget, "scara")
     data = load_campaign(args.campaign)
     campaign_note = check_campaign_matches(read_json(args.result, None), data, args.result)
     ident, x = identifier_at_result(args.result, data)
@@ -512,10 +510,9 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
-    from olti_drake.io.budget import load_budget, paper000_budget
-    from olti_drake.estimation.design import (LayoutEvaluator, candidate_grid, design_layout, load_regions, measured_commands,
-                         workspace_commands)
-    from olti_drake.estimation.identification import UnidentifiableError
+    from olti_drake.io.budget import budget_or_default
+    from olti_drake.estimation.design import (DesignReport, LayoutEvaluator, candidate_grid, design_layout,
+                                              evaluate_layout, load_regions, measured_commands, workspace_commands)
     from olti_drake.io.outputs import write_json
     from olti_drake.model.plan import bidirectional_grid, load_plan
     from olti_drake.io.result import load_result
@@ -524,7 +521,7 @@ def cmd_design(args) -> int:
     model, P, _, _ = load_result(args.result, outside="clamp")
     plan = load_plan(args.plan) if args.plan else bidirectional_grid()
     plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
-    budget = load_budget(args.budget) if args.budget else paper000_budget()
+    budget = budget_or_default(args.budget, "scara")
     regions = load_regions(args.regions)
     n = len(P) if args.reflectors is None else args.reflectors
     if n < 3:
@@ -538,16 +535,8 @@ def cmd_design(args) -> int:
                                 option="--workspace-step-mm")
     candidates = candidate_grid(regions, args.step_mm, option="--step-mm")
 
-    def costs(u):
-        return {"max_u_mm": float(u.max()), "mean_u_mm": float(u.mean()), "max_U_k2_mm": float(2 * u.max()),
-                "mean_U_k2_mm": float(2 * u.mean())}
-
     t0 = time.perf_counter()
-    current = {"reflectors_mm": P.tolist()}
-    try:
-        current.update(costs(LayoutEvaluator(model, plan, len(P), ws).position_std(P, budget)))
-    except UnidentifiableError as e:
-        current["not_identifiable"] = " ".join(str(e).split())
+    current = evaluate_layout(LayoutEvaluator(model, plan, len(P), ws), P, budget)
     tty = sys.stderr.isatty()
 
     def report(start, sweep, cost):
@@ -562,11 +551,13 @@ def cmd_design(args) -> int:
                         progress=report if tty else None)
     if tty:
         sys.stderr.write("\n")
-    designed = {"reflectors_mm": res.reflectors_mm.tolist()}
-    designed.update(costs(ev.position_std(res.reflectors_mm, budget)))
+    designed = evaluate_layout(ev, res.reflectors_mm, budget)
     elapsed = time.perf_counter() - t0
-    key = f"{args.criterion}_u_mm"
-    improvement = current[key] / designed[key] if key in current else None
+    doc = DesignReport(args.criterion, budget, args.budget or "built-in paper 000 Table 2", args.result, plan_name,
+                       args.regions, current, designed, res, args.seed, args.starts, args.max_sweeps, args.step_mm,
+                       {"min_separation_mm": args.min_separation_mm, "clearance_mm": args.clearance_mm,
+                        "base_radius_mm": args.base_radius_mm}, args.workspace_step_mm, len(ws), elapsed)
+    improvement = doc.improvement
 
     print(f"reflector layout design (000 §3.2.2 Remark 2) by linear propagation (JCGM 100), budget {budget.name!r}")
     print(f"  truth: {args.result} ({'errormap' if model.is_errormap else 'dh'}); plan: {plan_name}, "
@@ -591,22 +582,7 @@ def cmd_design(args) -> int:
         print(f"  {name} positions (mm): " + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in c["reflectors_mm"]))
     print(f"  coordinate exchange: {args.starts} start(s), seed {args.seed}, {res.evaluations} layouts evaluated, "
           f"{elapsed:.1f} s")
-    out = {"format": "olti-design/1", "criterion": args.criterion, "k": 1,
-           "method": "linear propagation (JCGM 100) of the identification (000 §5 Remark); coordinate exchange "
-                     "over candidate positions from seeded random starts",
-           "budget": budget.name, "budget_file": args.budget or "built-in paper 000 Table 2",
-           "result": args.result, "plan": plan_name, "regions": args.regions,
-           "reflectors_mm": designed["reflectors_mm"], "current": current, "designed": designed,
-           "improvement": improvement, "evaluations": res.evaluations, "seed": args.seed, "starts": args.starts,
-           "max_sweeps": args.max_sweeps, "cost_history_mm": res.history,
-           "candidates": {"step_mm": args.step_mm, "count": int(len(res.candidates_mm)),
-                          "feasible": int(res.feasible.sum()), "rejected": res.rejected},
-           "rules": {"min_separation_mm": args.min_separation_mm, "clearance_mm": args.clearance_mm,
-                     "base_radius_mm": args.base_radius_mm},
-           "workspace": {"step_mm": args.workspace_step_mm, "commands": len(ws),
-                         "directions": "(dir1, dir2) = (+1, +1), (+1, -1), (-1, +1), (-1, -1)"},
-           "elapsed_s": round(elapsed, 3)}
-    write_json(args.out, out)
+    write_json(args.out, doc.to_dict())
     print(f"wrote {args.out}")
     return 0
 

@@ -45,7 +45,7 @@ compensation table.
 
 Proof by simulation (:func:`compare_compensation`): the commands run through
 the simulated truth robot (:class:`~olti_drake.model.truth.TrueRobot`, the numpy
-twin of the Drake diagram; :func:`drake_end_effector` runs the same commands
+twin of the Drake diagram; :func:`olti_drake.sim.compensation_check.drake_end_effector` runs the same commands
 through ``ErrorMapJoint`` and the ``MultibodyPlant``).
 """
 
@@ -397,6 +397,20 @@ def error_summary(errors, commands: JointCommands) -> dict:
     return out
 
 
+def register(pred, meas):
+    """Rotate ``pred`` (N, 2) mm about the J1 axis (origin) onto ``meas`` (N, 2) mm, least squares.
+
+    Closed form (2D Procrustes without translation): the angle maximizing
+    Σ meas · R pred is atan2(Σ pred × meas, Σ pred · meas). Returns
+    (rotated pred (N, 2) mm, angle deg): the frame's rotation about J1 is the gauge of 000 (§3.2.2), and
+    the tracker registration of 000 §4.3 removes it the same way.
+    """
+    p, m = np.asarray(pred, dtype=float), np.asarray(meas, dtype=float)
+    angle = np.arctan2(np.sum(p[:, 0] * m[:, 1] - p[:, 1] * m[:, 0]), np.sum(p * m))
+    c, s = np.cos(angle), np.sin(angle)
+    return p @ np.array([[c, s], [-s, c]]), float(np.degrees(angle))
+
+
 def compare_compensation(models: Dict[str, ScaraModel], truth, targets_mm, dir1=None, dir2=None,
                          rotation_deg: Optional[float] = None, elbow: int = 1) -> dict:
     """Positioning errors of the truth robot executing each model's compensated commands (000 §4.3 paths).
@@ -408,11 +422,9 @@ def compare_compensation(models: Dict[str, ScaraModel], truth, targets_mm, dir1=
     frame (default :func:`frame_rotation_deg`). Returns name -> dict of
     :func:`error_summary` plus "errors" (N, 2) mm, "compensation", and the
     same errors after a best-fit rotation about J1 per model and target set
-    (``validation.register``, as the validation of 000 §4.3 does):
+    (:func:`register`, as the validation of 000 §4.3 does):
     "rms_registered_mm", "max_registered_mm", "registration_deg".
     """
-    from olti_drake.report.validation import register
-
     t = np.asarray(targets_mm, dtype=float)
     rot = frame_rotation_deg(truth) if rotation_deg is None else rotation_deg
     out = {}
@@ -425,33 +437,3 @@ def compare_compensation(models: Dict[str, ScaraModel], truth, targets_mm, dir1=
                      "rms_registered_mm": _rms(er), "max_registered_mm": float(np.max(np.hypot(*er.T), initial=0.0)),
                      "registration_deg": angle}
     return out
-
-
-def drake_end_effector(truth, commands: JointCommands):
-    """The commands run, one simulator step each, through the Drake ``ErrorMapJoint`` and ``MultibodyPlant``.
-
-    ``ErrorMapJoint`` (true J1, J2 deviations, Eq. 7 of 000) derives each
-    approach direction from the command sequence itself, as a controller
-    would; the plant (true L1, L2) gives the flange position. Returns
-    (positions (N, 2) mm, directions (N, 2) ±1) -- compare with
-    :func:`positioning_errors` and ``commands.dir1/dir2``. ``truth``: TrueRobot.
-    """
-    from pydrake.systems.analysis import Simulator
-
-    from olti_drake.sim.plant import make_scara_plant
-    from olti_drake.sim.systems import ErrorMapJoint
-
-    joint = ErrorMapJoint([truth.deviation("J1"), truth.deviation("J2")], revolute=[True, True])
-    sim = Simulator(joint)
-    ctx = sim.get_mutable_context()
-    sp = make_scara_plant(truth.L1_mm, truth.L2_mm, np.zeros((0, 2)))
-    pctx = sp.plant.CreateDefaultContext()
-    pos, dirs = [], []
-    for k, q in enumerate(np.radians(np.column_stack([commands.theta1_deg, commands.theta2_deg]))):
-        joint.get_input_port(0).FixValue(ctx, q)
-        actual = joint.GetOutputPort("position").Eval(ctx)
-        dirs.append(joint.GetOutputPort("direction").Eval(ctx).copy())
-        sp.plant.SetPositions(pctx, sp.positions(actual[0], actual[1], 0.0, 0.0))
-        pos.append(sp.plant.EvalBodyPoseInWorld(pctx, sp.flange).translation()[:2] * 1e3)
-        sim.AdvanceTo(k + 1.0)  # one step: the per-step update remembers the command
-    return np.array(pos).reshape(-1, 2), np.array(dirs).reshape(-1, 2)

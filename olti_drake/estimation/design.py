@@ -49,7 +49,7 @@ from olti_drake.io.csvio import InputError, read_yaml, unit_bound
 from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid
 from olti_drake.model.plan import Plan
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.threads import single_thread_blas
 
 #: Default minimum distance between two reflectors, mm.
 MIN_SEPARATION_MM = 100.0
@@ -505,3 +505,76 @@ def design_layout(model: ScaraModel, plan, candidates_mm, n_reflectors: int, bud
     order = np.array(best_idx)
     return DesignResult(C[order], float(best_cost), criterion, history, ev.evaluations - evals0, order, C, feasible,
                         start_costs, int(seed), rejected)
+
+
+# -- the design document (DESIGN.json) -------------------------------------------------------------------
+FORMAT = "olti-design/1"
+
+
+def layout_costs(u) -> dict:
+    """The costs of one layout from its predicted-position u over the workspace (mm, k = 1; U = 2u)."""
+    return {"max_u_mm": float(u.max()), "mean_u_mm": float(u.mean()), "max_U_k2_mm": float(2 * u.max()),
+            "mean_U_k2_mm": float(2 * u.mean())}
+
+
+def evaluate_layout(evaluator: LayoutEvaluator, reflectors_mm, budget: Budget) -> dict:
+    """``{"reflectors_mm", costs}`` of a layout, or ``{"reflectors_mm", "not_identifiable": why}`` (one line)."""
+    from olti_drake.estimation.identification import UnidentifiableError
+
+    out = {"reflectors_mm": np.asarray(reflectors_mm, dtype=float).tolist()}
+    try:
+        out.update(layout_costs(evaluator.position_std(np.asarray(reflectors_mm, dtype=float), budget)))
+    except UnidentifiableError as e:
+        out["not_identifiable"] = " ".join(str(e).split())
+    return out
+
+
+@dataclass
+class DesignReport:
+    """A layout design compared with the current layout: what ``olti design`` prints and writes (mm, k = 1).
+
+    ``current`` / ``designed``: :func:`evaluate_layout` dicts; ``design``: the :class:`DesignResult`;
+    the rest says where the inputs came from and the search settings, so the document is reproducible.
+    """
+
+    criterion: str
+    budget: Budget
+    budget_file: str
+    result: str
+    plan: str
+    regions: str
+    current: dict
+    designed: dict
+    design: "DesignResult"
+    seed: int
+    starts: int
+    max_sweeps: int
+    step_mm: float
+    rules: dict
+    workspace_step_mm: float
+    workspace_commands: int
+    elapsed_s: float
+
+    @property
+    def improvement(self) -> Optional[float]:
+        """Current / designed cost of the criterion; None when the current layout is not identifiable."""
+        key = f"{self.criterion}_u_mm"
+        return self.current[key] / self.designed[key] if key in self.current else None
+
+    def to_dict(self) -> dict:
+        """The ``DESIGN.json`` document (format ``olti-design/1``)."""
+        res = self.design
+        return {"format": FORMAT, "criterion": self.criterion, "k": 1,
+                "method": "linear propagation (JCGM 100) of the identification (000 §5 Remark); coordinate "
+                          "exchange over candidate positions from seeded random starts",
+                "budget": self.budget.name, "budget_file": self.budget_file,
+                "result": self.result, "plan": self.plan, "regions": self.regions,
+                "reflectors_mm": self.designed["reflectors_mm"], "current": self.current, "designed": self.designed,
+                "improvement": self.improvement, "evaluations": res.evaluations, "seed": self.seed,
+                "starts": self.starts, "max_sweeps": self.max_sweeps, "cost_history_mm": res.history,
+                "candidates": {"step_mm": self.step_mm, "count": int(len(res.candidates_mm)),
+                               "feasible": int(res.feasible.sum()), "rejected": res.rejected},
+                "rules": dict(self.rules),
+                "workspace": {"step_mm": self.workspace_step_mm, "commands": self.workspace_commands,
+                              "directions": "(dir1, dir2) = (+1, +1), (+1, -1), (-1, +1), (-1, -1)"},
+                "elapsed_s": round(self.elapsed_s, 3)}

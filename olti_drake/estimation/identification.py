@@ -18,6 +18,7 @@ Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 from typing import List, Optional
 
@@ -28,7 +29,7 @@ from olti_drake.io.csvio import InputError, check_spread, unit_bound
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
-from olti_drake.estimation.multilateration import station_fit
+from olti_drake.estimation.calibration import distance_rows, station_fit
 
 
 @dataclass
@@ -184,7 +185,7 @@ class Identifier(LeastSquaresProgram):
         between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
         """
         from olti_drake.estimation.leastsquares import RESIDUAL_WARNING_RATIO, _rms
-        from olti_drake.estimation.uncertainty import ReadingErrors
+        from olti_drake.io.budget import ReadingErrors
 
         c = self.data.commands
         coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
@@ -242,9 +243,9 @@ class Identifier(LeastSquaresProgram):
 
     def default_budget(self):
         """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
-        from olti_drake.io.budget import paper000_budget
+        from olti_drake.io.budget import default_budget
 
-        return paper000_budget()
+        return default_budget("scara")
 
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
@@ -352,14 +353,8 @@ class Identifier(LeastSquaresProgram):
         n, n_t, j = self.n_robot, self.n_t, self.data.reflector
         p, cols, dx, dy = self.robot0.jacobian_rows(self.data.commands, X[:, :n])
         P = X[:, n:n + 2 * n_t].reshape(len(X), n_t, 2)
-        diff = p - P[:, j]
-        dist = np.hypot(diff[..., 0], diff[..., 1])
-        u = diff / dist[..., None]
         d = self.data.displacement_mm if displacement_mm is None else displacement_mm
-        r = dist - X[:, n + 2 * n_t:][:, j] - d
-        cols = np.column_stack([cols, n + 2 * j, n + 2 * j + 1, n + 2 * n_t + j])
-        vals = np.concatenate([u[..., :1] * dx + u[..., 1:] * dy, -u, -np.ones(r.shape + (1,))], axis=-1)
-        return r, cols, vals
+        return distance_rows(p, cols, dx, dy, P, X[:, n + 2 * n_t:], j, d, n, n + 2 * n_t)
 
     def residuals(self, x):
         """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and the sparse dr/dx."""
@@ -400,3 +395,19 @@ def identify(data: CampaignData, options: IdentificationOptions = None) -> Ident
     return Identifier(data, options).solve()
 
 
+def identifier_at_result(result_path, data):
+    """The :class:`Identifier` of a result's model and grids on a campaign, and the result's x.
+
+    Raises InputError when the campaign and the result do not match (reflector count).
+    """
+    from olti_drake.io.result import load_result
+
+    model, P, d0, raw = load_result(result_path, outside="clamp", identified=True)
+    opts = IdentificationOptions(model=raw["model"], nominal_L1_mm=model.L1_mm, nominal_L2_mm=model.L2_mm)
+    if model.is_errormap:
+        opts.grid1_deg, opts.grid2_deg = model.map1.grid_deg, model.map2.grid_deg
+    ident = Identifier(data, opts)
+    if len(P) != ident.n_t or len(d0) != ident.n_t:
+        raise InputError(f"{os.fspath(result_path)}: {len(P)} reflectors, but the campaign {data.source} has "
+                         f"{ident.n_t}")
+    return ident, np.concatenate([model.parameter_vector(), P.ravel(), d0])

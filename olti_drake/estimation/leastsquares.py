@@ -10,9 +10,17 @@ Drake decision variable per parameter in :attr:`~LeastSquaresProgram.prog`
   constraints and linear/quadratic costs shifted to δ -- solved by the solver
   Drake chooses (EqConstrainedQP for equality constraints only). Working in δ
   keeps full precision however large the parameters are.
-* ``nlp``: the whole program with the least-squares cost (analytic gradient)
-  handed to Drake's NLP solver (SNOPT/IPOPT); also takes nonlinear user
-  constraints.
+* ``nlp``: the whole program -- it already carries the least-squares data
+  cost (:attr:`~LeastSquaresProgram.data_cost`, value ½Σw r² with the analytic
+  gradient Jᵀ(w r)) and the start as its initial guess -- handed to Drake's
+  NLP solver (SNOPT/IPOPT); also takes nonlinear user constraints and costs.
+
+So ``pydrake.solvers.Solve(problem.prog)`` (or any solver's ``Solve`` with its
+options) solves the same problem as :meth:`~LeastSquaresProgram.fit`. Users may
+add decision variables of their own (e.g. a shared offset tied by linear
+constraints): both paths solve for them and report them in ``Fit.extra``.
+LM takes linear constraints and linear/quadratic costs only; with a
+nonlinear one it refuses with one line naming it (use ``solver='nlp'``).
 
 Before solving it checks identifiability (parameters no reading touches, rank
 deficiency within the constraints); after, it propagates the residual variance
@@ -26,13 +34,16 @@ from typing import List
 import numpy as np
 import scipy.sparse as sp
 
-from olti_drake.io.csvio import InputError
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.io.budget import ReadingErrors
+from olti_drake.io.errors import InputError
+from olti_drake.threads import single_thread_blas
 
 #: Relative eigenvalue below which a parameter combination counts as unidentifiable.
 RANK_TOLERANCE = 1e-12
 #: Up to this many unknowns the dense algebra runs on one BLAS thread.
 SMALL_PROBLEM = 300
+#: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
+NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
 RESIDUAL_WARNING_RATIO = 3.0
 
@@ -89,6 +100,8 @@ class Fit:
     converged_by: str = ""
     #: Stated doubts that do not refuse the fit (e.g. a residual far above the budget's reading uncertainty).
     warnings: list = field(default_factory=list)
+    #: The user's own decision variables (added to ``prog``), by name: their solved values.
+    extra: dict = field(default_factory=dict)
 
 
 class LeastSquaresProgram:
@@ -114,6 +127,59 @@ class LeastSquaresProgram:
         self.variables = np.array([Variable(n) for n in self.names])
         self.prog.AddDecisionVariables(self.variables)
         self.notes: List[str] = []
+        self._cost_weights = None  # IRLS weights of the data cost (None: all 1)
+        self.data_cost = self.prog.AddCost(self._data_cost_value, self.variables)
+        self.data_cost.evaluator().set_description("data: 1/2 sum of squared residuals (mm^2)")
+        self._set_solver_tolerances()
+
+    def _set_solver_tolerances(self):
+        """Tolerances on :attr:`prog` so that the solver Drake picks (SNOPT) stops at the least-squares minimum to
+        the precision of LM (1e-6 mm / deg and below): SNOPT's default optimality tolerance (1e-6) stops ~1e-5 mm
+        short of it with constraints. Users may override them with their own ``SetSolverOption``."""
+        from pydrake.solvers import SnoptSolver
+
+        # IPOPT keeps its defaults: in Drake it runs an L-BFGS Hessian that does not reach tighter ones.
+        self.prog.SetSolverOption(SnoptSolver.id(), "Major optimality tolerance", NLP_OPTIMALITY_TOLERANCE)
+
+    @property
+    def x0(self) -> np.ndarray:
+        """The start of the solvers (model units); setting it also sets the program's initial guess."""
+        return self._x0
+
+    @x0.setter
+    def x0(self, value):
+        self._x0 = np.asarray(value, dtype=float)
+        self.prog.SetInitialGuess(self.variables, self._x0)
+
+    def _data_cost_value(self, z):
+        """½ Σ w_k r_k(x)² for floats; for AutoDiffXd the same value with gradient Jᵀ(w r) chained with z's."""
+        from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
+
+        ad = z.dtype == object
+        r, J = self.residuals(ExtractValue(z).ravel() if ad else np.asarray(z, dtype=float))
+        w = np.ones_like(r) if self._cost_weights is None else self._cost_weights
+        f = 0.5 * float(np.sum(w * r * r))
+        return AutoDiffXd(f, (J.T @ (w * r)) @ ExtractGradient(z)) if ad else f
+
+    @property
+    def n_all(self) -> int:
+        """Decision variables of :attr:`prog`: the model's parameters first, then the user's own."""
+        return self.prog.num_vars()
+
+    def _extra_values(self, z) -> dict:
+        extra = self.prog.decision_variables()[len(self.names):]
+        return {v.get_name(): float(z[self.prog.FindDecisionVariableIndex(v)]) for v in extra}
+
+    def _start(self) -> np.ndarray:
+        """The start over all decision variables: x0, then the user's initial guesses (0 where none is set)."""
+        z = np.asarray(self.prog.initial_guess(), dtype=float).copy()
+        z[:len(self.names)] = self.x0
+        return np.where(np.isfinite(z), z, 0.0)
+
+    def _pad(self, J):
+        """The Jacobian over all decision variables (the user's own enter no residual)."""
+        extra = self.n_all - J.shape[1]
+        return sp.hstack([J, sp.csr_matrix((J.shape[0], extra))], format="csr") if extra else J
 
     def residuals(self, x):
         """(r (K,), sparse dr/dx (K, n)) at x."""
@@ -155,16 +221,20 @@ class LeastSquaresProgram:
             A = e.GetDenseA()
             eq = e.lower_bound() == e.upper_bound()
             idx = self.prog.FindDecisionVariableIndices(b.variables())
-            full = np.zeros((int(eq.sum()), len(self.names)))
+            full = np.zeros((int(eq.sum()), self.n_all))
             full[:, idx] = A[eq]
             rows.append(full)
             rhs.append(e.lower_bound()[eq])
         if not rows:
-            return np.zeros((0, len(self.names))), np.zeros(0)
+            return np.zeros((0, self.n_all)), np.zeros(0)
         return np.vstack(rows), np.concatenate(rhs)
 
     def reduced_hessian(self, H):
-        """Column-scaled H restricted to the null space of the equality constraints."""
+        """Column-scaled H restricted to the null space of the equality constraints (over all decision
+        variables: an H over the model's parameters only is padded with zeros for the user's own)."""
+        n = self.n_all
+        if H.shape[0] < n:
+            H = np.pad(H, ((0, n - H.shape[0]), (0, n - H.shape[0])))
         scale = np.sqrt(np.diag(H))
         A, _ = self._equality_rows()
         s = np.where(scale > 0, scale, 1.0)
@@ -180,24 +250,30 @@ class LeastSquaresProgram:
         x = self.x0 if x is None else x
         r, J = self.residuals(x)
         self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
-        H = _normal_matrix(J, np.ones(J.shape[0])) + self._prior_hessian()  # priors determine what they constrain
-        untouched = [self.names[i] for i in np.flatnonzero(np.diag(H) == 0)]
+        H = _normal_matrix(self._pad(J), np.ones(J.shape[0])) + self._prior_hessian()  # priors determine too
+        # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
+        untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
         if untouched:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
                                       f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})",
                                       untouched)
         M, N, s = self.reduced_hessian(H)
         lam = np.linalg.eigvalsh(M)
-        names = _weak_names(self.names, M, N, s)
+        names = _weak_names(self._all_names(), M, N, s)
         if names:
             weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
             raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
                                       f"reading unchanged (rank deficient by {weak}; {self.rank_hint})", names)
         return float(np.sqrt(lam[-1] / lam[0]))
 
+    def _all_names(self) -> list:
+        return self.names + [v.get_name() for v in self.prog.decision_variables()[len(self.names):]]
+
     def _regularize(self, error: UnidentifiableError):
         """Weak prior on the named parameters (1e-6 of a typical reading's weight)."""
-        names = error.names
+        names = [n for n in error.names if n in self.names]
+        if not names:
+            raise error
         idx = [self.names.index(n) for n in names]
         w = 1e-6 * len(self._checked[1])  # a millionth of the readings' weight
         self.prog.AddQuadraticCost(w * np.eye(len(idx)), -w * self.x0[idx], self.variables[idx], is_convex=True)
@@ -211,6 +287,8 @@ class LeastSquaresProgram:
             raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
         if o.loss not in ("l2", "huber"):
             raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
+        if o.solver == "lm":
+            self.check_lm_program()
         # Small dense algebra: BLAS threads cost more than they give (measured 5.7 -> 4.4 ms at paper scale).
         with single_thread_blas() if len(self.names) <= SMALL_PROBLEM else contextlib.nullcontext():
             fit = self._fit()
@@ -238,6 +316,24 @@ class LeastSquaresProgram:
         if problems:
             raise FitRefused(f"{where} physically impossible solution: {'; '.join(problems)}")
 
+    def _user_costs(self):
+        """The program's costs other than the data cost (which the solvers evaluate themselves)."""
+        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not self.data_cost.evaluator()]
+
+    def check_lm_program(self) -> None:
+        """LM steps take linear constraints and linear/quadratic costs only: name anything else, one line."""
+        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint, LinearCost, QuadraticCost
+
+        bad = [b for b in self.prog.GetAllConstraints()
+               if not isinstance(b.evaluator(), (LinearConstraint, BoundingBoxConstraint))]
+        bad += [b for b in self._user_costs() if not isinstance(b.evaluator(), (LinearCost, QuadraticCost))]
+        if bad:
+            e = bad[0].evaluator()
+            what = f"{type(e).__name__} {e.get_description()!r}" if e.get_description() else type(e).__name__
+            raise InputError(f"the 'lm' solver takes linear constraints and linear/quadratic costs only; the "
+                             f"program has a nonlinear {what} on {', '.join(v.get_name() for v in bad[0].variables())}"
+                             f": use solver='nlp' (or pydrake.solvers.Solve(prog))")
+
     def _stop_text(self) -> str:
         stop = getattr(self, "_stop", None)
         return f"iteration cap {self.options.max_iterations} reached" if stop is None else stop[1]
@@ -245,7 +341,6 @@ class LeastSquaresProgram:
     def residual_warnings(self, fit: "Fit") -> list:
         """A warning when the residual RMS exceeds :data:`RESIDUAL_WARNING_RATIO` times the reading
         uncertainty the budget predicts (RMS over the readings, at each reading's beam length), mm."""
-        from olti_drake.estimation.uncertainty import ReadingErrors  # lazy: uncertainty builds on this module's programs
 
         budget = self.options.budget if self.options.budget is not None else self.default_budget()
         if budget is None or not len(fit.residuals):
@@ -282,12 +377,15 @@ class LeastSquaresProgram:
         return np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-300))
 
     def _user_cost(self, x) -> float:
-        return float(sum(self.prog.EvalBinding(b, x)[0] for b in self.prog.GetAllCosts()))
+        return float(sum(self.prog.EvalBinding(b, x)[0] for b in self._user_costs()))
 
     def _solve_lm(self):
-        x = self.x0.copy()
+        """LM over all decision variables (x = the model's parameters, then the user's own)."""
+        n = len(self.names)
+        x = self._feasible(self._start())
         checked = getattr(self, "_checked", None)
-        r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x) else self.residuals(x)
+        r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x[:n]) else self.residuals(x[:n])
+        J = self._pad(J)
         lam, steps = 1e-6, 0
         self._stop = None  # None after the loop: the iteration cap ended it
         for _ in range(self.options.max_iterations):
@@ -298,9 +396,13 @@ class LeastSquaresProgram:
             # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
             tol = 1e-12 * abs(cost)
             while True:
-                delta = self._step(x, H + lam * np.diag(np.diag(H)), g)
+                # The user's own variables carry no curvature of the data: damp them by the mean one.
+                D = np.diag(H).copy()
+                D[D == 0] = np.mean(D[D > 0]) if (D > 0).any() else 1.0
+                delta = self._step(x, H + lam * np.diag(D), g)
                 x_new = x + delta
-                r_new, J_new = self.residuals(x_new)
+                r_new, J_new = self.residuals(x_new[:n])
+                J_new = self._pad(J_new)
                 cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
                 # What the quadratic model promised: below rounding level, we are at the minimum.
                 predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
@@ -322,6 +424,16 @@ class LeastSquaresProgram:
         self._final = (x, r, J)
         return x, steps, self._weights(r)
 
+    def _feasible(self, x):
+        """x moved onto the program's constraints by the least change (mm, deg) when it violates them -- e.g.
+        a user variable tied to parameters, or a bound the start lies outside; LM's steps then keep it feasible
+        (from an infeasible point a step that must also restore feasibility may raise the cost, and LM would
+        stop there)."""
+        constraints = self.prog.GetAllConstraints()
+        if not constraints or self.prog.CheckSatisfied(constraints, x, 1e-9):
+            return x
+        return x + self._step(x, np.eye(len(x)), np.zeros(len(x)))
+
     def _step(self, x, Hd, g):
         """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ."""
         from pydrake.solvers import MathematicalProgram, Solve
@@ -329,7 +441,7 @@ class LeastSquaresProgram:
         step = MathematicalProgram()
         d = step.NewContinuousVariables(len(x), "delta")
         step.AddQuadraticCost(Hd, g, d, is_convex=True)
-        _shift_bindings(self.prog, step, d, x)
+        _shift_bindings(self.prog, step, d, x, skip=self.data_cost.evaluator())
         result = Solve(step)
         if not result.is_success():
             # EqConstrainedQP can refuse a nearly singular KKT system at the optimum: retry interior-point.
@@ -341,40 +453,35 @@ class LeastSquaresProgram:
         return result.GetSolution(d)
 
     def _solve_nlp(self):
-        from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
+        """The program itself (data cost, user variables, constraints, costs) by the solver Drake picks;
+        Huber loss: three IRLS rounds re-weighting the data cost."""
         from pydrake.solvers import Solve
 
-        prog = self.prog.Clone()
-        weights = np.ones(len(self.data))
-
-        def cost(z):
-            v = ExtractValue(z).ravel() if z.dtype == object else z
-            r, J = self.residuals(v)
-            f = 0.5 * np.sum(weights * r * r)
-            if z.dtype != object:
-                return f
-            return AutoDiffXd(f, (J.T @ (weights * r)) @ ExtractGradient(z))
-
-        prog.AddCost(cost, self.variables)
-        x = self.x0.copy()
+        z = self._start()
+        all_vars = self.prog.decision_variables()
         rounds = 3 if self.options.loss == "huber" else 1
-        for _ in range(rounds):  # IRLS: re-weight, re-solve
-            prog.SetInitialGuess(self.variables, x)
-            result = Solve(prog)
-            if not result.is_success():
-                raise InputError(f"NLP solver {result.get_solver_id().name()} failed: {result.get_solution_result()}")
-            x = result.GetSolution(self.variables)
-            weights[:] = self._weights(self.residuals(x)[0])
+        self._cost_weights = np.ones(len(self.residuals(self.x0)[0]))
+        try:
+            for _ in range(rounds):  # IRLS: re-weight, re-solve
+                result = Solve(self.prog, z)
+                if not result.is_success():
+                    raise InputError(f"NLP solver {result.get_solver_id().name()} failed: "
+                                     f"{result.get_solution_result()}")
+                z = result.GetSolution(all_vars)
+                self._cost_weights = self._weights(self.residuals(z[:len(self.names)])[0])
+            weights = self._cost_weights
+        finally:
+            self._cost_weights = None  # prog's data cost is the plain least squares again
         self._solver_used = f"nlp: {result.get_solver_id().name()}"
         self._stop = (True, f"{result.get_solver_id().name()} reports {result.get_solution_result().name}")
-        return x, rounds, weights
+        return z, rounds, weights
 
     def quadratic_costs(self):
         """(Q, b) of the program's quadratic costs ½xᵀQx + bᵀx (priors, regularization), all variables."""
         from pydrake.solvers import QuadraticCost
 
-        Q, q = np.zeros((len(self.names), len(self.names))), np.zeros(len(self.names))
-        for b in self.prog.GetAllCosts():
+        Q, q = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all)
+        for b in self._user_costs():
             if isinstance(b.evaluator(), QuadraticCost):
                 idx = self.prog.FindDecisionVariableIndices(b.variables())
                 Q[np.ix_(idx, idx)] += b.evaluator().Q()
@@ -384,9 +491,11 @@ class LeastSquaresProgram:
     def _prior_hessian(self) -> np.ndarray:
         return self.quadratic_costs()[0]
 
-    def _finish(self, x, iterations, weights) -> "Fit":
+    def _finish(self, z, iterations, weights) -> "Fit":
+        n = len(self.names)
         final = getattr(self, "_final", None)
-        r, J = final[1:] if final is not None and final[0] is x else self.residuals(x)
+        r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
+        J = self._pad(J)
         H = _normal_matrix(J, weights)
         M_data, N, s = self.reduced_hessian(H)
         lam = np.linalg.eigvalsh(M_data)
@@ -398,22 +507,24 @@ class LeastSquaresProgram:
             M, N, s = self.reduced_hessian(H + prior)
         else:
             M = M_data
-        self._weak = _weak_names(self.names, M, N, s)  # what the covariance (with priors) cannot determine
+        self._weak = _weak_names(self._all_names(), M, N, s)  # what the covariance (with priors) cannot determine
         dof = max(len(r) - N.shape[1], 1)
         sigma2 = np.sum(weights * r * r) / dof
         cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
-        z = r / _robust_sigma(r)
-        out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(z[k]))
-               for k in np.argsort(-np.abs(z)) if abs(z[k]) > self.options.outlier_threshold]
+        zr = r / _robust_sigma(r)
+        out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
+               for k in np.argsort(-np.abs(zr)) if abs(zr[k]) > self.options.outlier_threshold]
         stop = self._stop
-        return Fit(list(self.names), x, np.sqrt(np.maximum(np.diag(cov), 0)), cov, r, iterations, cond,
+        cov_x = cov[:n, :n]
+        return Fit(list(self.names), z[:n], np.sqrt(np.maximum(np.diag(cov_x), 0)), cov_x, r, iterations, cond,
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
-                   stop[1] if stop is not None and stop[0] else "")
+                   stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
 
 
 # -- helpers -------------------------------------------------------------------------------------
-def _shift_bindings(src, dst, d, x):
-    """Copy src's linear constraints and linear/quadratic costs to dst in the step δ = e − x."""
+def _shift_bindings(src, dst, d, x, skip=None):
+    """Copy src's linear constraints and linear/quadratic costs to dst in the step δ = e − x
+    (all but the cost ``skip``: the data cost, which the step's Gauss-Newton model replaces)."""
     from pydrake.solvers import LinearConstraint, BoundingBoxConstraint, LinearCost, QuadraticCost
 
     for b in src.GetAllConstraints():
@@ -432,6 +543,8 @@ def _shift_bindings(src, dst, d, x):
             dst.AddLinearConstraint(A[~eq], lo[~eq], hi[~eq], d[idx])
     for b in src.GetAllCosts():
         e = b.evaluator()
+        if e is skip:
+            continue
         idx = src.FindDecisionVariableIndices(b.variables())
         if isinstance(e, QuadraticCost):
             dst.AddQuadraticCost(e.Q(), e.Q() @ x[idx] + e.b(), d[idx], is_convex=True)

@@ -25,11 +25,14 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
                     json_numbers, read_json,
                     read_table)
 from olti_drake.model.scara import rows_to_csr
+from olti_drake.estimation.calibration import distance_rows, station_fit  # noqa: F401 (station_fit re-exported)
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
 FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
 GAUGES = ("best-fit", "first-two")
+#: ∂p/∂(p_x, p_y) of a free point: the identity, as the rows of :func:`calibration.distance_rows`.
+_UNIT_X, _UNIT_Y = np.array([1.0, 0.0]), np.array([0.0, 1.0])
 
 
 @dataclass(frozen=True)
@@ -94,34 +97,6 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
     check_spread(t["displacement_mm"], j, t["_line"], source, "displacement_mm", 1.5 * size + 10.0, "station",
                  f"the {size:g} mm diagonal of the commands, with a margin")
     return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source)
-
-
-def station_fit(points_mm, readings_mm, start_mm=None):
-    """(P, L0) of one station from known points p (K, 2) and readings d = ‖p − P‖ − L0 (K,), mm.
-
-    Without a start: the linearized multilateration ‖p‖² − 2p·P + ‖P‖² =
-    (d + L0)² is linear in (P, L0, ‖P‖² − L0²); then Gauss-Newton on Eq. (3)
-    of 001 (Eq. (5) of 000 for a SCARA reflector).
-    """
-    p, d = np.asarray(points_mm, dtype=float), np.asarray(readings_mm, dtype=float)
-    if np.linalg.matrix_rank(p - p.mean(axis=0), tol=1e-9 * max(1.0, np.abs(p).max())) < 2:
-        raise ValueError("the points lie on one line: distances cannot tell the two sides of it apart")
-    if start_mm is None:
-        A = np.column_stack([-2 * p, -2 * d, np.ones(len(d))])
-        sol, *_ = np.linalg.lstsq(A, d ** 2 - np.sum(p ** 2, axis=1), rcond=None)
-        P, L0 = sol[:2], sol[2]
-    else:
-        P = np.asarray(start_mm, dtype=float)
-        L0 = np.mean(np.hypot(*(p - P).T) - d)
-    for _ in range(20):
-        diff = p - P
-        dist = np.hypot(*diff.T)
-        J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
-        step = np.linalg.lstsq(J, -(dist - L0 - d), rcond=None)[0]
-        P, L0 = P + step[:2], L0 + step[2]
-        if np.max(np.abs(step)) < 1e-12:
-            break
-    return P, L0
 
 
 @dataclass
@@ -221,9 +196,9 @@ class Multilateration(LeastSquaresProgram):
 
     def default_budget(self):
         """The budget given to :meth:`solve`, else 001 Table 4: the residual is compared with its reading u."""
-        from olti_drake.model.machine import paper001_budget
+        from olti_drake.io.budget import default_budget
 
-        return getattr(self, "_solve_budget", None) or paper001_budget()
+        return getattr(self, "_solve_budget", None) or default_budget("machine")
 
     def _check_counts(self):
         d = self.data
@@ -261,17 +236,12 @@ class Multilateration(LeastSquaresProgram):
         X = np.atleast_2d(X)
         d = self.data
         n_i, n_j = d.n_targets, d.n_stations
-        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]
-        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)[:, d.station]
-        diff = p - P
-        dist = np.hypot(diff[..., 0], diff[..., 1])
-        u = diff / dist[..., None]
+        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]  # free points: the position model is x itself
+        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)
         readings = d.displacement_mm if displacement_mm is None else displacement_mm
-        r = dist - X[:, 2 * n_i + 2 * n_j:][:, d.station] - readings
-        i2, j2 = 2 * d.target, 2 * n_i + 2 * d.station
-        cols = np.column_stack([i2, i2 + 1, j2, j2 + 1, 2 * n_i + 2 * n_j + d.station])
-        vals = np.concatenate([u, -u, -np.ones(r.shape + (1,))], axis=-1)
-        return r, cols, vals
+        pcols = np.column_stack([2 * d.target, 2 * d.target + 1])
+        return distance_rows(p, pcols, _UNIT_X, _UNIT_Y, P, X[:, 2 * n_i + 2 * n_j:], d.station, readings,
+                             2 * n_i, 2 * n_i + 2 * n_j)
 
     def residuals(self, x):
         """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
@@ -348,7 +318,7 @@ class Multilateration(LeastSquaresProgram):
         self._solve_budget = budget
         f = self.fit()
         if budget is not None:
-            from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance
+            from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance  # builds on this layer
 
             f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
             f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))

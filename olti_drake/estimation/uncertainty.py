@@ -27,9 +27,11 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.sparse as sp
 
-from olti_drake.io.budget import Budget
+from olti_drake.io.budget import Budget, ReadingErrors  # noqa: F401 (ReadingErrors re-exported)
+from olti_drake.estimation.identification import identifier_at_result  # noqa: F401 (re-exported)
+from olti_drake.estimation.leastsquares import FitRefused
 from olti_drake.io.csvio import InputError
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.threads import single_thread_blas
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
 BATCH = 250
@@ -53,74 +55,15 @@ def round_trials(coverage: float) -> int:
     return BATCH * int(np.ceil(need / BATCH))
 
 
-@dataclass
-class ReadingErrors:
-    """The budget as per-reading error distributions (lengths mm, angles rad)."""
-
-    budget: Budget
-
-    def __post_init__(self):  # a constructed budget is checked before it is propagated, as a loaded one is
-        self.budget.validate()
-
-    def _terms(self, acts_on):
-        return [c for c in self.budget.contributors if c.acts_on == acts_on]
-
-    def std(self, distance_mm) -> np.ndarray:
-        """Standard uncertainty of every reading (K,) mm -- the linear method's input.
-
-        The cosine error -D ψ²/2 of ψ ~ N(0, u_ψ²) has standard deviation D u_ψ²/√2.
-        """
-        D = np.asarray(distance_mm, dtype=float)
-        u_psi = self.budget.combined("beam_direction")
-        return np.sqrt(self.budget.combined("reading") ** 2 + self.budget.combined("pose") ** 2
-                       + (D * u_psi ** 2) ** 2 / 2)
-
-    def draw(self, rng: np.random.Generator, distance_mm, trials: int) -> np.ndarray:
-        """(trials, K) reading errors, mm: every contributor drawn independently (JCGM 101)."""
-        D = np.asarray(distance_mm, dtype=float)
-        shape = (trials, D.size)
-        err = np.zeros(shape)
-        for c in self._terms("reading") + self._terms("pose"):
-            err += _sample(rng, c.standard(), c.distribution, shape)
-        psi = np.zeros(shape)
-        for c in self._terms("beam_direction"):
-            psi += _sample(rng, c.standard(), c.distribution, shape)
-        return err - D * psi ** 2 / 2
-
-
-def _sample(rng, std, distribution, shape):
-    if distribution == "uniform":  # rectangular with the same standard deviation
-        a = std * np.sqrt(3.0)
-        return rng.uniform(-a, a, shape)
-    return std * rng.standard_normal(shape)
-
-
-def identifier_at_result(result_path, data):
-    """The :class:`Identifier` of a result's model and grids on a campaign, and the result's x.
-
-    Raises InputError when the campaign and the result do not match (reflector count).
-    """
-    from olti_drake.estimation.identification import IdentificationOptions, Identifier
-    from olti_drake.io.result import load_result
-
-    model, P, d0, raw = load_result(result_path, outside="clamp", identified=True)
-    opts = IdentificationOptions(model=raw["model"], nominal_L1_mm=model.L1_mm, nominal_L2_mm=model.L2_mm)
-    if model.is_errormap:
-        opts.grid1_deg, opts.grid2_deg = model.map1.grid_deg, model.map2.grid_deg
-    ident = Identifier(data, opts)
-    if len(P) != ident.n_t or len(d0) != ident.n_t:
-        raise InputError(f"{os.fspath(result_path)}: {len(P)} reflectors, but the campaign {data.source} has "
-                         f"{ident.n_t}")
-    return ident, np.concatenate([model.parameter_vector(), P.ravel(), d0])
-
-
 def _solution_map(ident, x):
     """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
     r, J = ident.residuals(x)
-    H = (J.T @ J).toarray() + ident.quadratic_costs()[0]
+    n = len(x)
+    Q = ident.quadratic_costs()[0]  # over all decision variables: the user's own follow the parameters
+    H = np.pad((J.T @ J).toarray(), ((0, len(Q) - n), (0, len(Q) - n))) + Q
     M, N, s = ident.reduced_hessian(H)
     Ns = N / s[:, None]
-    return Ns @ np.linalg.solve(M, Ns.T), J
+    return (Ns @ np.linalg.solve(M, Ns.T))[:n, :n], J  # the parameters' rows: the readings move only them
 
 
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
@@ -218,6 +161,7 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
     model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
     Q, q = ident.quadratic_costs()
+    Q, q = Q[:len(x), :len(x)], q[:len(x)]  # priors on the parameters (a user's own variables: in B)
     k, m = cols.shape
     scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
     _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
@@ -248,8 +192,6 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     _WORK.clear()
     failed = int(np.isnan(samples).any(axis=1).sum())
     if failed:
-        from olti_drake.estimation.leastsquares import FitRefused
-
         raise FitRefused(f"{ident.source}: Monte Carlo refused, nothing written -- {failed} of {len(samples)} trials "
                          f"did not converge to their own least-squares solution (the budget's errors drive the "
                          f"problem beyond where it can be re-solved from the estimate: check the budget's units)")

@@ -143,3 +143,69 @@ def load_budget(path) -> Budget:
     except Exception as e:  # pydrake raises RuntimeError/TypeError with multi-line text
         raise InputError(f"{name}: {str(e).splitlines()[0]}") from None
     return budget.validate(name)
+
+
+#: The budget each kind of campaign is propagated with when none is named: the papers' own tables.
+DEFAULT_BUDGETS = {"scara": "000 Table 2 (k = 1), built in", "machine": "001 Table 4 (k = 2), data/budget_paper001.yaml"}
+
+
+def default_budget(kind: str) -> Budget:
+    """The one place the default budget is chosen: ``scara`` -> 000 Table 2, ``machine`` -> 001 Table 4.
+
+    Used by the identification's residual check, the multilateration, the CLI verbs and the report.
+    """
+    if kind == "scara":
+        return paper000_budget()
+    if kind == "machine":
+        from olti_drake.io.resources import shipped
+
+        return load_budget(shipped("data", "budget_paper001.yaml"))
+    raise InputError(f"budget kind must be one of {', '.join(DEFAULT_BUDGETS)}, got {kind!r}")
+
+
+def budget_or_default(path, kind: str) -> Budget:
+    """The budget file ``path`` if given (a CLI's ``--budget``), else :func:`default_budget` of ``kind``."""
+    return load_budget(path) if path else default_budget(kind)
+
+
+@dataclass
+class ReadingErrors:
+    """The budget as per-reading error distributions (lengths mm, angles rad): the input of the linear
+    propagation and the Monte Carlo (:mod:`olti_drake.estimation.uncertainty`)."""
+
+    budget: Budget
+
+    def __post_init__(self):  # a constructed budget is checked before it is propagated, as a loaded one is
+        self.budget.validate()
+
+    def _terms(self, acts_on):
+        return [c for c in self.budget.contributors if c.acts_on == acts_on]
+
+    def std(self, distance_mm) -> np.ndarray:
+        """Standard uncertainty of every reading (K,) mm -- the linear method's input.
+
+        The cosine error -D ψ²/2 of ψ ~ N(0, u_ψ²) has standard deviation D u_ψ²/√2.
+        """
+        D = np.asarray(distance_mm, dtype=float)
+        u_psi = self.budget.combined("beam_direction")
+        return np.sqrt(self.budget.combined("reading") ** 2 + self.budget.combined("pose") ** 2
+                       + (D * u_psi ** 2) ** 2 / 2)
+
+    def draw(self, rng: np.random.Generator, distance_mm, trials: int) -> np.ndarray:
+        """(trials, K) reading errors, mm: every contributor drawn independently (JCGM 101)."""
+        D = np.asarray(distance_mm, dtype=float)
+        shape = (trials, D.size)
+        err = np.zeros(shape)
+        for c in self._terms("reading") + self._terms("pose"):
+            err += _sample(rng, c.standard(), c.distribution, shape)
+        psi = np.zeros(shape)
+        for c in self._terms("beam_direction"):
+            psi += _sample(rng, c.standard(), c.distribution, shape)
+        return err - D * psi ** 2 / 2
+
+
+def _sample(rng, std, distribution, shape):
+    if distribution == "uniform":  # rectangular with the same standard deviation
+        a = std * np.sqrt(3.0)
+        return rng.uniform(-a, a, shape)
+    return std * rng.standard_normal(shape)

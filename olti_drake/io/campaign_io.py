@@ -1,4 +1,4 @@
-"""Reading SCARA campaign files for identification (shared/spec/formats.md).
+"""Reading SCARA campaign files for identification: one reading d_j(k) of Eq. (10) of 000 per row, columns :data:`REQUIRED`.
 
 Units: mm and degrees. Rows with ``valid`` = 0 are kept in the file and
 skipped here; every error names the file, the line and the column.

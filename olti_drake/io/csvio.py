@@ -1,4 +1,4 @@
-"""CSV tables in the shared format (shared/spec/formats.md).
+"""CSV tables of the tool's files (campaigns, plans, maps; their columns are listed where each is read).
 
 Comma separated, one header row, ``#`` starts a comment line, UTF-8; required
 columns in any order, extra columns ignored. Every error is one line
@@ -14,8 +14,7 @@ from typing import Dict, Iterable, Sequence
 import numpy as np
 
 
-class InputError(ValueError):
-    """Bad input file or parameter; the message is one line, ready for the user."""
+from olti_drake.io.errors import InputError  # noqa: E402,F401 (re-exported: every reader raises it)
 
 
 #: Physical bounds of the values the tool reads, by the unit suffix of the column or key: a commanded

@@ -26,7 +26,7 @@ import os
 import tempfile
 from typing import Iterable, Sequence
 
-from olti_drake.io.csvio import InputError
+from olti_drake.io.errors import InputError
 
 #: File names that hold measured data (a campaign and its log), whatever the verb.
 MEASUREMENT_NAMES = ("campaign.csv", "truth.json", "events.jsonl", "run.json")

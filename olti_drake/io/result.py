@@ -1,4 +1,4 @@
-"""Identification results as ``result.json`` (shared/spec/formats.md), and back.
+"""Identification results as ``result.json`` (format ``olti-result/1``: the parameters of Eq. (3)-(10) of 000, keys written by :func:`write_result`), and back.
 
 Units: mm and degrees. Standard uncertainties (k = 1) go in ``uncertainty``
 with the same keys and shapes as the values.

@@ -12,7 +12,7 @@ Two kinds of deviation share one calling convention, ``dev(theta_deg, direction)
   joints are not piecewise linear): offset + trend + harmonics, plus a
   direction-dependent backlash term.
 
-Approach directions follow ``shared/spec/formats.md``: +1 if the last motion of
+Approach directions (the ±1 of the bidirectional maps, Eq. (7) of 000, §2.2): +1 if the last motion of
 the axis before the reading was positive, -1 if negative; an axis that did not
 move keeps the direction of its last motion (:func:`approach_directions`).
 """

@@ -81,11 +81,9 @@ def square_targets(size_mm: float = 100.0, step_mm: float = 20.0, origin_mm=(0.0
 
 def paper001_budget():
     """001 Table 4 (k = 2) as a :class:`~olti_drake.io.budget.Budget` (the shipped YAML's content)."""
-    from olti_drake.io.budget import load_budget
+    from olti_drake.io.budget import default_budget
 
-    from olti_drake.io.resources import shipped
-
-    return load_budget(shipped("data", "budget_paper001.yaml"))
+    return default_budget("machine")
 
 
 @dataclass

@@ -7,7 +7,7 @@ so that the next measured pose is approached from the intended side). The same
 plan is run once per reflector position, so it has no reflector column.
 
 Approach directions are not stored: they follow from the move sequence by the
-rule of ``shared/spec/formats.md`` (:func:`olti_drake.model.errormap.approach_directions`).
+rule of Eq. (7) of 000 (:func:`olti_drake.model.errormap.approach_directions`).
 The first row is where the robot starts (the first approach is part of the plan).
 
 Files: CSV ``theta1_deg,theta2_deg,measure`` (``#`` comment lines, one header

@@ -41,7 +41,7 @@ from typing import Dict, Sequence, Tuple
 import numpy as np
 from scipy.interpolate import BSpline
 
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.threads import single_thread_blas
 
 AXES = ("X", "Y", "Z")
 #: Per axis, the six error motions in ISO 230-1 order: three linear (mm), three angular (µrad).

@@ -397,14 +397,14 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     ident = x = cov = data = None
     budget_note = campaign_note = ""
     if campaign_path is not None:
-        from olti_drake.io.budget import paper000_budget
+        from olti_drake.io.budget import default_budget
         from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
         from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, linear_covariance
 
         data = load_campaign(campaign_path)
         campaign_note = check_campaign_matches(raw, data, result_path)
         ident, x = identifier_at_result(result_path, data)
-        budget, budget_note = _budget_of(unc, unc_path, paper000_budget)
+        budget, budget_note = _budget_of(unc, unc_path, lambda: default_budget("scara"))
         cov = linear_covariance(ident, x, ReadingErrors(budget))
 
     # -- header ----------------------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
+from olti_drake.estimation.compensation import register  # noqa: F401 (re-exported)
 from olti_drake.io.campaign_io import CampaignData
 from olti_drake.model.scara import (PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, forward_kinematics,
                          inverse_kinematics)
@@ -170,20 +171,6 @@ def measure(truth_robot, commands: JointCommands, spec: Optional[LaserTrackerSpe
     """
     p = truth_robot.end_effector(commands.theta1_deg, commands.theta2_deg, commands.dir1, commands.dir2)
     return measure_positions(p, spec or LaserTrackerSpec(), seed)
-
-
-def register(pred, meas):
-    """Rotate ``pred`` (N, 2) mm about the J1 axis (origin) onto ``meas`` (N, 2) mm, least squares.
-
-    Closed form (2D Procrustes without translation): the angle maximizing
-    Σ meas · R pred is atan2(Σ pred × meas, Σ pred · meas). Returns
-    (rotated pred (N, 2) mm, angle deg). See the module docstring for why
-    (the gauge of 000 and the tracker registration of 000 §4.3).
-    """
-    p, m = np.asarray(pred, dtype=float), np.asarray(meas, dtype=float)
-    angle = np.arctan2(np.sum(p[:, 0] * m[:, 1] - p[:, 1] * m[:, 0]), np.sum(p * m))
-    c, s = np.cos(angle), np.sin(angle)
-    return p @ np.array([[c, s], [-s, c]]), float(np.degrees(angle))
 
 
 def _rms(e) -> float:
