@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import Protocol, Sequence
 
+from olti_drake.io.csvio import InputError
 from olti_drake.hardware.protocol import (NakError, Position, ProtocolError, Reading, Transport, decode_alarms, decode_pong,
                        decode_position, decode_reading, expect_ack, movj_fields, wait_fields)
 
@@ -72,8 +73,6 @@ class _OltiDevice:
     @classmethod
     def open(cls, port: str, baud: int, timeout_s: float, retries: int):
         """Open the serial ``port`` (pyserial), check the device's role; a one-line error if not."""
-        from olti_drake.hardware.station import open_serial
-
         stream = open_serial(port, baud, cls.role.lower())
         try:
             transport = Transport(stream, timeout_s=timeout_s, retries=retries)
@@ -171,3 +170,14 @@ def driver_class(name: str, kind: int):
         return getattr(importlib.import_module(module), cls)
     except (ImportError, AttributeError) as e:
         raise ValueError(f"driver {name!r}: cannot import ({type(e).__name__}: {e})") from None
+
+
+def open_serial(port: str, baud: int, what: str):
+    """``serial.Serial(port, baud, timeout=0.05)``, or a one-line InputError naming the port."""
+    import serial
+
+    try:
+        return serial.Serial(port, baud, timeout=0.05)
+    except (OSError, ValueError) as e:  # SerialException is an OSError
+        detail = " ".join(str(e).split())
+        raise InputError(f"station: cannot open the {what} port {port}: {detail}") from None

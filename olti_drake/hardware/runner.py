@@ -154,6 +154,7 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
 
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.hardware.runlog import CampaignLog
+    from olti_drake.hardware.station import AddStation
     from olti_drake.sim.scenario import Hardware, load_scenario
 
     scenario = scenario or load_scenario(scenario_path)
@@ -203,7 +204,9 @@ def run(scenario_path: Optional[str], out_dir: str, resume: bool = False, fsync:
         stop["signal"] = signal.Signals(signum).name
 
     # The station (ports, emulator) opens here; a fresh run's directory is made only once it did.
-    diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session if log else 0)
+    session = log.session if log else 0
+    diagram, rec, seq = build_campaign_diagram(setup, lambda b, s: AddStation(b, s, session=session),
+                                               extend=extend, sink=sink)
     if log is None:
         try:
             log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured),

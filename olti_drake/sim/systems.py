@@ -14,7 +14,8 @@ steps to the next plan row (move), and half a period later the
 
 from __future__ import annotations
 
-from typing import Callable, List, NamedTuple, Optional, Sequence
+import re
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -43,6 +44,15 @@ class ReadStatus(NamedTuple):
     rezeros: int = 0
 
 
+def set_default_name(system) -> None:
+    """Name a system after its class, snake_case (``ErrorMapJoint`` -> ``error_map_joint``).
+
+    Every system of the package calls this in its constructor, so a diagram reads the same
+    whether a builder used ``AddSystem`` or ``AddNamedSystem``.
+    """
+    system.set_name(re.sub(r"(?<!^)(?=[A-Z])", "_", type(system).__name__).lower())
+
+
 def _deg_mm(values, revolute):
     """Port values (rad, m) -> (deg, mm), per axis."""
     return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
@@ -62,6 +72,7 @@ class ApproachErrorSystem(LeafSystem):
 
     def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
         super().__init__()
+        set_default_name(self)
         self._revolute = np.asarray(revolute, dtype=bool)
         n = self._n = len(self._revolute)
         self.DeclareVectorInputPort("command", n)
@@ -124,6 +135,7 @@ class BeamSteering(LeafSystem):
     def __init__(self, L1_mm: float, L2_mm: float, reflectors_estimate_mm, theta40_estimate_deg: float,
                  stroke_m: float = 0.0):
         super().__init__()
+        set_default_name(self)
         self._L = (L1_mm, L2_mm)
         self._P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
         self._theta40 = theta40_estimate_deg
@@ -158,6 +170,7 @@ class LaserInterferometer(LeafSystem):
     def __init__(self, flange_frame_id, X_FL, reflector_frame_ids, dead_paths_mm,
                  options: InterferometerOptions, budget: Budget, seed: int, period_s: float):
         super().__init__()
+        set_default_name(self)
         self._frame = flange_frame_id
         self._X_FL = X_FL
         self._reflectors = list(reflector_frame_ids)
@@ -204,6 +217,7 @@ class RowSequencer(LeafSystem):
 
     def __init__(self, tables: dict, period_s: float):
         super().__init__()
+        set_default_name(self)
         self.period_s = period_s
         self.n_steps = len(next(iter(tables.values())))
         self.DeclareDiscreteState(1)
@@ -243,41 +257,77 @@ class PlanSequencer(RowSequencer):
             "row": np.tile(np.arange(k, dtype=float), n_reflectors)}, period_s)
 
 
-class CampaignRecorder(LeafSystem):
+class ReadingRecorder(LeafSystem):
+    """Keeps one record per reading *in the Context* (abstract state), never in the system.
+
+    At ``offset_s`` in every ``period_s`` an unrestricted update asks :meth:`record`
+    for the record of this instant (None: nothing to keep) and appends it to the
+    context's tuple of records, so each Simulator (each Context) of one diagram
+    has its own readings: two Simulators on one diagram do not double them.
+    :meth:`GetReadings` returns them. ``sink(record, context)``, if given, is
+    told of each record as it is taken (``olti run`` writes it to disk there).
+    """
+
+    def __init__(self, period_s: float, offset_s: float):
+        super().__init__()
+        set_default_name(self)
+        self._records = self.DeclareAbstractState(AbstractValue.Make(()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._update)
+
+    def record(self, context) -> Optional[tuple]:
+        """The record of the reading at this instant, or None."""
+        raise NotImplementedError
+
+    def on_record(self, context, record) -> None:
+        """Told of every new record (after it is computed, before it is in the state)."""
+
+    def _update(self, context, state):
+        record = self.record(context)
+        if record is None:
+            return
+        records = context.get_abstract_state(self._records).get_value()
+        state.get_mutable_abstract_state(self._records).set_value(records + (record,))
+        self.on_record(context, record)
+
+    def GetReadings(self, root_context) -> tuple:
+        """The records kept so far in ``root_context`` (the diagram's context, or this system's own)."""
+        return self.GetMyContextFromRoot(root_context).get_abstract_state(self._records).get_value()
+
+
+class CampaignRecorder(ReadingRecorder):
     """Takes the reading half a period after each move and keeps measured rows.
 
     Inputs ``joint_command`` (4), ``direction`` (4), ``displacement`` (1, m),
     ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1), and
     optionally ``status`` (a :class:`ReadStatus`). Each kept row is
     (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid, plan row)
-    in mm/deg, appended to :attr:`rows` and handed to ``sink(row, status)``
-    if given (``olti run`` writes it to disk there, as it arrives).
+    in mm/deg, kept in the Context (:meth:`GetReadings`) and handed to
+    ``sink(row, status)`` if given (``olti run`` writes it to disk there, as it arrives).
     """
 
     COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm",
                "theta4_deg", "valid", "plan_row")
 
     def __init__(self, period_s: float, sink: Optional[Callable[[tuple, ReadStatus], None]] = None):
-        super().__init__()
-        self.rows: List[tuple] = []
+        super().__init__(period_s, 0.5 * period_s)
         self.sink = sink
         for name, size in (("joint_command", 4), ("direction", 4), ("displacement", 1), ("valid", 1),
                            ("reflector", 1), ("measure", 1), ("row", 1)):
             self.DeclareVectorInputPort(name, size)
         self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
-        self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
 
-    def _record(self, context):
+    def record(self, context):
         u = [self.get_input_port(i).Eval(context) for i in range(7)]
         cmd, direction, disp, valid, refl, measure, row = u
         if measure[0] < 0.5:
-            return
+            return None
         ok = valid[0] > 0.5
         # A lost beam has no reading: NaN, never a plausible-looking number.
-        record = (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
-                  int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
-                  int(ok), int(row[0]))
-        self.rows.append(record)
+        return (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
+                int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
+                int(ok), int(row[0]))
+
+    def on_record(self, context, record):
         if self.sink is not None:
             status = self._status.Eval(context) if self._status.HasValue(context) else ReadStatus()
             self.sink(record, status)
