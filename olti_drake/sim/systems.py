@@ -18,12 +18,14 @@ import re
 from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
+from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
-from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+from pydrake.systems.framework import BasicVector, BasicVector_, LeafSystem, LeafSystem_, ValueProducer
+from pydrake.systems.scalar_conversion import TemplateSystem
 
 from olti_drake.io.budget import Budget
-from olti_drake.model.errormap import approach_directions
+from olti_drake.model.errormap import ErrorMap, approach_directions
 from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
 from olti_drake.model.steering import beam_command_deg
 
@@ -48,18 +50,39 @@ def set_default_name(system) -> None:
     """Name a system after its class, snake_case (``ErrorMapJoint`` -> ``error_map_joint``).
 
     Every system of the package calls this in its constructor, so a diagram reads the same
-    whether a builder used ``AddSystem`` or ``AddNamedSystem``.
+    whether a builder used ``AddSystem`` or ``AddNamedSystem``. A scalar-type template's
+    instantiation (``ErrorMapJoint_[AutoDiffXd]``) is named after its template.
     """
-    system.set_name(re.sub(r"(?<!^)(?=[A-Z])", "_", type(system).__name__).lower())
+    name = type(system).__name__.split("_\U0001d4e3")[0]  # TemplateSystem instantiations: Name_𝓣T𝓤
+    system.set_name(re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower())
 
 
 def _deg_mm(values, revolute):
-    """Port values (rad, m) -> (deg, mm), per axis."""
-    return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
+    """Port values (rad, m) -> (deg, mm), per axis; float or AutoDiffXd (object) arrays."""
+    values = np.asarray(values)
+    if values.dtype == object:
+        return values * np.where(revolute, 180.0 / np.pi, M_TO_MM)
+    return np.where(revolute, np.degrees(values), values * M_TO_MM)
 
 
-class ApproachErrorSystem(LeafSystem):
-    """Commanded -> actual positions through an error model that depends on the approach direction.
+def _si(values, revolute):
+    """(deg, mm) -> port values (rad, m), per axis; float or AutoDiffXd (object) arrays."""
+    values = np.asarray(values)
+    if values.dtype == object:
+        return values * np.where(revolute, np.pi / 180.0, 1.0 / M_TO_MM)
+    return np.where(revolute, np.radians(values), values / M_TO_MM)
+
+
+def _value(values) -> np.ndarray:
+    """The float values of a float or AutoDiffXd array (derivatives dropped)."""
+    values = np.asarray(values)
+    if values.dtype != object:
+        return values.astype(float)
+    return np.array([v.value() if hasattr(v, "value") else float(v) for v in values.ravel()]).reshape(values.shape)
+
+
+class _ApproachError:
+    """The approach-direction bookkeeping of :class:`ApproachErrorSystem` for any scalar type.
 
     Input ``command`` (n): commanded positions (rad for revolute axes, m
     otherwise). State: the last command and the approach direction of every
@@ -67,13 +90,13 @@ class ApproachErrorSystem(LeafSystem):
     not move keeps its direction). Outputs ``position`` (n): the actual
     positions; ``direction`` (n): ±1. Outputs combine the stored state with
     the *current* input, so they are right at the instant a command changes,
-    whatever the event ordering. Subclasses give :meth:`actual` in deg/mm.
+    whatever the event ordering. Directions are decided on values (they are
+    ±1, not differentiable); positions keep the command's derivatives.
     """
 
-    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
-        super().__init__()
-        set_default_name(self)
+    def _declare_approach(self, revolute: Sequence[bool], initial_direction: float, T=float):
         self._revolute = np.asarray(revolute, dtype=bool)
+        self._initial_direction, self._T = float(initial_direction), T
         n = self._n = len(self._revolute)
         self.DeclareVectorInputPort("command", n)
         self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
@@ -85,42 +108,97 @@ class ApproachErrorSystem(LeafSystem):
         """Actual positions (n,) deg/mm of ``command`` (n,) deg/mm approached in ``direction`` (n,)."""
         raise NotImplementedError
 
+    def _actual(self, context, command, direction):
+        return self.actual(command, direction)
+
     def _command_and_direction(self, context):
         cmd = _deg_mm(self.get_input_port(0).Eval(context), self._revolute)
-        s = context.get_discrete_state_vector().value()
-        return cmd, approach_directions(cmd[None], s[:self._n], s[self._n:])[0]
+        s = _value(context.get_discrete_state_vector().CopyToVector())
+        return cmd, approach_directions(_value(cmd)[None], s[:self._n], s[self._n:])[0]
 
     def _remember(self, context, discrete_state):
         cmd, direction = self._command_and_direction(context)
-        discrete_state.set_value(np.concatenate([cmd, direction]))
+        discrete_state.set_value(np.array([self._T(v) for v in np.concatenate([_value(cmd), direction])],
+                                          dtype=object if self._T is not float else float))
 
-    def _calc_direction(self, context, output: BasicVector):
+    def _calc_direction(self, context, output):
         output.SetFromVector(self._command_and_direction(context)[1])
 
-    def _calc_position(self, context, output: BasicVector):
-        actual = self.actual(*self._command_and_direction(context))
-        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+    def _calc_position(self, context, output):
+        cmd, direction = self._command_and_direction(context)
+        output.SetFromVector(_si(self._actual(context, cmd, direction), self._revolute))
 
 
-class ErrorMapJoint(ApproachErrorSystem):
-    """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+class ApproachErrorSystem(_ApproachError, LeafSystem):
+    """Commanded -> actual positions through an error model that depends on the approach direction.
 
-    One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
-    continuous truth, or None for a perfect axis); ports as
-    :class:`ApproachErrorSystem`.
+    Ports and state as :class:`_ApproachError`; subclasses give :meth:`actual` in deg/mm.
     """
 
-    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
-                 initial_direction: float = 1.0):
-        super().__init__(revolute, initial_direction)
-        self._dev = list(deviations)
+    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
+        LeafSystem.__init__(self)
+        set_default_name(self)
+        self._declare_approach(revolute, initial_direction)
 
-    def actual(self, command, direction) -> np.ndarray:
-        out = command.copy()
-        for i, dev in enumerate(self._dev):
-            if dev is not None:
-                out[i] += dev(command[i:i + 1], direction[i:i + 1])[0]
-        return out
+
+@TemplateSystem.define("ErrorMapJoint_", T_list=(float, AutoDiffXd))
+def ErrorMapJoint_(T):
+    """ErrorMapJoint for scalar type T (float or AutoDiffXd): ``ErrorMapJoint_[T]``.
+
+    Not symbolic: the interpolation picks nodes by the command's value (a Diagram would
+    otherwise try ``Expression`` to find its feedthrough).
+    """
+
+    class Impl(_ApproachError, LeafSystem_[T]):
+        """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+
+        One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
+        continuous truth, or None for a perfect axis); ports as
+        :class:`ApproachErrorSystem`. The node values of every ``ErrorMap`` axis are a
+        numeric Parameter of the Context, [forward..., reverse...] deg (Eq. 6 order;
+        default: the map's): :meth:`SetMapValues` / :meth:`GetMapValues`. With
+        ``ToAutoDiffXd()`` a reading is differentiable with respect to them; the
+        interpolation weights (Eq. 9) are taken at the command's value (the map's
+        slope in θ* is not carried), a continuous truth adds a constant.
+        """
+
+        def _construct(self, deviations, revolute, initial_direction=1.0, converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._dev = list(deviations)
+            self._declare_approach(revolute, initial_direction, T)
+            self._maps = {i: self.DeclareNumericParameter(BasicVector_[T](dev.values.tolist()))
+                          for i, dev in enumerate(self._dev) if isinstance(dev, ErrorMap)}
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other._dev, other._revolute, other._initial_direction, converter=converter)
+
+        def SetMapValues(self, context, axis: int, values_deg) -> None:
+            """Set axis ``axis``'s node values (2N,) deg, [forward..., reverse...], in ``context``."""
+            context.get_mutable_numeric_parameter(self._maps[axis]).SetFromVector(values_deg)
+
+        def GetMapValues(self, context, axis: int) -> np.ndarray:
+            """Axis ``axis``'s node values (2N,) deg in ``context``."""
+            return context.get_numeric_parameter(self._maps[axis]).CopyToVector()
+
+        def _actual(self, context, command, direction):
+            out = command.copy()
+            for i, dev in enumerate(self._dev):
+                if dev is None:
+                    continue
+                theta = _value(command[i:i + 1])
+                if i in self._maps:
+                    (c0, c1), (w0, w1) = (x[0] for x in dev.interpolation(theta, direction[i:i + 1]))
+                    v = self.GetMapValues(context, i)
+                    out[i] = out[i] + (w0 * v[c0] + w1 * v[c1])
+                else:
+                    out[i] = out[i] + dev(theta, direction[i:i + 1])[0]
+            return out
+
+    return Impl
+
+
+ErrorMapJoint = ErrorMapJoint_[None]
 
 
 class BeamSteering(LeafSystem):
