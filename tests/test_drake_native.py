@@ -19,8 +19,8 @@ GRID = np.array([-10.0, 0.0, 10.0, 20.0])
 MAP = ErrorMap(GRID, [0.001, 0.002, -0.001, 0.0], [0.003, 0.0, 0.001, 0.002], "J1")
 
 
-def _small():
-    s = Scenario(interferometer=InterferometerOptions(noise=True))
+def _small(**interferometer):
+    s = Scenario(interferometer=InterferometerOptions(**interferometer))
     s.plan = dataclasses.replace(s.plan, theta1_start=-40.0, theta1_stop=0.0, theta2_start=40.0,
                                  theta2_stop=100.0, theta2_step=30.0)
     return s
@@ -97,3 +97,30 @@ def test_systems_have_default_names():
     names = _names(diagram)
     assert "station/error_map_joint" in names and "station/laser_interferometer" in names
     assert not [n for n in names if "@" in n], names   # no unnamed (address-named) system
+
+
+def test_reflector_estimates_and_dead_paths_are_context_parameters():
+    from olti_drake.model.steering import beam_command_deg
+
+    setup = prepare(_small(quantization=False))
+    diagram, rec, seq = build_campaign_diagram(setup)
+    steer = diagram.GetSubsystemByName("beam_steering")
+    laser = diagram.station.GetSubsystemByName("laser_interferometer")
+    ctx = diagram.CreateDefaultContext()
+    steer_ctx, laser_ctx = steer.GetMyContextFromRoot(ctx), laser.GetMyContextFromRoot(ctx)
+    P, theta40 = steer.GetReflectorEstimates(steer_ctx)
+    np.testing.assert_array_equal(P, setup.reflectors_estimate_mm)
+    np.testing.assert_array_equal(laser.GetDeadPaths(laser_ctx), setup.dead_paths_mm)
+    before = laser.GetOutputPort("displacement").Eval(laser_ctx)[0]
+    laser.SetDeadPaths(laser_ctx, setup.dead_paths_mm + 1.0)   # 1 mm more dead path: 1 mm less reading
+    assert laser.GetOutputPort("displacement").Eval(laser_ctx)[0] == pytest.approx(before - 1e-3, abs=1e-12)
+    moved = setup.reflectors_estimate_mm + [[5.0, -3.0]]
+    steer.SetReflectorEstimates(steer_ctx, moved, theta40 + 0.5)
+    t1, t2 = np.degrees(steer.get_input_port(0).Eval(steer_ctx))
+    r = setup.scenario.robot
+    expected = beam_command_deg(t1, t2, moved[0], r.nominal_L1_mm, r.nominal_L2_mm, theta40 + 0.5)
+    assert np.degrees(steer.GetOutputPort("joint_command").Eval(steer_ctx)[3]) == pytest.approx(
+        float(np.ravel(expected)[0]), abs=1e-9)
+    # A fresh context has the defaults again: the parameters are per context, not on the system.
+    np.testing.assert_array_equal(steer.GetReflectorEstimates(
+        steer.GetMyContextFromRoot(diagram.CreateDefaultContext()))[0], setup.reflectors_estimate_mm)

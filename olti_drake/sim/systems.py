@@ -207,7 +207,9 @@ class BeamSteering(LeafSystem):
     Inputs ``arm_command`` (2): θ1*, θ2* (rad); ``reflector`` (1): index j.
     Output ``joint_command`` (4): θ1*, θ2*, J3 stroke (m), θ4* (rad).
     Uses the nominal link lengths (mm) -- the command position -- and the
-    estimates of the reflector positions (mm) and θ40 (deg).
+    estimates of the reflector positions (mm) and θ40 (deg); the estimates are a
+    numeric Parameter of the Context [P0x, P0y, P1x, ..., θ40] (default: the
+    constructor's): :meth:`SetReflectorEstimates` / :meth:`GetReflectorEstimates`.
     """
 
     def __init__(self, L1_mm: float, L2_mm: float, reflectors_estimate_mm, theta40_estimate_deg: float,
@@ -215,17 +217,28 @@ class BeamSteering(LeafSystem):
         super().__init__()
         set_default_name(self)
         self._L = (L1_mm, L2_mm)
-        self._P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
-        self._theta40 = theta40_estimate_deg
+        P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
+        self._estimates = self.DeclareNumericParameter(BasicVector(np.append(P.ravel(), theta40_estimate_deg)))
         self._stroke = stroke_m
         self.DeclareVectorInputPort("arm_command", 2)
         self.DeclareVectorInputPort("reflector", 1)
         self.DeclareVectorOutputPort("joint_command", 4, self._calc)
 
+    def SetReflectorEstimates(self, context, reflectors_mm, theta40_deg: float) -> None:
+        """Set the estimated reflector positions (Nt, 2) mm and θ40 (deg) used in ``context``."""
+        context.get_mutable_numeric_parameter(self._estimates).SetFromVector(
+            np.append(np.asarray(reflectors_mm, dtype=float).ravel(), theta40_deg))
+
+    def GetReflectorEstimates(self, context):
+        """(reflectors (Nt, 2) mm, θ40 deg) used in ``context``."""
+        v = context.get_numeric_parameter(self._estimates).CopyToVector()
+        return v[:-1].reshape(-1, 2), float(v[-1])
+
     def _calc(self, context, output: BasicVector):
         t1, t2 = np.degrees(self.get_input_port(0).Eval(context))
         j = int(self.get_input_port(1).Eval(context)[0])
-        t4 = beam_command_deg(t1, t2, self._P[j], *self._L, self._theta40)
+        P, theta40 = self.GetReflectorEstimates(context)
+        t4 = beam_command_deg(t1, t2, P[j], *self._L, theta40)
         output.SetFromVector([np.radians(t1), np.radians(t2), self._stroke, np.radians(float(np.ravel(t4)[0]))])
 
 
@@ -242,7 +255,9 @@ class LaserInterferometer(LeafSystem):
 
     Noise is a deterministic function of (seed, sample count): the count is a
     discrete state stepped every ``period_s``, so re-evaluating a port gives
-    the same reading and the same seed gives the same campaign.
+    the same reading and the same seed gives the same campaign. The dead paths
+    (mm) are a numeric Parameter of the Context (default: the constructor's):
+    :meth:`SetDeadPaths` / :meth:`GetDeadPaths`.
     """
 
     def __init__(self, flange_frame_id, X_FL, reflector_frame_ids, dead_paths_mm,
@@ -252,7 +267,7 @@ class LaserInterferometer(LeafSystem):
         self._frame = flange_frame_id
         self._X_FL = X_FL
         self._reflectors = list(reflector_frame_ids)
-        self._d0 = np.asarray(dead_paths_mm, dtype=float)
+        self._dead_paths = self.DeclareNumericParameter(BasicVector(np.asarray(dead_paths_mm, dtype=float)))
         self._options, self._budget, self._seed = options, budget, int(seed)
         self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.DeclareVectorInputPort("reflector", 1)
@@ -264,6 +279,14 @@ class LaserInterferometer(LeafSystem):
         for i, name in enumerate(("displacement", "valid", "miss")):
             self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
         self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+    def SetDeadPaths(self, context, dead_paths_mm) -> None:
+        """Set the counter zero d0_j (mm) of every reflector's run in ``context`` (000 Eq. 5)."""
+        context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+    def GetDeadPaths(self, context) -> np.ndarray:
+        """The dead paths d0_j (mm) used in ``context``."""
+        return context.get_numeric_parameter(self._dead_paths).CopyToVector()
 
     def _calc_status(self, context, value):
         valid = self._reading.Eval(context)[1] > 0.5
@@ -281,7 +304,7 @@ class LaserInterferometer(LeafSystem):
         x_axis = X_WL.rotation().matrix()[:2, 0]
         angle = np.degrees(np.arctan2(x_axis[1], x_axis[0]))
         rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self._d0[j]],
+        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self.GetDeadPaths(context)[j]],
                                                  self._options, self._budget, rng)
         value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
 
