@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake.sim.campaign import Campaign, make_station, prepare, write_campaign
+from olti_drake.sim.campaign import AddSimulatedStation, Campaign, prepare, write_campaign
 from olti_drake.sim.scenario import load_scenario
 from olti_drake.sim.systems import BeamSteering, CampaignRecorder, PlanSequencer
 
@@ -27,7 +27,7 @@ def build(setup, meshcat=None):
     s, r = setup.scenario, setup.scenario.robot
     builder = DiagramBuilder()
     # The station: error-mapped joints -> SCARA in SceneGraph -> interferometer.
-    station = make_station(builder, setup)
+    station = AddSimulatedStation(builder, setup)
     # Moves to the next plan row every period_s (the plan once per reflector).
     sequencer = builder.AddSystem(PlanSequencer(
         setup.plan.theta1_deg, setup.plan.theta2_deg, setup.plan.measure,
@@ -78,8 +78,9 @@ def main(argv=None) -> int:
 
     if visualizer is not None:
         visualizer.StartRecording()
-    Simulator(diagram).AdvanceTo(sequencer.duration_s)  # every row of every run, and its reading
-    campaign = Campaign.from_recorder(setup, recorder)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(sequencer.duration_s)  # every row of every run, and its reading
+    campaign = Campaign.from_recorder(setup, recorder, simulator.get_context())  # readings: in the Context
 
     source = args.scenario or "embedded default (paper 000 experiment)"
     paths = write_campaign(campaign, args.out, comments=[

@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pytest
 
+from olti_drake.hardware.station import AddStation
 from olti_drake.sim.campaign import prepare, run_campaign
 from olti_drake.io.csvio import InputError
 from olti_drake.model.interferometer import InterferometerOptions
@@ -26,7 +27,7 @@ def _quiet(station) -> Scenario:
 
 def test_noise_free_emulated_campaign_equals_the_simulated_one():
     sim = run_campaign(prepare(_quiet(Simulated())))
-    emu = run_campaign(prepare(_quiet(Emulated(speed="fast"))))
+    emu = run_campaign(prepare(_quiet(Emulated(speed="fast"))), station_factory=AddStation)
     assert emu.n_readings == sim.n_readings == 1056
     for k in SAME:
         assert np.array_equal(emu.columns[k], sim.columns[k]), k
@@ -46,7 +47,7 @@ def paper_pair():
 
     out = {}
     for name, station in (("sim", Simulated()), ("emu", Emulated())):
-        campaign = run_campaign(prepare(Scenario(station=station)))
+        campaign = run_campaign(prepare(Scenario(station=station)), station_factory=AddStation)
         out[name] = (campaign, identify(campaign_data(campaign)))
     return out
 
@@ -80,7 +81,7 @@ def test_hardware_station_on_a_missing_port_names_it():
     port = "/dev/olti-no-such-port-0"
     s = dataclasses.replace(_quiet(Simulated()), station=Hardware(robot_port=port, counter_port=port + "1"))
     with pytest.raises(InputError) as e:
-        run_campaign(prepare(s))
+        run_campaign(prepare(s), station_factory=AddStation)
     msg = str(e.value)
     assert port in msg and "robot" in msg and "\n" not in msg
 
@@ -91,11 +92,12 @@ def test_station_errors_name_the_command():
     from olti_drake.sim.campaign import build_campaign_diagram
     from olti_drake.hardware.station import StationError
 
-    diagram, rec, seq = build_campaign_diagram(prepare(_quiet(Emulated())))
+    diagram, rec, seq = build_campaign_diagram(prepare(_quiet(Emulated())), AddStation)
     try:
         diagram.station.emulator.raise_alarm()
         with pytest.raises(StationError, match=r"controller alarm EMU_INJECTED at the move to \(-142\.000000, .*clears at most 0"):
-            Simulator(diagram).AdvanceTo(seq.duration_s)
+            simulator = Simulator(diagram)
+            simulator.AdvanceTo(seq.duration_s)
     finally:
         diagram.station.close()
-    assert not rec.rows
+    assert not rec.GetReadings(simulator.get_context())

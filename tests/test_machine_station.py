@@ -14,7 +14,7 @@ from olti_drake.model.interferometer import InterferometerOptions
 from olti_drake.model.machine import (MachineScenario, VolumetricError, machine_sequence, simulate_machine_campaign,
                                 square_targets)
 from olti_drake.sim.machine_station import (VolumetricErrorAxes, build_machine_diagram, machine_columns,
-                                        make_machine_station, prepare_machine, run_machine_campaign)
+                                        AddMachineStation, prepare_machine, run_machine_campaign)
 from olti_drake.estimation.multilateration import MultilaterationOptions, align_to_commands, machine_campaign, multilaterate
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -39,7 +39,7 @@ def station_diagram():
     """The station alone (no sequencer), its inputs fixed by the tests."""
     setup = prepare_machine(_scenario(interferometer=QUIET))
     builder = DiagramBuilder()
-    station = make_machine_station(builder, setup)
+    station = AddMachineStation(builder, setup)
     diagram = builder.Build()
     return setup, station, diagram, diagram.CreateDefaultContext()
 
@@ -111,12 +111,13 @@ def test_bidirectional_campaign_reads_the_directional_positions():
     s = _scenario(error=_bidirectional(), interferometer=QUIET)
     setup = prepare_machine(s)
     diagram, rec, seq = build_machine_diagram(setup)
-    Simulator(diagram).AdvanceTo(seq.duration_s)
-    cols = machine_columns(rec)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(seq.duration_s)
+    cols = machine_columns(rec, simulator.get_context())
     q = machine_sequence(setup.commands_mm, len(setup.stations_mm))
     assert np.any(q["dir_x"] < 0) and np.any(q["dir_y"] < 0)
     actual = s.error.actual(setup.commands_mm[q["target"]], q["dir_x"], q["dir_y"])
-    np.testing.assert_allclose(rec.actual_mm, actual, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(rec.GetActual(simulator.get_context()), actual, rtol=0, atol=1e-9)
     dist = np.hypot(*(actual - setup.stations_mm[q["station"]]).T)
     np.testing.assert_allclose(cols["displacement_mm"], dist - setup.dead_paths_mm[q["station"]], rtol=0, atol=1e-9)
     first = [np.flatnonzero(cols["station"] == j)[0] for j in range(3)]

@@ -9,7 +9,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from olti_drake.sim import plant as plant_mod
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, forward_kinematics
-from olti_drake.sim.plant import add_scara_plant, make_scara_plant
+from olti_drake.sim.plant import AddScaraPlant, make_scara_plant
 
 REFLECTORS_MM = np.array([[700.0, 100.0], [-50.0, 650.0], [400.0, -500.0]])
 LENGTHS = [(PAPER_L1_MM, PAPER_L2_MM), (324.97, 225.004)]
@@ -47,7 +47,7 @@ def test_flange_matches_forward_kinematics(L1, L2):
 @pytest.mark.parametrize("L1, L2", LENGTHS)
 def test_diagram_query_object_matches_forward_kinematics(L1, L2):
     builder = DiagramBuilder()
-    sp = add_scara_plant(builder, L1, L2, REFLECTORS_MM)
+    sp = AddScaraPlant(builder, L1, L2, REFLECTORS_MM)
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
     t1, t2, z3, t4 = random_poses(seed=1)

@@ -43,6 +43,7 @@ def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None,
     """Simulate the scenario's campaign into ``out_dir`` (campaign.csv, truth.json: measurements, never
     replaced); ``results``: the caller's other outputs, checked with them before the simulation;
     ``view()``: (extend, realtime rate) of a live view, started only once the outputs are known good."""
+    from olti_drake.hardware.station import AddStation
     from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
     from olti_drake.sim.scenario import Hardware, load_scenario
 
@@ -61,7 +62,8 @@ def _simulate(args, scenario_path, out_dir, seed=None, progress=True, view=None,
                    [os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")], [out_dir], create_dirs=True)
     extend, realtime_rate = view() if view else (None, 0.0)
     setup = prepare(scenario)
-    campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate)
+    campaign = run_campaign(setup, progress=_progress(progress), extend=extend, realtime_rate=realtime_rate,
+                            station_factory=AddStation)
     source = scenario_path or "embedded default (paper 000 experiment)"
     paths = write_campaign(campaign, out_dir, comments=[f"scenario: {source}; seed {scenario.seed}"])
     return setup, campaign, paths

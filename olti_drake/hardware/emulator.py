@@ -34,7 +34,6 @@ import termios
 import threading
 import time
 import tty
-from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np

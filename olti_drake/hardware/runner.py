@@ -192,6 +192,7 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
 
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.hardware.runlog import CampaignLog
+    from olti_drake.hardware.station import AddStation
     from olti_drake.sim.scenario import Hardware
 
     scenario, scenario_path = _load(scenario)
@@ -243,7 +244,9 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
         return EventStatus.ReachedTermination(None, "stop") if stop["reason"] else EventStatus.Succeeded()
 
     # The station (ports, emulator) opens here; a fresh run's directory is made only once it did.
-    diagram, rec, seq = build_campaign_diagram(setup, extend=extend, sink=sink, session=log.session if log else 0)
+    session = log.session if log else 0
+    diagram, rec, seq = build_campaign_diagram(setup, lambda b, s: AddStation(b, s, session=session),
+                                               extend=extend, sink=sink)
     if log is None:
         try:
             log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured),

@@ -1,11 +1,12 @@
 """The station as real devices: a robot controller and an interferometer counter behind drivers.
 
 :class:`HardwareStation` is a ``LeafSystem`` with the ports of the simulated
-station (``campaign.make_station``) -- inputs ``joint_command`` (4: θ1*, θ2*
+station (:func:`olti_drake.sim.campaign.AddSimulatedStation`) -- inputs ``joint_command`` (4: θ1*, θ2*
 rad, J3 m, θ4* rad) and ``reflector`` (1); outputs ``displacement`` (1, m),
 ``valid`` (1), ``miss`` (1, m: unknown on real devices, always NaN),
 ``status`` (a :class:`~olti_drake.sim.systems.ReadStatus`), ``direction`` (4, ±1)
-and ``position`` (4: the encoder angles, rad/m) -- but it moves a real robot
+and ``measured_position`` (4: the encoder angles, rad/m; the simulated station has no
+encoders and gives the commanded positions there) -- but it moves a real robot
 (or the emulator, docs/emulator.md) and reads a real counter through two
 drivers (:mod:`olti_drake.hardware.drivers`; the olti serial protocol by default).
 
@@ -33,10 +34,10 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 
 from olti_drake.io.csvio import InputError
 from olti_drake.model.errormap import approach_directions
-from olti_drake.hardware.drivers import AlarmActive, DriverError, open_serial  # open_serial: re-exported
+from olti_drake.hardware.drivers import AlarmActive, DriverError, open_serial  # noqa: F401 (open_serial re-exported)
 from olti_drake.hardware.protocol import ProtocolError, expect_ack, movj_fields
 from olti_drake.sim.scenario import SEED_STREAMS, stream_seed
-from olti_drake.sim.systems import ReadStatus
+from olti_drake.sim.systems import ReadStatus, set_default_name
 
 M_TO_MM = 1e3
 REVOLUTE = np.array([True, True, False, True])
@@ -51,7 +52,7 @@ class StationError(RuntimeError):
 def operator_prompt_required(j: int) -> None:
     """The default reflector hook of a hardware station: no operator to ask."""
     raise StationError(f"hardware station: reflector position {j} must be set up by the operator, but no "
-                       f"operator prompt was given (pass set_reflector=callable(j) to make_hardware_station)")
+                       f"operator prompt was given (pass set_reflector=callable(j) to AddHardwareStation)")
 
 
 def console_prompt(j: int) -> None:
@@ -78,6 +79,7 @@ class HardwareStation(LeafSystem):
         from olti_drake.sim.scenario import RunPolicy
 
         super().__init__()
+        set_default_name(self)
         self.robot, self.counter = robot, counter
         self.set_reflector = set_reflector or operator_prompt_required
         self.wait_ms = int(wait_ms)
@@ -98,7 +100,7 @@ class HardwareStation(LeafSystem):
         self.DeclareVectorOutputPort("miss", 1, lambda c, o: o.SetAtIndex(0, np.nan))
         self.DeclareStateOutputPort("status", AbstractStateIndex(0))
         self.DeclareVectorOutputPort("direction", 4, lambda c, o: self._out(c, o, _DIRS))
-        self.DeclareVectorOutputPort("position", 4, lambda c, o: self._out(c, o, _ENCODER))
+        self.DeclareVectorOutputPort("measured_position", 4, lambda c, o: self._out(c, o, _ENCODER))
 
     def _out(self, context, output: BasicVector, part: slice):
         output.SetFromVector(context.get_discrete_state_vector().value()[part])
@@ -268,7 +270,28 @@ def _initial_state() -> np.ndarray:
                            np.full(8, np.nan), [0.0]])
 
 
-def make_hardware_station(builder, setup, devices, set_reflector=None, name: str = "station", policy=None):
+def AddStation(builder, setup, name: str = "station", session: int = 0):
+    """Add the station the scenario names (``setup.scenario.station``) to ``builder``; returns it.
+
+    The one place that decides simulated or real, as Drake's ``MakeHardwareStation``: ``Simulated``
+    -> :func:`olti_drake.sim.campaign.AddSimulatedStation` (a Diagram), ``Emulated`` ->
+    :func:`AddEmulatedStation`, ``Hardware`` -> :func:`AddRealStation` (operator prompt on the
+    console). All have the same ports (the simulated one adds ``true_position`` and
+    ``query_object``); an emulated or hardware station's ``close()`` releases its ports.
+    ``session``: 0 for a campaign's first run, n for its n-th resumption (``olti run --resume``):
+    an emulator then draws fresh noise.
+    """
+    from olti_drake.sim.campaign import AddSimulatedStation
+    from olti_drake.sim.scenario import Emulated, Hardware
+
+    if isinstance(setup.scenario.station, Emulated):
+        return AddEmulatedStation(builder, setup, name, session)
+    if isinstance(setup.scenario.station, Hardware):
+        return AddRealStation(builder, setup, console_prompt, name)
+    return AddSimulatedStation(builder, setup, name)
+
+
+def AddHardwareStation(builder, setup, devices, set_reflector=None, name: str = "station", policy=None):
     """Add a :class:`HardwareStation` on ``devices`` = (robot, counter) drivers to ``builder``; returns it."""
     robot, counter = devices
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
@@ -280,7 +303,7 @@ def make_hardware_station(builder, setup, devices, set_reflector=None, name: str
 STREAM_EMULATOR = SEED_STREAMS["emulator_session"]
 
 
-def make_emulated_station(builder, setup, name: str = "station", session: int = 0):
+def AddEmulatedStation(builder, setup, name: str = "station", session: int = 0):
     """Start an in-process Emulator on the setup and add a station driving it through its ptys.
 
     ``session`` > 0 (a resumed campaign) seeds the emulator's noise and faults afresh.
@@ -301,7 +324,7 @@ def make_emulated_station(builder, setup, name: str = "station", session: int = 
     return station
 
 
-def make_real_station(builder, setup, set_reflector=None, name: str = "station"):
+def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
     """Open the scenario's serial ports and add a station driving the real devices."""
     cfg = setup.scenario.station
     hook = None if set_reflector is None else (lambda counter, j: set_reflector(j))
@@ -332,7 +355,7 @@ def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, 
         # A counter driver that knows the reflector set-up (a test bench) does it; else the hook (operator).
         hook = getattr(counter, "set_up_reflector", None) or (
             None if set_reflector is None else (lambda j: set_reflector(counter, j)))
-        station = make_hardware_station(builder, setup, (robot, counter), hook, name, policy=cfg.policy)
+        station = AddHardwareStation(builder, setup, (robot, counter), hook, name, policy=cfg.policy)
     except BaseException:
         for c in reversed(closers):
             c()

@@ -10,7 +10,7 @@ Diagram is built exactly as ``olti simulate`` builds it, then
   ``station.joint_command -> station/error_map_joint.command``.
 
 The hardware station is built on transports that are never opened
-(:func:`olti_drake.hardware.station.make_hardware_station` with no ports), so no
+(:func:`olti_drake.hardware.station.AddHardwareStation` with no ports), so no
 serial device is needed; the emulated one starts the emulator and closes it.
 ``tests/test_diagrams.py`` keeps the committed wiring files equal to the code.
 """
@@ -43,19 +43,20 @@ def _clean(name: str) -> str:
 
 def unopened_hardware_station(builder, setup, name: str = "station"):
     """The hardware station on transports that are never opened: for pictures and wiring only."""
-    from olti_drake.hardware.station import make_hardware_station
+    from olti_drake.hardware.station import AddHardwareStation
 
-    return make_hardware_station(builder, setup, (None, None), None, name)
+    return AddHardwareStation(builder, setup, (None, None), None, name)
 
 
 @contextmanager
 def campaign_diagram(scenario_path, extend=None):
     """Build the scenario's campaign Diagram (the hardware one unopened); close its station on exit."""
+    from olti_drake.hardware.station import AddStation
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.sim.scenario import Hardware, load_scenario
 
     setup = prepare(load_scenario(scenario_path))
-    factory = unopened_hardware_station if isinstance(setup.scenario.station, Hardware) else None
+    factory = unopened_hardware_station if isinstance(setup.scenario.station, Hardware) else AddStation
     diagram, _, _ = build_campaign_diagram(setup, station_factory=factory, extend=extend)
     try:
         yield diagram

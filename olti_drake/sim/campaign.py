@@ -1,6 +1,6 @@
 """The simulated open-loop tracking interferometer campaign (000 §2, §4.1).
 
-``make_station`` builds the *station* -- the robot and its instrument:
+``AddSimulatedStation`` adds the simulated *station* -- the robot and its instrument:
 ErrorMapJoint -> SCARA MultibodyPlant (through SceneGraph) -> LaserInterferometer
 -- as one Drake Diagram with named ports, so a hardware station with the same
 ports can stand in for it. ``build_campaign_diagram`` wires the measurement
@@ -113,65 +113,61 @@ def _dead_paths(scenario, plan, robot, P, P_est, theta40_est):
     return along if scenario.interferometer.cosine_error else np.hypot(along, miss)
 
 
-def make_station(builder, setup: Setup, name: str = "station", session: int = 0):
+def AddSimulatedStation(builder, setup: Setup, name: str = "station"):
     """Add the simulated station (a Diagram) to ``builder`` and return it.
 
     Ports -- inputs: ``joint_command`` (4: θ1*, θ2* rad, J3 m, θ4* rad),
     ``reflector`` (1); outputs: ``displacement`` (1, m), ``valid`` (1),
     ``miss`` (1, m), ``status`` (:class:`~olti_drake.sim.systems.ReadStatus`),
-    ``direction`` (4, ±1), ``position`` (4, actual joint positions),
+    ``direction`` (4, ±1), ``measured_position`` (4, rad/m: what the encoders
+    read, here the commanded positions: a perfect servo, the error map is what
+    encoders do not see), ``true_position`` (4, rad/m: the actual positions
+    through the error map; simulation only, for diagnostics) and
     ``query_object`` (SceneGraph, for visualization).
 
-    ``session``: 0 for a campaign's first run, n for its n-th resumption
-    (``olti run --resume``): an emulator then draws fresh noise.
-
-    ``setup.scenario.station`` chooses the station: ``Simulated`` (this
-    Diagram), ``Emulated`` or ``Hardware`` (:mod:`olti_drake.hardware.station`: same
-    ports but ``query_object``; ``close()`` releases its ports and emulator).
+    Which station a scenario uses (simulated, emulated, hardware) is decided
+    above this module, by :func:`olti_drake.hardware.station.AddStation`.
     """
-    from olti_drake.sim.scenario import Emulated, Hardware
-    if isinstance(setup.scenario.station, Emulated):
-        from olti_drake.hardware.station import make_emulated_station
-        return make_emulated_station(builder, setup, name, session)
-    if isinstance(setup.scenario.station, Hardware):
-        from olti_drake.hardware.station import console_prompt, make_real_station
-        return make_real_station(builder, setup, console_prompt, name)
     from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import PassThrough
 
-    from olti_drake.sim.plant import add_scara_plant
+    from olti_drake.sim.plant import AddScaraPlant
     from olti_drake.sim.systems import ErrorMapJoint, LaserInterferometer
 
     s, r = setup.scenario, setup.scenario.robot
     inner = DiagramBuilder()
-    plant = add_scara_plant(inner, r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg,
-                            tuple(r.beam_offset_mm))
-    joints = inner.AddNamedSystem("error_map_joint", ErrorMapJoint(
-        [r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
-    laser = inner.AddNamedSystem("laser_interferometer", LaserInterferometer(
+    plant = AddScaraPlant(inner, r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg,
+                          tuple(r.beam_offset_mm))
+    joints = inner.AddSystem(ErrorMapJoint([r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
+    laser = inner.AddSystem(LaserInterferometer(
         plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
         s.interferometer, setup.budget, seed=stream_seed(s.seed, "laser"), period_s=s.period_s))
+    command = inner.AddNamedSystem("joint_command", PassThrough(4))
+    inner.Connect(command.get_output_port(), joints.GetInputPort("command"))
     inner.Connect(joints.GetOutputPort("position"), plant.position_input)
     inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
-    inner.ExportInput(joints.GetInputPort("command"), "joint_command")
+    inner.ExportInput(command.get_input_port(), "joint_command")
     inner.ExportInput(laser.GetInputPort("reflector"), "reflector")
     for port in ("displacement", "valid", "miss", "status"):
         inner.ExportOutput(laser.GetOutputPort(port), port)
     inner.ExportOutput(joints.GetOutputPort("direction"), "direction")
-    inner.ExportOutput(joints.GetOutputPort("position"), "position")
+    inner.ExportOutput(command.get_output_port(), "measured_position")
+    inner.ExportOutput(joints.GetOutputPort("position"), "true_position")
     inner.ExportOutput(plant.query_output, "query_object")
     station = builder.AddNamedSystem(name, inner.Build())
     station.plant = plant  # keeps the plant (referenced by MultibodyPositionToGeometryPose) alive
     return station
 
 
-def build_campaign_diagram(setup: Setup, station_factory=None, extend=None, sink=None, session: int = 0):
+def build_campaign_diagram(setup: Setup, station_factory=None, extend=None, sink=None):
     """The whole campaign as a Diagram; returns (diagram, recorder, sequencer).
 
     ``sink(row, status)``: called with every recorded reading (``CampaignRecorder``;
-    ``olti run`` writes it to disk); ``session``: as :func:`make_station`.
+    ``olti run`` writes it to disk).
 
     ``station_factory(builder, setup)`` adds the station (default
-    :func:`make_station`: the scenario's); ``extend(builder, setup=, station=,
+    :func:`AddSimulatedStation`; :func:`olti_drake.hardware.station.AddStation`
+    adds the scenario's, simulated, emulated or hardware); ``extend(builder, setup=, station=,
     sequencer=, steering=, recorder=)``, if given, adds more systems (e.g. the
     Meshcat view of :mod:`olti_drake.sim.meshcat_view`) before the diagram is built.
     """
@@ -181,7 +177,7 @@ def build_campaign_diagram(setup: Setup, station_factory=None, extend=None, sink
 
     s, r = setup.scenario, setup.scenario.robot
     builder = DiagramBuilder()
-    station = station_factory(builder, setup) if station_factory else make_station(builder, setup, session=session)
+    station = (station_factory or AddSimulatedStation)(builder, setup)
     seq = builder.AddNamedSystem("plan_sequencer", PlanSequencer(
         setup.plan.theta1_deg, setup.plan.theta2_deg, setup.plan.measure, len(setup.reflectors_mm),
         s.period_s))
@@ -216,24 +212,26 @@ class Campaign:
         return len(self.columns["reflector"])
 
     @classmethod
-    def from_recorder(cls, setup: Setup, recorder) -> "Campaign":
-        """The recorder's rows (mm/deg) as columns, with the simulated truth."""
+    def from_recorder(cls, setup: Setup, recorder, root_context) -> "Campaign":
+        """The recorder's rows (mm/deg) kept in ``root_context`` as columns, with the simulated truth."""
         names = type(recorder).COLUMNS
-        rows = np.array(recorder.rows, dtype=float).reshape(-1, len(names))
+        rows = np.array(recorder.GetReadings(root_context), dtype=float).reshape(-1, len(names))
         columns = {c: rows[:, i] for i, c in enumerate(names)}
         return cls(columns, truth_result(setup, columns))
 
 
-def run_campaign(setup: Setup, progress=None, extend=None, realtime_rate: float = 0.0) -> Campaign:
+def run_campaign(setup: Setup, progress=None, extend=None, realtime_rate: float = 0.0,
+                 station_factory=None) -> Campaign:
     """Simulate the diagram through the whole plan and collect the readings.
 
     ``progress(fraction)``, if given, is called as the simulation advances.
     ``extend`` as in :func:`build_campaign_diagram` (e.g. a Meshcat view);
-    ``realtime_rate`` > 0 paces the simulation for a viewer (0: as fast as possible).
+    ``realtime_rate`` > 0 paces the simulation for a viewer (0: as fast as possible);
+    ``station_factory`` as in :func:`build_campaign_diagram`.
     """
     from pydrake.systems.analysis import Simulator
 
-    diagram, rec, seq = build_campaign_diagram(setup, extend=extend)
+    diagram, rec, seq = build_campaign_diagram(setup, station_factory, extend=extend)
     try:
         simulator = Simulator(diagram)
         simulator.set_target_realtime_rate(realtime_rate)
@@ -246,7 +244,7 @@ def run_campaign(setup: Setup, progress=None, extend=None, realtime_rate: float 
         close = getattr(diagram.station, "close", None)  # an emulated or hardware station's ports
         if close is not None:
             close()
-    return Campaign.from_recorder(setup, rec)
+    return Campaign.from_recorder(setup, rec, simulator.get_context())
 
 
 def simulate_vectorized(setup: Setup, rng: np.random.Generator) -> Campaign:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional
+from typing import Optional
 
 import numpy as np
 from pydrake.geometry import SceneGraph
@@ -49,7 +49,8 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from olti_drake.model.machine import MachineScenario, VolumetricError, machine_run, paper001_budget
 from olti_drake.sim.campaign import stream_seed
-from olti_drake.sim.systems import ApproachErrorSystem, LaserInterferometer, RowSequencer
+from olti_drake.sim.systems import (ApproachErrorSystem, LaserInterferometer, ReadingRecorder, RowSequencer,
+                                   set_default_name)
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 MACHINE_SDF_PATH = MODELS_DIR / "xy_machine.sdf"
@@ -113,7 +114,7 @@ class MachinePlant:
     """A finalized plant with the machine and the rotary tables, and the handles a diagram needs.
 
     ``axes_input`` (3: X, Y, Z in m), ``tables_input`` (N_j: C angles in rad),
-    ``query_output`` and ``to_pose`` are set only by :func:`add_machine_plant`.
+    ``query_output`` and ``to_pose`` are set only by :func:`AddMachinePlant`.
     """
 
     plant: MultibodyPlant
@@ -206,15 +207,15 @@ def make_machine_plant(stations_mm, scene_graph=None, cover_mm=None) -> MachineP
                         [plant.GetJointByName(TABLE_JOINT, t) for t in tables], heads, P, beam_height_m)
 
 
-def add_machine_plant(builder, stations_mm, cover_mm=None, name="plant") -> MachinePlant:
+def AddMachinePlant(builder, stations_mm, cover_mm=None, name="plant") -> MachinePlant:
     """Add the kinematic machine + tables (SceneGraph, position-to-pose) to ``builder``.
 
-    Like :func:`olti_drake.sim.plant.add_scara_plant`: ``MultibodyPositionToGeometryPose``
+    Like :func:`olti_drake.sim.plant.AddScaraPlant`: ``MultibodyPositionToGeometryPose``
     (named ``name``) poses the geometry; its q is assembled from
     ``axes_input`` (3, m) and ``tables_input`` (N_j, rad) by a Multiplexer and
     a MatrixGain holding :attr:`MachinePlant.position_selector`.
     """
-    scene_graph = builder.AddSystem(SceneGraph())
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     mp = make_machine_plant(stations_mm, scene_graph=scene_graph, cover_mm=cover_mm)
     mux = builder.AddNamedSystem(f"{name}_axes_and_tables", Multiplexer([len(AXIS_NAMES), mp.n_stations]))
     order = builder.AddNamedSystem(f"{name}_position_order", MatrixGain(mp.position_selector))
@@ -269,6 +270,7 @@ class TableSteering(LeafSystem):
 
     def __init__(self, stations_estimate_mm, zero_angle_errors_rad=None, aim_all: bool = False):
         super().__init__()
+        set_default_name(self)
         self._P = np.asarray(stations_estimate_mm, dtype=float).reshape(-1, 2)
         n = len(self._P)
         self._delta = np.zeros(n) if zero_angle_errors_rad is None else np.broadcast_to(
@@ -311,6 +313,7 @@ class StationSelector(LeafSystem):
 
     def __init__(self, n_stations: int):
         super().__init__()
+        set_default_name(self)
         self.DeclareVectorInputPort("station", 1)
         for j in range(n_stations):
             for name in self.PORTS:
@@ -320,34 +323,35 @@ class StationSelector(LeafSystem):
                 self.GetInputPort(f"{name}_{int(round(self.get_input_port(0).Eval(c)[0]))}").Eval(c)))
 
 
-class MachineRecorder(LeafSystem):
+class MachineRecorder(ReadingRecorder):
     """Takes the reading half a period after each move (the :class:`~olti_drake.sim.systems.CampaignRecorder` clock).
 
     Inputs ``station``, ``target`` (1), ``target_command`` (3, m),
     ``displacement`` (1, m), ``valid`` (1), ``position`` (3, m: the actual
-    axes, kept as truth). Each row is (station, target, x_cmd_mm, y_cmd_mm,
-    displacement_mm -- NaN when the beam is lost --, valid), appended to
-    :attr:`rows`; the actual (x, y) mm to :attr:`actual_mm`.
+    axes, kept as truth). Each record, kept in the Context
+    (:meth:`~olti_drake.sim.systems.ReadingRecorder.GetReadings`), is the row
+    (station, target, x_cmd_mm, y_cmd_mm, displacement_mm -- NaN when the beam
+    is lost --, valid) followed by the actual (x, y) mm (:meth:`GetActual`).
     """
 
     COLUMNS = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm", "valid")
 
     def __init__(self, period_s: float):
-        super().__init__()
-        self.rows: List[tuple] = []
-        self.actual_mm: List[tuple] = []
+        super().__init__(period_s, 0.5 * period_s)
         for name, size in (("station", 1), ("target", 1), ("target_command", 3), ("displacement", 1),
                            ("valid", 1), ("position", 3)):
             self.DeclareVectorInputPort(name, size)
-        self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
 
-    def _record(self, context):
+    def record(self, context):
         station, target, cmd, disp, valid, pos = (self.get_input_port(i).Eval(context)
                                                   for i in range(self.num_input_ports()))
         ok = valid[0] > 0.5
-        self.rows.append((int(round(station[0])), int(round(target[0])), cmd[0] * M_TO_MM, cmd[1] * M_TO_MM,
-                          disp[0] * M_TO_MM if ok else np.nan, int(ok)))
-        self.actual_mm.append((pos[0] * M_TO_MM, pos[1] * M_TO_MM))
+        return (int(round(station[0])), int(round(target[0])), cmd[0] * M_TO_MM, cmd[1] * M_TO_MM,
+                disp[0] * M_TO_MM if ok else np.nan, int(ok), pos[0] * M_TO_MM, pos[1] * M_TO_MM)
+
+    def GetActual(self, root_context) -> np.ndarray:
+        """(K, 2) actual (x, y) mm of the kept readings (the truth)."""
+        return np.array([r[6:] for r in self.GetReadings(root_context)], dtype=float).reshape(-1, 2)
 
 
 # --------------------------------------------------------------------------------------------
@@ -391,18 +395,18 @@ def prepare_machine(scenario: MachineScenario, budget=None, period_s: float = PE
                         run.dead_paths_mm, period_s)
 
 
-def make_machine_station(builder, setup: MachineSetup, name: str = "station"):
+def AddMachineStation(builder, setup: MachineSetup, name: str = "station"):
     """Add the simulated station (a Diagram: machine, tables, interferometers) to ``builder``.
 
     Ports -- inputs: ``target_command`` (3, m), ``table_command`` (N_j, rad),
     ``station`` (1); outputs: ``displacement`` (1, m), ``valid`` (1),
     ``miss`` (1, m) of the active station, ``direction`` (3, ±1),
-    ``position`` (3, actual axes, m), ``query_object`` (SceneGraph, for
+    ``true_position`` (3, actual axes, m; simulation only, as the SCARA station's), ``query_object`` (SceneGraph, for
     visualization). The returned system keeps the plant as ``.plant``.
     """
     s = setup.scenario
     inner = DiagramBuilder()
-    mp = add_machine_plant(inner, setup.stations_mm, cover_mm=setup.commands_mm)
+    mp = AddMachinePlant(inner, setup.stations_mm, cover_mm=setup.commands_mm)
     axes = inner.AddNamedSystem("volumetric_error_axes", VolumetricErrorAxes(s.error))
     select = inner.AddNamedSystem("station_selector", StationSelector(mp.n_stations))
     target_index = inner.AddNamedSystem("target_index", ConstantVectorSource([0.0]))
@@ -421,7 +425,7 @@ def make_machine_station(builder, setup: MachineSetup, name: str = "station"):
     for port in StationSelector.PORTS:
         inner.ExportOutput(select.GetOutputPort(port), port)
     inner.ExportOutput(axes.GetOutputPort("direction"), "direction")
-    inner.ExportOutput(axes.GetOutputPort("position"), "position")
+    inner.ExportOutput(axes.GetOutputPort("position"), "true_position")
     inner.ExportOutput(mp.query_output, "query_object")
     station = builder.AddNamedSystem(name, inner.Build())
     station.plant = mp  # keeps the plant (referenced by MultibodyPositionToGeometryPose) alive
@@ -434,7 +438,7 @@ def build_machine_diagram(setup: MachineSetup, meshcat=None, aim_all: bool = Fal
     ``meshcat``: a ``pydrake.geometry.Meshcat`` to draw the machine and tables in.
     """
     builder = DiagramBuilder()
-    station = make_machine_station(builder, setup)
+    station = AddMachineStation(builder, setup)
     seq = builder.AddNamedSystem("machine_sequencer", MachineSequencer(
         setup.commands_mm, len(setup.stations_mm), setup.period_s))
     steer = builder.AddNamedSystem("table_steering", TableSteering(
@@ -445,8 +449,9 @@ def build_machine_diagram(setup: MachineSetup, meshcat=None, aim_all: bool = Fal
         builder.Connect(seq.GetOutputPort("station"), sink.GetInputPort("station"))
     builder.Connect(seq.GetOutputPort("target"), rec.GetInputPort("target"))
     builder.Connect(steer.GetOutputPort("table_command"), station.GetInputPort("table_command"))
-    for port in ("displacement", "valid", "position"):
+    for port in ("displacement", "valid"):
         builder.Connect(station.GetOutputPort(port), rec.GetInputPort(port))
+    builder.Connect(station.GetOutputPort("true_position"), rec.GetInputPort("position"))
     if meshcat is not None:
         from pydrake.geometry import MeshcatVisualizer
 
@@ -456,9 +461,10 @@ def build_machine_diagram(setup: MachineSetup, meshcat=None, aim_all: bool = Fal
     return diagram, rec, seq
 
 
-def machine_columns(recorder: MachineRecorder) -> dict:
-    """The recorder's rows as the columns of the machine campaign (formats.md), twin dtypes."""
-    rows = np.array(recorder.rows, dtype=float).reshape(-1, len(MachineRecorder.COLUMNS))
+def machine_columns(recorder: MachineRecorder, root_context) -> dict:
+    """The recorder's rows in ``root_context`` as the columns of the machine campaign (formats.md), twin dtypes."""
+    n = len(MachineRecorder.COLUMNS)
+    rows = np.array([r[:n] for r in recorder.GetReadings(root_context)], dtype=float).reshape(-1, n)
     cols = {c: rows[:, k] for k, c in enumerate(MachineRecorder.COLUMNS)}
     for c in ("station", "target", "valid"):
         cols[c] = cols[c].astype(int)
@@ -485,6 +491,7 @@ def run_machine_campaign(scenario: MachineScenario, budget=None, period_s: float
 
     setup = prepare_machine(scenario, budget, period_s)
     diagram, rec, seq = build_machine_diagram(setup)
-    Simulator(diagram).AdvanceTo(seq.duration_s)
-    columns = machine_columns(rec)
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(seq.duration_s)
+    columns = machine_columns(rec, simulator.get_context())
     return columns, machine_truth(setup, columns)

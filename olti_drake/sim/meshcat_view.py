@@ -40,6 +40,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from olti_drake.model.scara import forward_kinematics
+from olti_drake.sim.systems import set_default_name
 
 M_TO_MM = 1e3
 #: Meshcat paths (under /drake) of the view's own objects; the plant is under /drake/visualizer.
@@ -71,6 +72,7 @@ class FinitePosition(LeafSystem):
 
     def __init__(self, n: int = 4):
         super().__init__()
+        set_default_name(self)
         self.DeclareVectorInputPort("position", n)
         self.DeclareVectorOutputPort("position", n, lambda c, o: o.SetFromVector(
             np.nan_to_num(self.get_input_port(0).Eval(c), nan=0.0)))
@@ -86,6 +88,7 @@ class BeamView(LeafSystem):
     def __init__(self, meshcat, flange_frame_id, X_FL: RigidTransform, reflector_frame_ids, publish_period_s: float,
                  prefix: str = PREFIX, radius_m: float = BEAM_RADIUS_M):
         super().__init__()
+        set_default_name(self)
         self._meshcat, self._frame, self._X_FL = meshcat, flange_frame_id, X_FL
         self._reflectors = list(reflector_frame_ids)
         self._radius = radius_m
@@ -122,27 +125,45 @@ class ErrorVectors(LeafSystem):
     adds the segment commanded -> commanded + ``scale`` (actual - commanded),
     at the flange height, red for J1 approached in +, blue in -. ``predict``
     (optional): ``(theta1_deg, theta2_deg, dir1, dir2) -> (x_mm, y_mm)`` adds
-    the model's predicted error in green. :attr:`count` is the number drawn.
+    the model's predicted error in green.
+
+    The segments live in the Context (abstract state, appended by an unrestricted
+    update), so two Simulators on one diagram each have their own:
+    :meth:`GetSegments`, :meth:`Count`. A publish a quarter period later draws
+    the newest chunk of each kind (drawing is idempotent: Meshcat shows the
+    Context last drawn).
     """
+
+    KINDS = ("forward", "reverse", "predicted")
 
     def __init__(self, meshcat, L1_mm: float, L2_mm: float, flange_frame_id, period_s: float, offset_s: float,
                  scale: float = 500.0, predict: Optional[Callable] = None, prefix: str = PREFIX):
         super().__init__()
+        set_default_name(self)
         self._meshcat, self._L, self._frame = meshcat, (L1_mm, L2_mm), flange_frame_id
         self._scale, self._predict = float(scale), predict
         self.path = f"{prefix}/errors"
-        self._segments = {"forward": [], "reverse": [], "predicted": []}
         self.DeclareVectorInputPort("joint_command", 4)
         self.DeclareVectorInputPort("direction", 4)
         self.DeclareVectorInputPort("measure", 1)
         self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
-        self.DeclarePeriodicPublishEvent(period_s, offset_s, self._add)
+        self._state = self.DeclareAbstractState(AbstractValue.Make({k: () for k in self.KINDS}))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._add)
+        self.DeclarePeriodicPublishEvent(period_s, (offset_s + 0.25 * period_s) % period_s, self._draw)
 
-    @property
-    def count(self) -> int:
-        return len(self._segments["forward"]) + len(self._segments["reverse"])
+    def _segments(self, context) -> dict:
+        return context.get_abstract_state(self._state).get_value()
 
-    def _add(self, context):
+    def GetSegments(self, root_context, kind: str) -> np.ndarray:
+        """(n, 2, 3) segments (start, end; m) of ``kind`` kept in ``root_context``."""
+        return np.array(self._segments(self.GetMyContextFromRoot(root_context))[kind]).reshape(-1, 2, 3)
+
+    def Count(self, root_context) -> int:
+        """Error vectors (forward + reverse) kept in ``root_context``: one per measured row."""
+        segments = self._segments(self.GetMyContextFromRoot(root_context))
+        return len(segments["forward"]) + len(segments["reverse"])
+
+    def _add(self, context, state):
         if self.get_input_port(2).Eval(context)[0] < 0.5:
             return
         t1, t2 = np.degrees(self.get_input_port(0).Eval(context)[:2])
@@ -151,21 +172,27 @@ class ErrorVectors(LeafSystem):
         if not np.all(np.isfinite(actual)):
             return
         command = np.append(forward_kinematics([t1], [t2], *self._L)[0][0] / M_TO_MM, actual[2])
-        self._append("forward" if d[0] > 0 else "reverse", command, actual)
+        segments = dict(self._segments(context))
+        self._append(segments, "forward" if d[0] > 0 else "reverse", command, actual)
         if self._predict is not None:
             x, y = self._predict(t1, t2, d[0], d[1])
-            self._append("predicted", command, np.array([x / M_TO_MM, y / M_TO_MM, actual[2]]))
+            self._append(segments, "predicted", command, np.array([x / M_TO_MM, y / M_TO_MM, actual[2]]))
+        state.get_mutable_abstract_state(self._state).set_value(segments)
 
-    def _append(self, kind: str, command, target):
-        segments = self._segments[kind]
+    def _append(self, segments: dict, kind: str, command, target):
         end = command + self._scale * (np.asarray(target, dtype=float) - command)
         end[2] = command[2]
-        segments.append((command, end))
-        first = (len(segments) - 1) // CHUNK * CHUNK
-        chunk = np.array(segments[first:])
-        rgba = {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA, "predicted": PREDICTED_RGBA}[kind]
-        self._meshcat.SetLineSegments(f"{self.path}/{kind}/{first // CHUNK:03d}", chunk[:, 0].T.copy(),
-                                      chunk[:, 1].T.copy(), 2.0, rgba)
+        segments[kind] = segments[kind] + ((tuple(command), tuple(end)),)
+
+    def _draw(self, context):
+        rgba = {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA, "predicted": PREDICTED_RGBA}
+        for kind, segments in self._segments(context).items():
+            if not segments:
+                continue
+            first = (len(segments) - 1) // CHUNK * CHUNK
+            chunk = np.array(segments[first:], dtype=float)
+            self._meshcat.SetLineSegments(f"{self.path}/{kind}/{first // CHUNK:03d}", chunk[:, 0].T.copy(),
+                                          chunk[:, 1].T.copy(), 2.0, rgba[kind])
 
 
 def add_campaign_view(builder, meshcat, setup, station, sequencer, steering, error_scale: float = 500.0,
@@ -180,11 +207,11 @@ def add_campaign_view(builder, meshcat, setup, station, sequencer, steering, err
     if station.HasOutputPort("query_object") and plant is not None:
         query = station.GetOutputPort("query_object")
     else:  # emulated or hardware: a view-only plant posed by the encoder angles
-        from olti_drake.sim.plant import add_scara_plant
-        plant = add_scara_plant(builder, r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg,
+        from olti_drake.sim.plant import AddScaraPlant
+        plant = AddScaraPlant(builder, r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg,
                                 tuple(r.beam_offset_mm), name="view_plant")
         finite = builder.AddNamedSystem("view_position", FinitePosition())
-        builder.Connect(station.GetOutputPort("position"), finite.get_input_port())
+        builder.Connect(station.GetOutputPort("measured_position"), finite.get_input_port())
         builder.Connect(finite.get_output_port(), plant.position_input)
         query = plant.query_output
     params = MeshcatVisualizerParams()

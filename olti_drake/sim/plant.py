@@ -35,7 +35,7 @@ class ScaraPlant:
     """A finalized SCARA plant and the handles a diagram needs.
 
     ``position_input``, ``query_output`` and ``to_pose`` are set only by
-    :func:`add_scara_plant`.
+    :func:`AddScaraPlant`.
     """
 
     plant: MultibodyPlant
@@ -181,7 +181,7 @@ def make_scara_plant(L1_mm, L2_mm, reflectors_mm, theta40_deg=0.0,
     return ScaraPlant(plant, scene_graph, flange, laser_head, bodies)
 
 
-def add_scara_plant(builder, L1_mm, L2_mm, reflectors_mm, theta40_deg=0.0,
+def AddScaraPlant(builder, L1_mm, L2_mm, reflectors_mm, theta40_deg=0.0,
                     beam_offset_mm=(0.0, 0.0), name="plant") -> ScaraPlant:
     """Add the kinematic SCARA (SceneGraph + position-to-pose system) to ``builder``.
 
@@ -191,7 +191,7 @@ def add_scara_plant(builder, L1_mm, L2_mm, reflectors_mm, theta40_deg=0.0,
     and poses the geometry in SceneGraph, whose QueryObject is on
     ``query_output``. The returned object keeps the plant alive.
     """
-    scene_graph = builder.AddSystem(SceneGraph())
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     sp = make_scara_plant(L1_mm, L2_mm, reflectors_mm, theta40_deg, beam_offset_mm,
                           scene_graph=scene_graph)
     to_pose = builder.AddNamedSystem(name, MultibodyPositionToGeometryPose(sp.plant))

@@ -14,15 +14,18 @@ steps to the next plan row (move), and half a period later the
 
 from __future__ import annotations
 
-from typing import Callable, List, NamedTuple, Optional, Sequence
+import re
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
+from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
-from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+from pydrake.systems.framework import BasicVector, BasicVector_, LeafSystem, LeafSystem_, ValueProducer
+from pydrake.systems.scalar_conversion import TemplateSystem
 
 from olti_drake.io.budget import Budget
-from olti_drake.model.errormap import approach_directions
+from olti_drake.model.errormap import ErrorMap, approach_directions
 from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
 from olti_drake.model.steering import beam_command_deg
 
@@ -43,13 +46,43 @@ class ReadStatus(NamedTuple):
     rezeros: int = 0
 
 
+def set_default_name(system) -> None:
+    """Name a system after its class, snake_case (``ErrorMapJoint`` -> ``error_map_joint``).
+
+    Every system of the package calls this in its constructor, so a diagram reads the same
+    whether a builder used ``AddSystem`` or ``AddNamedSystem``. A scalar-type template's
+    instantiation (``ErrorMapJoint_[AutoDiffXd]``) is named after its template.
+    """
+    name = type(system).__name__.split("_\U0001d4e3")[0]  # TemplateSystem instantiations: Name_𝓣T𝓤
+    system.set_name(re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower())
+
+
 def _deg_mm(values, revolute):
-    """Port values (rad, m) -> (deg, mm), per axis."""
-    return np.where(revolute, np.degrees(values), np.asarray(values) * M_TO_MM)
+    """Port values (rad, m) -> (deg, mm), per axis; float or AutoDiffXd (object) arrays."""
+    values = np.asarray(values)
+    if values.dtype == object:
+        return values * np.where(revolute, 180.0 / np.pi, M_TO_MM)
+    return np.where(revolute, np.degrees(values), values * M_TO_MM)
 
 
-class ApproachErrorSystem(LeafSystem):
-    """Commanded -> actual positions through an error model that depends on the approach direction.
+def _si(values, revolute):
+    """(deg, mm) -> port values (rad, m), per axis; float or AutoDiffXd (object) arrays."""
+    values = np.asarray(values)
+    if values.dtype == object:
+        return values * np.where(revolute, np.pi / 180.0, 1.0 / M_TO_MM)
+    return np.where(revolute, np.radians(values), values / M_TO_MM)
+
+
+def _value(values) -> np.ndarray:
+    """The float values of a float or AutoDiffXd array (derivatives dropped)."""
+    values = np.asarray(values)
+    if values.dtype != object:
+        return values.astype(float)
+    return np.array([v.value() if hasattr(v, "value") else float(v) for v in values.ravel()]).reshape(values.shape)
+
+
+class _ApproachError:
+    """The approach-direction bookkeeping of :class:`ApproachErrorSystem` for any scalar type.
 
     Input ``command`` (n): commanded positions (rad for revolute axes, m
     otherwise). State: the last command and the approach direction of every
@@ -57,12 +90,13 @@ class ApproachErrorSystem(LeafSystem):
     not move keeps its direction). Outputs ``position`` (n): the actual
     positions; ``direction`` (n): ±1. Outputs combine the stored state with
     the *current* input, so they are right at the instant a command changes,
-    whatever the event ordering. Subclasses give :meth:`actual` in deg/mm.
+    whatever the event ordering. Directions are decided on values (they are
+    ±1, not differentiable); positions keep the command's derivatives.
     """
 
-    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
-        super().__init__()
+    def _declare_approach(self, revolute: Sequence[bool], initial_direction: float, T=float):
         self._revolute = np.asarray(revolute, dtype=bool)
+        self._initial_direction, self._T = float(initial_direction), T
         n = self._n = len(self._revolute)
         self.DeclareVectorInputPort("command", n)
         self.DeclareDiscreteState(np.concatenate([np.full(n, np.nan), np.full(n, initial_direction)]))
@@ -74,42 +108,97 @@ class ApproachErrorSystem(LeafSystem):
         """Actual positions (n,) deg/mm of ``command`` (n,) deg/mm approached in ``direction`` (n,)."""
         raise NotImplementedError
 
+    def _actual(self, context, command, direction):
+        return self.actual(command, direction)
+
     def _command_and_direction(self, context):
         cmd = _deg_mm(self.get_input_port(0).Eval(context), self._revolute)
-        s = context.get_discrete_state_vector().value()
-        return cmd, approach_directions(cmd[None], s[:self._n], s[self._n:])[0]
+        s = _value(context.get_discrete_state_vector().CopyToVector())
+        return cmd, approach_directions(_value(cmd)[None], s[:self._n], s[self._n:])[0]
 
     def _remember(self, context, discrete_state):
         cmd, direction = self._command_and_direction(context)
-        discrete_state.set_value(np.concatenate([cmd, direction]))
+        discrete_state.set_value(np.array([self._T(v) for v in np.concatenate([_value(cmd), direction])],
+                                          dtype=object if self._T is not float else float))
 
-    def _calc_direction(self, context, output: BasicVector):
+    def _calc_direction(self, context, output):
         output.SetFromVector(self._command_and_direction(context)[1])
 
-    def _calc_position(self, context, output: BasicVector):
-        actual = self.actual(*self._command_and_direction(context))
-        output.SetFromVector(np.where(self._revolute, np.radians(actual), actual / M_TO_MM))
+    def _calc_position(self, context, output):
+        cmd, direction = self._command_and_direction(context)
+        output.SetFromVector(_si(self._actual(context, cmd, direction), self._revolute))
 
 
-class ErrorMapJoint(ApproachErrorSystem):
-    """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+class ApproachErrorSystem(_ApproachError, LeafSystem):
+    """Commanded -> actual positions through an error model that depends on the approach direction.
 
-    One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
-    continuous truth, or None for a perfect axis); ports as
-    :class:`ApproachErrorSystem`.
+    Ports and state as :class:`_ApproachError`; subclasses give :meth:`actual` in deg/mm.
     """
 
-    def __init__(self, deviations: Sequence[Optional[object]], revolute: Sequence[bool],
-                 initial_direction: float = 1.0):
-        super().__init__(revolute, initial_direction)
-        self._dev = list(deviations)
+    def __init__(self, revolute: Sequence[bool], initial_direction: float = 1.0):
+        LeafSystem.__init__(self)
+        set_default_name(self)
+        self._declare_approach(revolute, initial_direction)
 
-    def actual(self, command, direction) -> np.ndarray:
-        out = command.copy()
-        for i, dev in enumerate(self._dev):
-            if dev is not None:
-                out[i] += dev(command[i:i + 1], direction[i:i + 1])[0]
-        return out
+
+@TemplateSystem.define("ErrorMapJoint_", T_list=(float, AutoDiffXd))
+def ErrorMapJoint_(T):
+    """ErrorMapJoint for scalar type T (float or AutoDiffXd): ``ErrorMapJoint_[T]``.
+
+    Not symbolic: the interpolation picks nodes by the command's value (a Diagram would
+    otherwise try ``Expression`` to find its feedthrough).
+    """
+
+    class Impl(_ApproachError, LeafSystem_[T]):
+        """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
+
+        One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
+        continuous truth, or None for a perfect axis); ports as
+        :class:`ApproachErrorSystem`. The node values of every ``ErrorMap`` axis are a
+        numeric Parameter of the Context, [forward..., reverse...] deg (Eq. 6 order;
+        default: the map's): :meth:`SetMapValues` / :meth:`GetMapValues`. With
+        ``ToAutoDiffXd()`` a reading is differentiable with respect to them; the
+        interpolation weights (Eq. 9) are taken at the command's value (the map's
+        slope in θ* is not carried), a continuous truth adds a constant.
+        """
+
+        def _construct(self, deviations, revolute, initial_direction=1.0, converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._dev = list(deviations)
+            self._declare_approach(revolute, initial_direction, T)
+            self._maps = {i: self.DeclareNumericParameter(BasicVector_[T](dev.values.tolist()))
+                          for i, dev in enumerate(self._dev) if isinstance(dev, ErrorMap)}
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other._dev, other._revolute, other._initial_direction, converter=converter)
+
+        def SetMapValues(self, context, axis: int, values_deg) -> None:
+            """Set axis ``axis``'s node values (2N,) deg, [forward..., reverse...], in ``context``."""
+            context.get_mutable_numeric_parameter(self._maps[axis]).SetFromVector(values_deg)
+
+        def GetMapValues(self, context, axis: int) -> np.ndarray:
+            """Axis ``axis``'s node values (2N,) deg in ``context``."""
+            return context.get_numeric_parameter(self._maps[axis]).CopyToVector()
+
+        def _actual(self, context, command, direction):
+            out = command.copy()
+            for i, dev in enumerate(self._dev):
+                if dev is None:
+                    continue
+                theta = _value(command[i:i + 1])
+                if i in self._maps:
+                    (c0, c1), (w0, w1) = (x[0] for x in dev.interpolation(theta, direction[i:i + 1]))
+                    v = self.GetMapValues(context, i)
+                    out[i] = out[i] + (w0 * v[c0] + w1 * v[c1])
+                else:
+                    out[i] = out[i] + dev(theta, direction[i:i + 1])[0]
+            return out
+
+    return Impl
+
+
+ErrorMapJoint = ErrorMapJoint_[None]
 
 
 class BeamSteering(LeafSystem):
@@ -118,24 +207,38 @@ class BeamSteering(LeafSystem):
     Inputs ``arm_command`` (2): θ1*, θ2* (rad); ``reflector`` (1): index j.
     Output ``joint_command`` (4): θ1*, θ2*, J3 stroke (m), θ4* (rad).
     Uses the nominal link lengths (mm) -- the command position -- and the
-    estimates of the reflector positions (mm) and θ40 (deg).
+    estimates of the reflector positions (mm) and θ40 (deg); the estimates are a
+    numeric Parameter of the Context [P0x, P0y, P1x, ..., θ40] (default: the
+    constructor's): :meth:`SetReflectorEstimates` / :meth:`GetReflectorEstimates`.
     """
 
     def __init__(self, L1_mm: float, L2_mm: float, reflectors_estimate_mm, theta40_estimate_deg: float,
                  stroke_m: float = 0.0):
         super().__init__()
+        set_default_name(self)
         self._L = (L1_mm, L2_mm)
-        self._P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
-        self._theta40 = theta40_estimate_deg
+        P = np.asarray(reflectors_estimate_mm, dtype=float).reshape(-1, 2)
+        self._estimates = self.DeclareNumericParameter(BasicVector(np.append(P.ravel(), theta40_estimate_deg)))
         self._stroke = stroke_m
         self.DeclareVectorInputPort("arm_command", 2)
         self.DeclareVectorInputPort("reflector", 1)
         self.DeclareVectorOutputPort("joint_command", 4, self._calc)
 
+    def SetReflectorEstimates(self, context, reflectors_mm, theta40_deg: float) -> None:
+        """Set the estimated reflector positions (Nt, 2) mm and θ40 (deg) used in ``context``."""
+        context.get_mutable_numeric_parameter(self._estimates).SetFromVector(
+            np.append(np.asarray(reflectors_mm, dtype=float).ravel(), theta40_deg))
+
+    def GetReflectorEstimates(self, context):
+        """(reflectors (Nt, 2) mm, θ40 deg) used in ``context``."""
+        v = context.get_numeric_parameter(self._estimates).CopyToVector()
+        return v[:-1].reshape(-1, 2), float(v[-1])
+
     def _calc(self, context, output: BasicVector):
         t1, t2 = np.degrees(self.get_input_port(0).Eval(context))
         j = int(self.get_input_port(1).Eval(context)[0])
-        t4 = beam_command_deg(t1, t2, self._P[j], *self._L, self._theta40)
+        P, theta40 = self.GetReflectorEstimates(context)
+        t4 = beam_command_deg(t1, t2, P[j], *self._L, theta40)
         output.SetFromVector([np.radians(t1), np.radians(t2), self._stroke, np.radians(float(np.ravel(t4)[0]))])
 
 
@@ -152,16 +255,19 @@ class LaserInterferometer(LeafSystem):
 
     Noise is a deterministic function of (seed, sample count): the count is a
     discrete state stepped every ``period_s``, so re-evaluating a port gives
-    the same reading and the same seed gives the same campaign.
+    the same reading and the same seed gives the same campaign. The dead paths
+    (mm) are a numeric Parameter of the Context (default: the constructor's):
+    :meth:`SetDeadPaths` / :meth:`GetDeadPaths`.
     """
 
     def __init__(self, flange_frame_id, X_FL, reflector_frame_ids, dead_paths_mm,
                  options: InterferometerOptions, budget: Budget, seed: int, period_s: float):
         super().__init__()
+        set_default_name(self)
         self._frame = flange_frame_id
         self._X_FL = X_FL
         self._reflectors = list(reflector_frame_ids)
-        self._d0 = np.asarray(dead_paths_mm, dtype=float)
+        self._dead_paths = self.DeclareNumericParameter(BasicVector(np.asarray(dead_paths_mm, dtype=float)))
         self._options, self._budget, self._seed = options, budget, int(seed)
         self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.DeclareVectorInputPort("reflector", 1)
@@ -173,6 +279,14 @@ class LaserInterferometer(LeafSystem):
         for i, name in enumerate(("displacement", "valid", "miss")):
             self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
         self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+    def SetDeadPaths(self, context, dead_paths_mm) -> None:
+        """Set the counter zero d0_j (mm) of every reflector's run in ``context`` (000 Eq. 5)."""
+        context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+    def GetDeadPaths(self, context) -> np.ndarray:
+        """The dead paths d0_j (mm) used in ``context``."""
+        return context.get_numeric_parameter(self._dead_paths).CopyToVector()
 
     def _calc_status(self, context, value):
         valid = self._reading.Eval(context)[1] > 0.5
@@ -190,7 +304,7 @@ class LaserInterferometer(LeafSystem):
         x_axis = X_WL.rotation().matrix()[:2, 0]
         angle = np.degrees(np.arctan2(x_axis[1], x_axis[0]))
         rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self._d0[j]],
+        reading, valid, miss = simulate_readings(origin[None], [angle], P[None], [self.GetDeadPaths(context)[j]],
                                                  self._options, self._budget, rng)
         value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
 
@@ -204,6 +318,7 @@ class RowSequencer(LeafSystem):
 
     def __init__(self, tables: dict, period_s: float):
         super().__init__()
+        set_default_name(self)
         self.period_s = period_s
         self.n_steps = len(next(iter(tables.values())))
         self.DeclareDiscreteState(1)
@@ -243,41 +358,77 @@ class PlanSequencer(RowSequencer):
             "row": np.tile(np.arange(k, dtype=float), n_reflectors)}, period_s)
 
 
-class CampaignRecorder(LeafSystem):
+class ReadingRecorder(LeafSystem):
+    """Keeps one record per reading *in the Context* (abstract state), never in the system.
+
+    At ``offset_s`` in every ``period_s`` an unrestricted update asks :meth:`record`
+    for the record of this instant (None: nothing to keep) and appends it to the
+    context's tuple of records, so each Simulator (each Context) of one diagram
+    has its own readings: two Simulators on one diagram do not double them.
+    :meth:`GetReadings` returns them. ``sink(record, context)``, if given, is
+    told of each record as it is taken (``olti run`` writes it to disk there).
+    """
+
+    def __init__(self, period_s: float, offset_s: float):
+        super().__init__()
+        set_default_name(self)
+        self._records = self.DeclareAbstractState(AbstractValue.Make(()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._update)
+
+    def record(self, context) -> Optional[tuple]:
+        """The record of the reading at this instant, or None."""
+        raise NotImplementedError
+
+    def on_record(self, context, record) -> None:
+        """Told of every new record (after it is computed, before it is in the state)."""
+
+    def _update(self, context, state):
+        record = self.record(context)
+        if record is None:
+            return
+        records = context.get_abstract_state(self._records).get_value()
+        state.get_mutable_abstract_state(self._records).set_value(records + (record,))
+        self.on_record(context, record)
+
+    def GetReadings(self, root_context) -> tuple:
+        """The records kept so far in ``root_context`` (the diagram's context, or this system's own)."""
+        return self.GetMyContextFromRoot(root_context).get_abstract_state(self._records).get_value()
+
+
+class CampaignRecorder(ReadingRecorder):
     """Takes the reading half a period after each move and keeps measured rows.
 
     Inputs ``joint_command`` (4), ``direction`` (4), ``displacement`` (1, m),
     ``valid`` (1), ``reflector`` (1), ``measure`` (1), ``row`` (1), and
     optionally ``status`` (a :class:`ReadStatus`). Each kept row is
     (reflector, θ1*, θ2*, dir1, dir2, displacement_mm, θ4*, valid, plan row)
-    in mm/deg, appended to :attr:`rows` and handed to ``sink(row, status)``
-    if given (``olti run`` writes it to disk there, as it arrives).
+    in mm/deg, kept in the Context (:meth:`GetReadings`) and handed to
+    ``sink(row, status)`` if given (``olti run`` writes it to disk there, as it arrives).
     """
 
     COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm",
                "theta4_deg", "valid", "plan_row")
 
     def __init__(self, period_s: float, sink: Optional[Callable[[tuple, ReadStatus], None]] = None):
-        super().__init__()
-        self.rows: List[tuple] = []
+        super().__init__(period_s, 0.5 * period_s)
         self.sink = sink
         for name, size in (("joint_command", 4), ("direction", 4), ("displacement", 1), ("valid", 1),
                            ("reflector", 1), ("measure", 1), ("row", 1)):
             self.DeclareVectorInputPort(name, size)
         self._status = self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
-        self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._record)
 
-    def _record(self, context):
+    def record(self, context):
         u = [self.get_input_port(i).Eval(context) for i in range(7)]
         cmd, direction, disp, valid, refl, measure, row = u
         if measure[0] < 0.5:
-            return
+            return None
         ok = valid[0] > 0.5
         # A lost beam has no reading: NaN, never a plausible-looking number.
-        record = (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
-                  int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
-                  int(ok), int(row[0]))
-        self.rows.append(record)
+        return (int(refl[0]), np.degrees(cmd[0]), np.degrees(cmd[1]), int(direction[0]),
+                int(direction[1]), disp[0] * M_TO_MM if ok else np.nan, np.degrees(cmd[3]),
+                int(ok), int(row[0]))
+
+    def on_record(self, context, record):
         if self.sink is not None:
             status = self._status.Eval(context) if self._status.HasValue(context) else ReadStatus()
             self.sink(record, status)

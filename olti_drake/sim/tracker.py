@@ -16,6 +16,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from olti_drake.model.errormap import approach_directions
 from olti_drake.model.scara import DEG, forward_kinematics, inverse_kinematics
+from olti_drake.sim.systems import set_default_name
 
 
 @dataclass
@@ -143,6 +144,7 @@ class LaserTracker(LeafSystem):
     def __init__(self, spec: LaserTrackerSpec, L1_mm: float, L2_mm: float, seed: int,
                  period_s: float = 1.0):
         super().__init__()
+        set_default_name(self)
         spec.validate()
         if int(seed) != seed or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
