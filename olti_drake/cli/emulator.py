@@ -11,7 +11,7 @@ import signal
 import sys
 import time
 
-from olti_drake.cli import args as cliargs
+import olti_drake.cli.args as cliargs
 from olti_drake.hardware.emulator import DEFAULT_ENCODER_RESOLUTION, Emulator, Faults
 
 

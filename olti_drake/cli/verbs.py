@@ -11,7 +11,7 @@ import os
 import sys
 import time
 
-from olti_drake.cli import args as cliargs
+import olti_drake.cli.args as cliargs
 
 EXIT_BAD_INPUT = 2
 
