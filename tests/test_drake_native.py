@@ -124,3 +124,21 @@ def test_reflector_estimates_and_dead_paths_are_context_parameters():
     # A fresh context has the defaults again: the parameters are per context, not on the system.
     np.testing.assert_array_equal(steer.GetReflectorEstimates(
         steer.GetMyContextFromRoot(diagram.CreateDefaultContext()))[0], setup.reflectors_estimate_mm)
+
+
+def test_record_log_copies_share_storage_and_fork_on_a_divergent_append():
+    """The recorders' abstract state: copying is O(1) (Drake deep-copies Python state on every update),
+    yet each copy keeps its own records: an append to an older copy forks instead of leaking."""
+    import copy
+
+    from olti_drake.sim.systems import RecordLog
+
+    a = RecordLog().appended((1,)).appended((2,))
+    b = copy.deepcopy(a)
+    assert b._items is a._items and list(b) == [(1,), (2,)]
+    a2 = a.appended((3,))           # the tip extends the shared list in place
+    b2 = b.appended((4,))           # b is no longer the tip: it forks
+    assert list(a2) == [(1,), (2,), (3,)] and list(b2) == [(1,), (2,), (4,)]
+    assert list(a) == list(b) == [(1,), (2,)] and len(a) == 2 and a[-1] == (2,) and a[0:1] == [(1,)]
+    with pytest.raises(IndexError):
+        a[2]

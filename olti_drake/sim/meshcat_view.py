@@ -40,7 +40,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from olti_drake.model.scara import forward_kinematics
-from olti_drake.sim.systems import set_default_name
+from olti_drake.sim.systems import RecordLog, set_default_name
 
 M_TO_MM = 1e3
 #: Meshcat paths (under /drake) of the view's own objects; the plant is under /drake/visualizer.
@@ -147,7 +147,7 @@ class ErrorVectors(LeafSystem):
         self.DeclareVectorInputPort("direction", 4)
         self.DeclareVectorInputPort("measure", 1)
         self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
-        self._state = self.DeclareAbstractState(AbstractValue.Make({k: () for k in self.KINDS}))
+        self._state = self.DeclareAbstractState(AbstractValue.Make({k: RecordLog() for k in self.KINDS}))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._add)
         self.DeclarePeriodicPublishEvent(period_s, (offset_s + 0.25 * period_s) % period_s, self._draw)
 
@@ -156,7 +156,7 @@ class ErrorVectors(LeafSystem):
 
     def GetSegments(self, root_context, kind: str) -> np.ndarray:
         """(n, 2, 3) segments (start, end; m) of ``kind`` kept in ``root_context``."""
-        return np.array(self._segments(self.GetMyContextFromRoot(root_context))[kind]).reshape(-1, 2, 3)
+        return np.array(list(self._segments(self.GetMyContextFromRoot(root_context))[kind])).reshape(-1, 2, 3)
 
     def Count(self, root_context) -> int:
         """Error vectors (forward + reverse) kept in ``root_context``: one per measured row."""
@@ -182,7 +182,7 @@ class ErrorVectors(LeafSystem):
     def _append(self, segments: dict, kind: str, command, target):
         end = command + self._scale * (np.asarray(target, dtype=float) - command)
         end[2] = command[2]
-        segments[kind] = segments[kind] + ((tuple(command), tuple(end)),)
+        segments[kind] = segments[kind].appended((tuple(command), tuple(end)))
 
     def _draw(self, context):
         rgba = {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA, "predicted": PREDICTED_RGBA}

@@ -358,6 +358,50 @@ class PlanSequencer(RowSequencer):
             "row": np.tile(np.arange(k, dtype=float), n_reflectors)}, period_s)
 
 
+class RecordLog:
+    """An append-only sequence of records held in a Context's abstract state, cheap to copy.
+
+    Drake copies a Python abstract state value with ``copy.deepcopy`` whenever it updates or clones
+    state: a tuple of n records made every step O(n) and the campaign O(n²) (4x slower). A log is a
+    prefix of a list that its copies share (records are immutable tuples): a copy is O(1), an append
+    at the tip extends the shared list, and an append to an older copy (another context, or a
+    discarded update) forks it, so every context keeps its own readings.
+    """
+
+    __slots__ = ("_items", "_n")
+
+    def __init__(self, items=None, n: int = 0):
+        self._items = [] if items is None else items
+        self._n = n
+
+    def appended(self, record) -> "RecordLog":
+        """This log with ``record`` added (this one is left as it was)."""
+        items = self._items if self._n == len(self._items) else self._items[:self._n]
+        items.append(record)
+        return RecordLog(items, self._n + 1)
+
+    def __deepcopy__(self, memo) -> "RecordLog":
+        return RecordLog(self._items, self._n)
+
+    __copy__ = lambda self: RecordLog(self._items, self._n)  # noqa: E731
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, key):
+        if isinstance(key, slice):
+            return self._items[slice(*key.indices(self._n))]
+        if not -self._n <= key < self._n:
+            raise IndexError(key)
+        return self._items[key % self._n]
+
+    def __iter__(self):
+        return iter(self._items[:self._n])
+
+    def __bool__(self) -> bool:
+        return self._n > 0
+
+
 class ReadingRecorder(LeafSystem):
     """Keeps one record per reading *in the Context* (abstract state), never in the system.
 
@@ -372,7 +416,7 @@ class ReadingRecorder(LeafSystem):
     def __init__(self, period_s: float, offset_s: float):
         super().__init__()
         set_default_name(self)
-        self._records = self.DeclareAbstractState(AbstractValue.Make(()))
+        self._records = self.DeclareAbstractState(AbstractValue.Make(RecordLog()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._update)
 
     def record(self, context) -> Optional[tuple]:
@@ -387,12 +431,12 @@ class ReadingRecorder(LeafSystem):
         if record is None:
             return
         records = context.get_abstract_state(self._records).get_value()
-        state.get_mutable_abstract_state(self._records).set_value(records + (record,))
+        state.get_mutable_abstract_state(self._records).set_value(records.appended(record))
         self.on_record(context, record)
 
     def GetReadings(self, root_context) -> tuple:
         """The records kept so far in ``root_context`` (the diagram's context, or this system's own)."""
-        return self.GetMyContextFromRoot(root_context).get_abstract_state(self._records).get_value()
+        return tuple(self.GetMyContextFromRoot(root_context).get_abstract_state(self._records).get_value())
 
 
 class CampaignRecorder(ReadingRecorder):
