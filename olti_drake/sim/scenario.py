@@ -224,25 +224,16 @@ class Faults:
 
 
 @dataclass
-class Emulated:
+class Emulated(Faults):
     """The station is the in-process device emulator (docs/emulator.md), driven over its pseudo-terminals.
 
-    ``speed``: ``fast`` or ``realistic``; the fault fields are those of
-    :class:`Faults`; ``timeout_s`` and ``retries`` are the
-    host transport's (docs/protocol.md); ``policy`` what the station does on
-    beam loss and alarms.
+    ``speed``: ``fast`` or ``realistic``; the fault switches are the fields it takes from
+    :class:`Faults` (flat in the YAML: ``!Emulated {beam_loss: 0.02}``); ``timeout_s`` and ``retries``
+    are the host transport's (docs/protocol.md); ``policy`` what the station does on beam loss and
+    alarms.
     """
 
     speed: str = "fast"
-    drop: float = 0.0
-    garble: float = 0.0
-    nak_crc: float = 0.0
-    bad_crc: float = 0.0
-    partial: float = 0.0
-    latency_s: float = 0.0
-    beam_loss: float = 0.0
-    alarm_at: Optional[int] = None
-    disconnect_after: Optional[int] = None
     latch_beam_loss: bool = False
     timeout_s: float = 1.0
     retries: int = 2
@@ -250,7 +241,7 @@ class Emulated:
 
     def faults(self):
         """The fault fields as the emulator's :class:`Faults`, validated by it."""
-        return Faults(**{f.name: getattr(self, f.name) for f in fields(Faults) if hasattr(self, f.name)}).validate()
+        return Faults(**{f.name: getattr(self, f.name) for f in fields(Faults)}).validate()
 
 
 @dataclass
