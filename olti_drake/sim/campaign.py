@@ -3,8 +3,10 @@
 ``AddSimulatedStation`` adds the simulated *station* -- the robot and its instrument:
 ErrorMapJoint -> SCARA MultibodyPlant (through SceneGraph) -> LaserInterferometer
 -- as one Drake Diagram with named ports, so a hardware station with the same
-ports can stand in for it. ``build_campaign_diagram`` wires the measurement
-procedure around it: PlanSequencer -> BeamSteering -> station -> CampaignRecorder.
+ports can stand in for it (``geometry=False``: the kinematic station, no SceneGraph, which
+converts with ``ToAutoDiffXd()``: readings differentiable with respect to the map nodes).
+``build_campaign_diagram`` wires the measurement procedure around it: PlanSequencer ->
+BeamSteering -> station -> CampaignRecorder.
 
 Units: mm and degrees in files and in :class:`Campaign`; SI on Drake ports.
 """
@@ -113,7 +115,7 @@ def _dead_paths(scenario, plan, robot, P, P_est, theta40_est):
     return along if scenario.interferometer.cosine_error else np.hypot(along, miss)
 
 
-def AddSimulatedStation(builder, setup: Setup, name: str = "station"):
+def AddSimulatedStation(builder, setup: Setup, name: str = "station", geometry: bool = True):
     """Add the simulated station (a Diagram) to ``builder`` and return it.
 
     Ports -- inputs: ``joint_command`` (4: θ1*, θ2* rad, J3 m, θ4* rad),
@@ -127,25 +129,40 @@ def AddSimulatedStation(builder, setup: Setup, name: str = "station"):
 
     Which station a scenario uses (simulated, emulated, hardware) is decided
     above this module, by :func:`olti_drake.hardware.station.AddStation`.
+
+    ``geometry=False``: the kinematic station, without SceneGraph (no ``query_object``): the
+    :class:`~olti_drake.sim.systems.KinematicLaserInterferometer` takes the actual positions and
+    computes the laser head pose with the plant's own kinematics, so the station converts with
+    ``ToAutoDiffXd()`` and a reading is differentiable with respect to the map nodes (the
+    ErrorMapJoint Parameters); same readings as the geometry station.
     """
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import PassThrough
 
-    from olti_drake.sim.plant import AddScaraPlant
-    from olti_drake.sim.systems import ErrorMapJoint, LaserInterferometer
+    from olti_drake.sim.plant import AddScaraPlant, make_scara_plant
+    from olti_drake.sim.systems import ErrorMapJoint, KinematicLaserInterferometer, LaserInterferometer
 
     s, r = setup.scenario, setup.scenario.robot
     inner = DiagramBuilder()
-    plant = AddScaraPlant(inner, r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg,
-                          tuple(r.beam_offset_mm))
+    plant_args = (r.L1_mm, r.L2_mm, setup.reflectors_mm, r.theta40_deg, tuple(r.beam_offset_mm))
+    plant = AddScaraPlant(inner, *plant_args) if geometry else make_scara_plant(*plant_args)
     joints = inner.AddSystem(ErrorMapJoint([r.J1, r.J2, None, r.J4], revolute=[True, True, False, True]))
-    laser = inner.AddSystem(LaserInterferometer(
-        plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
-        s.interferometer, setup.budget, seed=stream_seed(s.seed, "laser"), period_s=s.period_s))
+    noise = (s.interferometer, setup.budget)
+    seeding = dict(seed=stream_seed(s.seed, "laser"), period_s=s.period_s)
+    if geometry:
+        laser = inner.AddSystem(LaserInterferometer(
+            plant.flange_frame_id, plant.laser_head_in_flange, plant.reflector_frame_ids, setup.dead_paths_mm,
+            *noise, **seeding))
+    else:
+        laser = inner.AddSystem(KinematicLaserInterferometer(
+            plant.plant, plant.reflector_positions_m()[:, :2] * 1e3, setup.dead_paths_mm, *noise, **seeding))
     command = inner.AddNamedSystem("joint_command", PassThrough(4))
     inner.Connect(command.get_output_port(), joints.GetInputPort("command"))
-    inner.Connect(joints.GetOutputPort("position"), plant.position_input)
-    inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
+    if geometry:
+        inner.Connect(joints.GetOutputPort("position"), plant.position_input)
+        inner.Connect(plant.query_output, laser.GetInputPort("geometry_query"))
+    else:
+        inner.Connect(joints.GetOutputPort("position"), laser.GetInputPort("position"))
     inner.ExportInput(command.get_input_port(), "joint_command")
     inner.ExportInput(laser.GetInputPort("reflector"), "reflector")
     for port in ("displacement", "valid", "miss", "status"):
@@ -153,9 +170,10 @@ def AddSimulatedStation(builder, setup: Setup, name: str = "station"):
     inner.ExportOutput(joints.GetOutputPort("direction"), "direction")
     inner.ExportOutput(command.get_output_port(), "measured_position")
     inner.ExportOutput(joints.GetOutputPort("position"), "true_position")
-    inner.ExportOutput(plant.query_output, "query_object")
+    if geometry:
+        inner.ExportOutput(plant.query_output, "query_object")
     station = builder.AddNamedSystem(name, inner.Build())
-    station.plant = plant  # keeps the plant (referenced by MultibodyPositionToGeometryPose) alive
+    station.plant = plant  # keeps the plant (referenced by MultibodyPositionToGeometryPose and the laser) alive
     return station
 
 

@@ -309,6 +309,106 @@ class LaserInterferometer(LeafSystem):
         value.set_value(np.array([reading[0] / M_TO_MM, float(valid[0]), miss[0] / M_TO_MM]))
 
 
+@TemplateSystem.define("KinematicLaserInterferometer_", T_list=(float, AutoDiffXd))
+def KinematicLaserInterferometer_(T):
+    """KinematicLaserInterferometer for scalar type T (float or AutoDiffXd).
+
+    Not symbolic: noise, quantization and beam loss are decided on values.
+    """
+
+    class Impl(LeafSystem_[T]):
+        """The laser range sensor of :class:`LaserInterferometer` without SceneGraph (000 §2, §5).
+
+        Input ``position`` (nq): the plant's positions q (SI, plant order) -- the actual joints, e.g.
+        :class:`ErrorMapJoint`'s ``position``; ``reflector`` (1): index j. Outputs, ports and noise
+        as :class:`LaserInterferometer`. The laser head pose comes from the plant's own kinematics
+        in T (``plant`` converted with ``ToAutoDiffXd()`` for T = AutoDiffXd), so the whole station
+        converts with ``Diagram.ToAutoDiffXd()`` and a reading is differentiable with respect to q
+        and what feeds it (the map nodes of :class:`ErrorMapJoint`; the dead paths, a Parameter).
+
+        The reading's value is :func:`~olti_drake.model.interferometer.simulate_readings` of the
+        float pose (noise, quantization, cosine error as the options say), so it equals the
+        geometry station's; its derivatives are those of the exact optical length (the beam
+        projection ``(P - o)·u`` with the cosine error, ``‖P - o‖`` without) minus d0_j: noise and
+        quantization are constants of the pose. ``reflectors_mm`` (Nt, 2): the true reflector
+        centres, mm (fixed in the world); ``laser_head``: name of the plant frame whose +x is the beam.
+        """
+
+        def _construct(self, plant, reflectors_mm, dead_paths_mm, options: InterferometerOptions, budget: Budget,
+                       seed: int, period_s: float, laser_head: str = "laser_head", converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._args = (plant, reflectors_mm, dead_paths_mm, options, budget, seed, period_s, laser_head)
+            self._plant = plant if T is float else plant.ToAutoDiffXd()   # the plant in this scalar type
+            self._head = self._plant.GetFrameByName(laser_head)
+            self._P = np.asarray(reflectors_mm, dtype=float).reshape(-1, 2)
+            self._options, self._budget, self._seed = options, budget, int(seed)
+            self._dead_paths = self.DeclareNumericParameter(
+                BasicVector_[T](np.asarray(dead_paths_mm, dtype=float).tolist()))
+            position = self.DeclareVectorInputPort("position", plant.num_positions())
+            self.DeclareVectorInputPort("reflector", 1)
+            # A context of the plant at the input positions, cached in this system's Context (one per Context).
+            self._plant_context = self.DeclareCacheEntry(
+                "plant_context", ValueProducer(
+                    allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
+                    calc=self._calc_plant_context), {position.ticket()})
+            self.DeclareDiscreteState(1)
+            self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
+            self._reading = self.DeclareCacheEntry(
+                "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3, dtype=object)),
+                                         calc=self._calc), {self.all_sources_ticket()})
+            for i, name in enumerate(("displacement", "valid", "miss")):
+                self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+            self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, *other._args, converter=converter)
+
+        def SetDeadPaths(self, context, dead_paths_mm) -> None:
+            """Set the counter zero d0_j (mm) of every reflector's run in ``context`` (000 Eq. 5)."""
+            context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+        def GetDeadPaths(self, context) -> np.ndarray:
+            """The dead paths d0_j (mm) used in ``context``."""
+            return context.get_numeric_parameter(self._dead_paths).CopyToVector()
+
+        def _calc_status(self, context, value):
+            valid = _value(self._reading.Eval(context)[1:2])[0] > 0.5
+            value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
+
+        def _count(self, context, discrete_state):
+            discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
+
+        def _calc_plant_context(self, context, value):
+            self._plant.SetPositions(value.get_mutable_value(), self.get_input_port(0).Eval(context))
+
+        def _beam(self, context):
+            """Beam origin (2,) mm and direction (2,) of the laser head at the input positions, in T."""
+            X_WL = self._head.CalcPoseInWorld(self._plant_context.Eval(context))
+            return X_WL.translation()[:2] * M_TO_MM, X_WL.rotation().matrix()[:2, 0]
+
+        def _calc(self, context, value):
+            origin, u = self._beam(context)
+            j = int(_value(self.get_input_port(1).Eval(context))[0])
+            d0 = self.GetDeadPaths(context)[j]
+            o, ux = _value(origin), _value(u)
+            count = int(_value(context.get_discrete_state_vector().CopyToVector())[0])
+            rng = np.random.default_rng([self._seed, count])
+            reading, valid, miss = simulate_readings(o[None], [np.degrees(np.arctan2(ux[1], ux[0]))],
+                                                     self._P[j][None], [_value([d0])[0]], self._options,
+                                                     self._budget, rng)
+            v = self._P[j] - origin
+            exact = (v[0] * u[0] + v[1] * u[1]) if self._options.cosine_error else (v[0] ** 2 + v[1] ** 2) ** 0.5
+            # The exact length's derivatives, the simulated reading's value (noise and quantization are constants).
+            r = reading[0] if T is float else (exact - d0) + (reading[0] - _value([exact - d0])[0])
+            value.set_value(np.array([r / M_TO_MM, T(float(valid[0])), T(miss[0] / M_TO_MM)], dtype=object))
+
+    return Impl
+
+
+KinematicLaserInterferometer = KinematicLaserInterferometer_[None]
+
+
 class RowSequencer(LeafSystem):
     """One row of every output table per period: the clock of a campaign (move every ``period_s``).
 
