@@ -56,9 +56,10 @@ def time_cli(repeats: int = REPEATS) -> list:
     """Wall times (s) of ``olti simulate --out TMP``, each a fresh process."""
     times = []
     with tempfile.TemporaryDirectory() as tmp:
-        for _ in range(repeats):
+        for i in range(repeats):
             t0 = time.perf_counter()
-            subprocess.run(olti_command() + ["simulate", "--out", tmp], check=True,
+            # A fresh directory each run: olti simulate never replaces a campaign (measured data).
+            subprocess.run(olti_command() + ["simulate", "--out", os.path.join(tmp, f"run{i}")], check=True,
                            stdout=subprocess.DEVNULL)
             times.append(time.perf_counter() - t0)
     return times
