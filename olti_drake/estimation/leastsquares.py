@@ -455,7 +455,7 @@ class LeastSquaresProgram:
     def _solve_nlp(self):
         """The program itself (data cost, user variables, constraints, costs) by the solver Drake picks;
         Huber loss: three IRLS rounds re-weighting the data cost."""
-        from pydrake.solvers import Solve
+        from pydrake.solvers import Solve, SolutionResult
 
         z = self._start()
         all_vars = self.prog.decision_variables()
@@ -464,6 +464,8 @@ class LeastSquaresProgram:
         try:
             for _ in range(rounds):  # IRLS: re-weight, re-solve
                 result = Solve(self.prog, z)
+                if result.get_solution_result() == SolutionResult.kSolverSpecificError:
+                    result = self._resolve_at_default_tolerance(result, all_vars)
                 if not result.is_success():
                     raise InputError(f"NLP solver {result.get_solver_id().name()} failed: "
                                      f"{result.get_solution_result()}")
@@ -475,6 +477,23 @@ class LeastSquaresProgram:
         self._solver_used = f"nlp: {result.get_solver_id().name()}"
         self._stop = (True, f"{result.get_solver_id().name()} reports {result.get_solution_result().name}")
         return z, rounds, weights
+
+    def _resolve_at_default_tolerance(self, result, all_vars):
+        """SNOPT may end "cannot improve the current point" (info 41) at the tight optimality tolerance of
+        :meth:`_set_solver_tolerances`, depending on the BLAS kernels (seen with OPENBLAS_CORETYPE=Sandybridge
+        on a constrained problem): re-solve once from that point at SNOPT's default tolerance (1e-6), whose
+        success is then SNOPT's own verdict; any other failure stays a failure."""
+        from pydrake.solvers import SnoptSolver, Solve, SolverOptions as DrakeSolverOptions
+
+        if result.get_solver_id() != SnoptSolver.id():
+            return result
+        options = DrakeSolverOptions()
+        options.SetOption(SnoptSolver.id(), "Major optimality tolerance", 1e-6)
+        retry = Solve(self.prog, result.GetSolution(all_vars), options)
+        if retry.is_success():
+            self.notes.append("SNOPT could not improve its point at the tight optimality tolerance; re-solved "
+                              "from it at its default tolerance (1e-6)")
+        return retry
 
     def quadratic_costs(self):
         """(Q, b) of the program's quadratic costs ½xᵀQx + bᵀx (priors, regularization), all variables."""
