@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from timing import best_of, cpu_busy  # noqa: E402
 
-from olti_drake.estimation.threads import single_thread_blas  # noqa: E402
+from olti_drake.threads import single_thread_blas  # noqa: E402
 from olti_drake.model.volumetric3d import (MachineConfig, VolumetricModel, observability,  # noqa: E402
                                            synthetic_truth, tool_positions)
 from test_volumetric3d import THREE_TOOLS, TWO_TOOLS, campaign, fit_targets, motion_errors  # noqa: E402

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from olti_drake.estimation.threads import single_thread_blas
+from olti_drake.threads import single_thread_blas
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, VolumetricModel,
                                            _rigid_columns, _rotations, axis_tables, chain_state,
                                            command_jacobian, compensate, error_grid, motion_names,
