@@ -220,3 +220,54 @@ def test_3d_jacobian_is_sparse_one_target_one_station_per_reading(campaign3d):
     x, k = ml.x0.copy(), 3 * 7 + 1
     x[k] += 1e-6
     np.testing.assert_allclose((ml.residuals(x)[0] - r) / 1e-6, J[:, k].toarray().ravel(), atol=1e-5)
+
+
+def _olti(*argv):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True)
+
+
+def test_cli_multilaterate_and_uncertainty_in_3d(tmp_path, campaign3d):
+    import json
+
+    cols, truth = campaign3d
+    camp = tmp_path / "c3.csv"
+    write_machine_campaign(cols, camp)
+    out = _olti("multilaterate", camp, "--out", tmp_path / "r.json")
+    assert out.returncode == 0, out.stderr
+    assert "3D" in out.stdout and "station 4: (" in out.stdout
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert np.shape(res["targets_mm"]) == (60, 3) and np.shape(res["stations_mm"]) == (5, 3)
+    assert np.shape(res["uncertainty"]["targets_mm"]) == (60, 3) and "three rotations" in res["gauge"]
+    assert res["tools"] == [0] * 60 and res["tool_offsets_mm"] == [[0.0, 0.0, 0.0]]
+    # Table 4 budget (the default): every coordinate within 3 u of the truth, in the same gauge.
+    from olti_drake.estimation.multilateration import align_to_commands
+
+    T = align_to_commands(np.asarray(truth["targets_mm"]), np.asarray(res["commands_mm"]))
+    assert np.all(np.abs(np.asarray(res["targets_mm"]) - T) < 3 * np.asarray(res["uncertainty"]["targets_mm"]))
+    lin = _olti("uncertainty", tmp_path / "r.json", camp, "--method", "linear", "--out", tmp_path / "u.json",
+                "--map", tmp_path / "u.png")
+    assert lin.returncode == 0, lin.stderr
+    u = json.loads((tmp_path / "u.json").read_text())
+    np.testing.assert_allclose(u["targets_mm"], res["uncertainty"]["targets_mm"], rtol=1e-6)
+    assert (tmp_path / "u.png").stat().st_size > 10_000
+    mc = _olti("uncertainty", tmp_path / "r.json", camp, "--method", "mc", "--trials", "200", "--seed", "1",
+               "--out", tmp_path / "m.json")
+    assert mc.returncode == 0, mc.stderr
+    ratio = np.asarray(json.loads((tmp_path / "m.json").read_text())["targets_mm"]) / np.asarray(u["targets_mm"])
+    assert 0.75 < np.median(ratio) < 1.25  # Monte Carlo agrees with the linear propagation (200 trials)
+
+
+def test_cli_3d_options_are_checked_against_the_campaign(tmp_path, campaign3d):
+    camp = tmp_path / "c3.csv"
+    write_machine_campaign(campaign3d[0], camp)
+    for extra, says in ((["--gauge", "first-two"], "--gauge first-two: a 3D campaign"),
+                        (["--stations-mm", "0,0;1,1;2,2;3,3;4,4"], "--stations-mm: .* 3 coordinates")):
+        out = _olti("multilaterate", camp, "--out", tmp_path / "r.json", *extra)
+        assert out.returncode == 2 and not (tmp_path / "r.json").exists()
+        assert len(out.stderr.strip().splitlines()) == 1 and out.stderr.startswith("error: ")
+        import re
+
+        assert re.search(says, out.stderr), out.stderr
