@@ -38,6 +38,7 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
 from olti_drake.model.scara import rows_to_csr
 from olti_drake.estimation.calibration import distance_rows_nd, station_fit  # noqa: F401 (station_fit re-exported)
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.threads import single_thread_blas
 
 FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
@@ -477,13 +478,16 @@ class Multilateration(LeastSquaresProgram):
         from olti_drake.io.campaign_io import campaign_digest
 
         self._solve_budget = budget
-        f = self.fit()
-        if budget is not None:
-            from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance  # builds on this layer
+        # One BLAS thread: on the shared 2-core machine OpenBLAS threads made the 1820-unknown 3D solve
+        # (benchmarks/bench_multilateration3d.py) 59 s against 18 s, both under a load of 8.
+        with single_thread_blas():
+            f = self.fit()
+            if budget is not None:
+                from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance  # builds on this layer
 
-            f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
-            f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
-            f.notes.append(f"uncertainty: linear propagation of the budget '{budget.name}'")
+                f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
+                f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
+                f.notes.append(f"uncertainty: linear propagation of the budget '{budget.name}'")
         targets, stations, dead = self._split(f.x)
         return MultilaterationResult(targets, stations, dead, self._split(f.std)[0], f, self.gauge,
                                      self.data.commands_mm, self.options.gauge, campaign_digest(self.data),
