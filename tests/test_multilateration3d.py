@@ -271,3 +271,23 @@ def test_cli_3d_options_are_checked_against_the_campaign(tmp_path, campaign3d):
         import re
 
         assert re.search(says, out.stderr), out.stderr
+
+
+def test_3d_result_reads_back_and_the_2d_only_report_refuses_it(tmp_path, campaign3d):
+    import json
+
+    from olti_drake.estimation.multilateration import load_result, multilaterate
+
+    res = multilaterate(machine_campaign(campaign3d[0]))
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(res.to_dict()))
+    back = load_result(path)
+    assert np.shape(back["targets_mm"]) == (60, 3) and back["gauge_kind"] == "best-fit"
+    doc = res.to_dict()
+    doc["stations_mm"] = np.asarray(doc["stations_mm"])[:, :2].tolist()  # 2D stations in a 3D result
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="r.json: key 'stations_mm'"):
+        load_result(path)
+    path.write_text(json.dumps(res.to_dict()))
+    out = _olti("report", path, "--out", tmp_path / "rep")
+    assert out.returncode == 2 and "a 3D machine-tool result" in out.stderr and len(out.stderr.splitlines()) == 1

@@ -619,7 +619,9 @@ def _validation_section(page, model, kind, truth_robot, nominal, data, truth_not
 def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     from olti_drake.estimation.multilateration import load_result
 
-    load_result(result_path)  # checks the required keys
+    if np.shape(load_result(result_path)["targets_mm"])[1] == 3:  # checks the required keys
+        raise InputError(f"{result_path}: a 3D machine-tool result: the report draws 2D results only so far "
+                         f"(use olti uncertainty --map for the 3D slices)")
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None and unc is None:
         try:
