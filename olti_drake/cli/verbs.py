@@ -366,7 +366,8 @@ def _uncertainty_multilateration(args, t0) -> int:
     from olti_drake.io.campaign_io import check_campaign_matches
     from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
     from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import ReadingErrors, uncertainty_dict
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
 
     if args.maps:
         raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
@@ -426,7 +427,9 @@ def cmd_uncertainty(args) -> int:
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
     from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
+    from olti_drake.estimation.identification import identifier_at_result
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
 
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
     from olti_drake.estimation.uncertainty import round_trials

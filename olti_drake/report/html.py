@@ -399,7 +399,9 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     if campaign_path is not None:
         from olti_drake.io.budget import default_budget
         from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
-        from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, linear_covariance
+        from olti_drake.estimation.identification import identifier_at_result
+        from olti_drake.estimation.uncertainty import linear_covariance
+        from olti_drake.io.budget import ReadingErrors
 
         data = load_campaign(campaign_path)
         campaign_note = check_campaign_matches(raw, data, result_path)
