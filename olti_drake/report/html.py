@@ -521,12 +521,13 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
+    serial = raw["format"] == SCARA_FORMAT and isinstance(raw.get("robot"), dict)
     truth = None
-    if truth_path:
+    if truth_path and not serial:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
         truth = read_truth(truth_path)
-    if unc is not None:
+    if unc is not None and not serial:
         ui.check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)
     k = 2.0
@@ -536,7 +537,11 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
             raise InputError(f"{os.fspath(uncertainty_path)}: 'expanded.k' must be > 0, got {k:g}")
 
     page = ui.Page(out_dir)
-    if raw["format"] == SCARA_FORMAT:
+    if serial:
+        from olti_drake.report.serial_report import serial_report
+
+        serial_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth_path, k)
+    elif raw["format"] == SCARA_FORMAT:
         _scara_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth, truth_path, k)
     else:
         _machine_report(page, raw, result_path, unc, uncertainty_path, campaign_path, k)
