@@ -396,8 +396,10 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
             ui.check_uncertainty(std_src, raw, ("targets_mm",), result_path, result_path)
         except InputError:  # the result's own uncertainties are optional: without them, none are shown
             std_src = None
-    T = np.asarray(raw["targets_mm"], dtype=float).reshape(-1, 2)
-    S = np.asarray(raw["stations_mm"], dtype=float).reshape(-1, 2)
+    D = int(np.shape(raw["targets_mm"])[1]) if np.ndim(raw["targets_mm"]) == 2 else 2  # 001's table or 3D
+    T = np.asarray(raw["targets_mm"], dtype=float).reshape(-1, D)
+    S = np.asarray(raw["stations_mm"], dtype=float).reshape(-1, D)
+    axes = "xyz"[:D]
     L0 = np.asarray(raw["dead_paths_mm"], dtype=float).ravel()
     data, campaign_note = None, ""
     if campaign_path is not None:
@@ -410,10 +412,11 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
         if data.n_targets != len(T) or data.n_stations != len(S):
             raise InputError(f"{os.fspath(result_path)}: {len(T)} targets and {len(S)} stations, but the campaign "
                              f"{os.fspath(campaign_path)} has {data.n_targets} and {data.n_stations}")
-    cmd = (np.asarray(raw["commands_mm"], dtype=float).reshape(-1, 2) if "commands_mm" in raw
+    cmd = (np.asarray(raw["commands_mm"], dtype=float).reshape(-1, D) if "commands_mm" in raw
            else data.commands_mm if data is not None else None)
 
-    page.add("<h1>Calibration report: machine tool by self-calibrating multilateration (001 Eq. 2-6)</h1>")
+    page.add("<h1>Calibration report: machine tool by self-calibrating multilateration (001 Eq. 2-6"
+             + (", in 3D" if D == 3 else "") + ")</h1>")
     info = [("result", os.fspath(result_path)), ("format", raw["format"]), ("gauge", raw["gauge"]),
             ("readings", raw.get("n_readings", "—")),
             ("residual RMS", f"{1e3 * float(raw['residual_rms_mm']):.3f} µm" if "residual_rms_mm" in raw else "—"),
@@ -425,12 +428,13 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
              ("campaign", os.fspath(campaign_path) if campaign_path else "—")]
     page.header_rows = info
 
-    uT = None if std_src is None else np.asarray(std_src["targets_mm"], dtype=float).reshape(-1, 2)
+    uT = None if std_src is None else np.asarray(std_src["targets_mm"], dtype=float).reshape(-1, D)
+    norm = lambda v: np.sqrt(np.sum(np.square(v), axis=-1))  # noqa: E731 (the 2-norm over x, y (, z))
     label = ("the uncertainty file, method " + repr(unc.get("method", "?"))) if unc is not None else (
         "the result file (" + str(std_src.get("method", "?")) + ")" if std_src is not None else None)
     page.add("<h2>Target positions</h2>")
     page.add(ui.p("Estimated target positions p_i in the result's gauge frame (" + str(raw["gauge"]) + "); deviation "
-                "from the command p*_i in µm" + (f"; u (k = 1) from {label}, U = k·sqrt(u_x² + u_y²) with "
+                "from the command p*_i in µm" + (f"; u (k = 1) from {label}, U = k·‖u‖ (x, y" + (", z" if D == 3 else "") + f") with "
                                                 f"k = {k:g}." if label else "; no uncertainties available.")
                 + ("" if cmd is not None else " No command positions (neither 'commands_mm' in the result nor "
                                               "--campaign): deviations not available.")))
@@ -439,32 +443,33 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
         row = [i]
         if cmd is not None:
             d = 1e3 * (p - cmd[i])
-            row += [f"{cmd[i, 0]:.3f}", f"{cmd[i, 1]:.3f}"]
-        row += [f"{p[0]:.4f}", f"{p[1]:.4f}"]
+            row += [f"{v:.3f}" for v in cmd[i]]
+        row += [f"{v:.4f}" for v in p]
         if cmd is not None:
-            row += [f"{d[0]:+.2f}", f"{d[1]:+.2f}", f"{np.hypot(*d):.2f}"]
+            row += [f"{v:+.2f}" for v in d] + [f"{norm(d):.2f}"]
         if uT is not None:
-            row += [f"{1e3 * uT[i, 0]:.2f}", f"{1e3 * uT[i, 1]:.2f}", f"{1e3 * k * np.hypot(*uT[i]):.2f}"]
+            row += [f"{1e3 * v:.2f}" for v in uT[i]] + [f"{1e3 * k * norm(uT[i]):.2f}"]
         rows.append(row)
-    header = ["i"] + (["x*, mm", "y*, mm"] if cmd is not None else []) + ["x, mm", "y, mm"] + (
-        ["Δx, µm", "Δy, µm", "|Δ|, µm"] if cmd is not None else []) + (
-        ["u_x, µm", "u_y, µm", f"U (k = {k:g}), µm"] if uT is not None else [])
+    header = ["i"] + ([f"{a}*, mm" for a in axes] if cmd is not None else []) + [f"{a}, mm" for a in axes] + (
+        [f"Δ{a}, µm" for a in axes] + ["|Δ|, µm"] if cmd is not None else []) + (
+        [f"u_{a}, µm" for a in axes] + [f"U (k = {k:g}), µm"] if uT is not None else [])
     page.add(ui.table(header, rows, left=()))
     if cmd is not None:
-        dev = 1e3 * np.hypot(*(T - cmd).T)
+        dev = 1e3 * norm(T - cmd)
         summary = f"Deviation from the commands: max {dev.max():.2f} µm, mean {dev.mean():.2f} µm"
         if uT is not None:
-            U = 1e3 * k * np.hypot(*uT.T)
+            U = 1e3 * k * norm(uT)
             summary += f"; U (k = {k:g}) of the 2-norm: max {U.max():.2f} µm, mean {U.mean():.2f} µm"
         page.add(ui.p(summary + "."))
 
     page.add("<h2>Stations and dead paths</h2>")
-    uS = None if std_src is None or "stations_mm" not in std_src else np.asarray(std_src["stations_mm"]).reshape(-1, 2)
+    uS = None if std_src is None or "stations_mm" not in std_src else np.asarray(std_src["stations_mm"]).reshape(-1, D)
     uL = None if std_src is None or "dead_paths_mm" not in std_src else np.ravel(std_src["dead_paths_mm"])
-    rows = [(j, f"{S[j, 0]:.4f}", f"{S[j, 1]:.4f}", f"{L0[j]:.4f}",
-             ui.num(None if uS is None else 1e3 * uS[j, 0], ".2f"), ui.num(None if uS is None else 1e3 * uS[j, 1], ".2f"),
-             ui.num(None if uL is None else 1e3 * uL[j], ".2f")) for j in range(len(S))]
-    page.add(ui.table(["station", "x, mm", "y, mm", "dead path, mm", "u_x, µm", "u_y, µm", "u dead path, µm"], rows))
+    rows = [[j] + [f"{v:.4f}" for v in S[j]] + [f"{L0[j]:.4f}"]
+            + [ui.num(None if uS is None else 1e3 * uS[j, c], ".2f") for c in range(D)]
+            + [ui.num(None if uL is None else 1e3 * uL[j], ".2f")] for j in range(len(S))]
+    page.add(ui.table(["station"] + [f"{a}, mm" for a in axes] + ["dead path, mm"] + [f"u_{a}, µm" for a in axes]
+                      + ["u dead path, µm"], rows))
     page.add(ui.p("ISO 230-2 statistics are given for the SCARA error map only: the multilateration estimates target "
                 "positions, not an axis's positioning deviation at repeated approaches (compare the linear "
                 "positioning errors of 001 Fig. 13).", "note"))
@@ -472,19 +477,19 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     if cmd is not None:
         from olti_drake.report.figures import plot_machine_targets, plot_target_uncertainty
 
-        page.figure(lambda p: plot_machine_targets(cmd, S, T, p, stations_label="stations (identified)"),
+        page.figure(lambda p: plot_machine_targets(cmd[:, :2], S[:, :2], T[:, :2], p,
+                                                   stations_label="stations (identified)"),
                     "fig_targets.png", "Command and estimated target positions with the identified stations "
-                    "(001 Fig. 10 style; no reference instrument is compared here)")
+                    "(001 Fig. 10 style; no reference instrument is compared here)"
+                    + ("; XY projection of the volume" if D == 3 else ""))
         if uT is not None:
-            U = 1e3 * k * np.hypot(*uT.T)
+            U = 1e3 * k * norm(uT)
             page.figure(lambda p: plot_target_uncertainty(cmd, U, p, k, label), "fig_target_uncertainty.png",
                         f"U (k = {k:g}) of the estimated target positions (001 Fig. 14)")
     page.add("<h2>Residuals</h2>")
     if data is not None:
-        from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions
-
-        ml = Multilateration(data, MultilaterationOptions(stations_mm=S, gauge=raw.get("gauge_kind", "best-fit")))
-        r = ml.residuals(np.concatenate([T.ravel(), S.ravel(), L0]))[0]
+        # 001 Eq. (3): the identified targets, stations and dead paths against every reading
+        r = norm(T[data.target] - S[data.station]) - L0[data.station] - data.displacement_mm
         page.figure(lambda p: ui.plot_residuals(np.arange(len(r)), r, data.station, "station", p), "fig_residuals.png",
                     "Residuals per station vs reading index")
     else:
