@@ -477,8 +477,11 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
                              f"absorbs the offset)")
         offset_values, maps = None, _load_maps(data, name, chain, outside, JointMap, ErrorMap)
     dropped = [(d.get("parameter", "?"), d.get("reason", "")) for d in data.get("dropped", []) if isinstance(d, dict)]
+    compliant = [j for j in chain.joint_names if f"{j}_compliance_deg_per_Nm" in data]
+    compliance = [float(json_numbers(data, name, f"{j}_compliance_deg_per_Nm")) for j in compliant]
     try:
-        model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values)
+        model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values,
+                                    compliant, compliance)
     except ValueError as e:
         raise InputError(f"{name}: {e}") from None
     P = json_numbers(data, name, "stations_mm", (None, 3)) if "stations_mm" in data else None
