@@ -273,12 +273,15 @@ def test_cli_3d_options_are_checked_against_the_campaign(tmp_path, campaign3d):
         assert re.search(says, out.stderr), out.stderr
 
 
-def test_3d_result_reads_back_and_the_2d_only_report_refuses_it(tmp_path, campaign3d):
+def test_3d_result_reads_back_and_is_reported(tmp_path, campaign3d):
     import json
 
     from olti_drake.estimation.multilateration import load_result, multilaterate
 
-    res = multilaterate(machine_campaign(campaign3d[0]))
+    camp = tmp_path / "c3.csv"
+    write_machine_campaign(campaign3d[0], camp)
+    data = load_machine_campaign(camp)
+    res = multilaterate(data)
     path = tmp_path / "r.json"
     path.write_text(json.dumps(res.to_dict()))
     back = load_result(path)
@@ -289,5 +292,13 @@ def test_3d_result_reads_back_and_the_2d_only_report_refuses_it(tmp_path, campai
     with pytest.raises(InputError, match="r.json: key 'stations_mm'"):
         load_result(path)
     path.write_text(json.dumps(res.to_dict()))
-    out = _olti("report", path, "--out", tmp_path / "rep")
-    assert out.returncode == 2 and "a 3D machine-tool result" in out.stderr and len(out.stderr.splitlines()) == 1
+    out = _olti("report", path, "--campaign", camp, "--out", tmp_path / "rep")
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "rep" / "report.html").stat().st_size > 10_000
+    # The campaign digest covers the z commands and tools: a campaign that differs only there is refused.
+    from olti_drake.io.campaign_io import campaign_digest
+
+    moved = machine_campaign({**campaign3d[0], "z_cmd_mm": campaign3d[0]["z_cmd_mm"] + 1.0})
+    assert campaign_digest(moved)["sha256"] != campaign_digest(machine_campaign(campaign3d[0]))["sha256"]
+    retooled = machine_campaign({**campaign3d[0], "tool": campaign3d[0]["target"] % 2})
+    assert campaign_digest(retooled)["sha256"] != campaign_digest(machine_campaign(campaign3d[0]))["sha256"]

@@ -85,7 +85,8 @@ def uncertainty_multilateration(args, t0, propagate) -> int:
 
     from olti_drake.estimation.multilateration import (Multilateration, MultilaterationOptions, load_machine_campaign,
                                                        load_result)
-    from olti_drake.estimation.uncertainty import ReadingErrors, uncertainty_dict
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
     from olti_drake.io.budget import budget_or_default
     from olti_drake.io.campaign_io import check_campaign_matches
     from olti_drake.io.outputs import write_json

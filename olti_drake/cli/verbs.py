@@ -357,7 +357,9 @@ def cmd_uncertainty(args) -> int:
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
     from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
+    from olti_drake.estimation.identification import identifier_at_result
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
 
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
     from olti_drake.estimation.uncertainty import round_trials
@@ -443,6 +445,13 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
+    from olti_drake.io.csvio import read_json
+
+    if isinstance(read_json(args.result, ("olti-result/1",), "a result").get("robot"), dict):
+        from olti_drake.cli.serial_design import design
+
+        _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
+        return design(args)
     from olti_drake.io.budget import budget_or_default
     from olti_drake.estimation.design import (DesignReport, LayoutEvaluator, candidate_grid, design_layout,
                                               evaluate_layout, load_regions, measured_commands, workspace_commands)
@@ -777,7 +786,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
                    help="candidate grid step in the regions (default 50)")
     p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
-                   help="step of the workspace XY grid the cost is evaluated on (default 50)")
+                   help="step of the workspace XY grid the cost is evaluated on (default 50; SCARA)")
+    p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=300,
+                   help="seeded workspace poses the cost is evaluated at (default 300; robots from a model file)")
     p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the random starts (default 0)")
     p.add_argument("--starts", type=cliargs.count, default=3, help="random starts (default 3)")
     p.add_argument("--max-sweeps", type=cliargs.count, default=5, help="exchange sweeps per start at most (default 5)")

@@ -69,9 +69,10 @@ def load_campaign(path) -> CampaignData:
 
 def campaign_digest(data) -> dict:
     """{"readings", "sha256"} of the valid readings a result was identified from (SCARA or machine campaign)."""
-    if hasattr(data, "commands_mm"):  # MachineCampaign
-        return data_digest(data.station, data.target, data.commands_mm[data.target, 0],
-                           data.commands_mm[data.target, 1], data.displacement_mm)
+    if hasattr(data, "commands_mm"):  # MachineCampaign; 3D: z command and tool too (2D digests unchanged)
+        cmd = data.commands_mm[data.target]
+        more = () if cmd.shape[1] == 2 else (cmd[:, 2], data.tool[data.target])
+        return data_digest(data.station, data.target, cmd[:, 0], cmd[:, 1], *more, data.displacement_mm)
     c = data.commands
     return data_digest(data.reflector, c.theta1_deg, c.theta2_deg, c.dir1, c.dir2, data.displacement_mm)
 

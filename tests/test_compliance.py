@@ -1,0 +1,103 @@
+"""Joint compliance under gravity (``--compliance``): θ_i = θ*_i + Δθ_i + c_i·τ_i(θ*), τ from the model file's
+masses by Drake's CalcGravityGeneralizedForces."""
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+
+from olti_drake.estimation.calibration import Calibration
+from olti_drake.io.resources import PACKAGE_DIR
+from olti_drake.model.chain import gravity_torques, load_serial_chain
+from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
+                                     synthetic_truth)
+
+TOOL = (40.0, -25.0, 60.0)
+RANGES = np.array([[-90, 90], [-170, -10], [-120, 120], [-90, 90], [-60, 150], [-180, 180]], float)
+C_TRUE = np.array([0.0, 2e-4, 3e-4, 0.0, 0.0, 0.0])  # deg/(N·m): ~10 mdeg at the shoulder's ~50 N·m
+
+
+@pytest.fixture(scope="module")
+def chain():
+    return load_serial_chain(os.path.join(PACKAGE_DIR, "models", "ur5.urdf"), "tool0")
+
+
+def test_gravity_pulls_the_outstretched_arm_down(chain):
+    """Horizontal arm: shoulder and elbow carry torque, the vertical base axis none; a deflection +c·τ lowers
+    the tool (Drake's sign: the generalized force gravity exerts). Arm straight up: no torque."""
+    out = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    up = np.array([[0.0, -90.0, 0.0, -90.0, 0.0, 0.0]])
+    tau = gravity_torques(chain, out)[0]
+    assert abs(tau[0]) < 1e-9 and abs(tau[1]) > 20 and abs(tau[2]) > 5
+    assert np.abs(gravity_torques(chain, up)).max() < 1e-6
+    p0 = chain.positions(out)[0]
+    p1 = chain.positions(out + 1e-3 * tau)[0]
+    assert p1[2] < p0[2] - 1e-3
+    heavier = gravity_torques(chain, out, payload_kg=2.0, tool_offset_mm=TOOL)[0]
+    assert heavier[1] * tau[1] > 0 and abs(heavier[1]) > abs(tau[1])
+
+
+def test_compliance_columns_are_the_derivative(chain):
+    truth = synthetic_truth(chain, seed=3, tool_offset_mm=TOOL)
+    camp = synthetic_campaign(truth, 40, seed=5, ranges_deg=RANGES)
+    model = build_position_model(chain, camp.commands, camp.dirs, kind="dh", tool_offset_mm=TOOL, compliance=True)
+    names = [n for n in model.names if n.endswith("_compliance_deg_per_Nm")]
+    assert names == ["shoulder_lift_joint_compliance_deg_per_Nm", "elbow_joint_compliance_deg_per_Nm"]
+    dropped = dict(model.dropped)
+    assert "vertical axis" in dropped["shoulder_pan_joint_compliance_deg_per_Nm"]
+    x = model.start_vector()
+    x[model.names.index(names[0])] = 1e-4
+    _, jac = model.jacobian(camp.commands, camp.dirs, x)
+    J = jac.tocsr().toarray()
+    for name in names:
+        i = model.names.index(name)
+        h = 1e-6
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        fd = (model.positions(camp.commands, camp.dirs, xp) - model.positions(camp.commands, camp.dirs, xm)) / (2 * h)
+        assert np.allclose(J[:, i], fd.ravel(), rtol=1e-6, atol=1e-6)
+
+
+def test_compliance_recovered_within_its_uncertainty_from_a_truth_off_the_model_family(chain):
+    """Truth: harmonic joint deviations with backlash (not in the 15° map family) and compliant shoulder and
+    elbow; 1 µm noise. The compliance is recovered within 3 standard uncertainties (the residual-based u of
+    the fit) and the residual drops against the model without compliance."""
+    truth = dataclasses.replace(synthetic_truth(chain, seed=3, tool_offset_mm=TOOL), compliance_deg_per_Nm=C_TRUE)
+    camp = synthetic_campaign(truth, 400, seed=4, ranges_deg=RANGES, noise_mm=0.001)
+    rms = {}
+    for comp in (False, True):
+        model = build_position_model(chain, camp.commands, camp.dirs, kind="errormap", grid_step_deg=15,
+                                     tool_offset_mm=TOOL, compliance=comp)
+        meas = DistanceMeasurement(model, camp.distance_commands, camp.distance_dirs, camp.station,
+                                   camp.displacement_mm, truth.stations_mm + 2.0, truth.dead_paths_mm)
+        fit = Calibration(meas, gauge=find_gauge(meas)).fit()
+        rms[comp] = np.sqrt(np.mean(fit.residuals ** 2))
+        if comp:
+            for j, joint in enumerate(chain.joint_names):
+                name = f"{joint}_compliance_deg_per_Nm"
+                if name in meas.names:
+                    i = meas.names.index(name)
+                    assert abs(fit.x[i] - C_TRUE[j]) < 3 * fit.std[i], (name, fit.x[i], fit.std[i])
+                    assert fit.std[i] < 0.2 * C_TRUE[j]
+    assert rms[True] < 0.85 * rms[False]
+
+
+def test_a_result_with_compliance_loads_back_to_the_same_model(chain, tmp_path):
+    from olti_drake.io.serial_io import load_serial_result, serial_result_dict, write_serial_result
+
+    truth = dataclasses.replace(synthetic_truth(chain, seed=3, tool_offset_mm=TOOL), compliance_deg_per_Nm=C_TRUE)
+    camp = synthetic_campaign(truth, 120, seed=6, ranges_deg=RANGES, noise_mm=0.001)
+    model = build_position_model(chain, camp.commands, camp.dirs, kind="dh", tool_offset_mm=TOOL, compliance=True)
+    meas = DistanceMeasurement(model, camp.distance_commands, camp.distance_dirs, camp.station, camp.displacement_mm,
+                               truth.stations_mm, truth.dead_paths_mm)
+    cal = Calibration(meas, gauge=find_gauge(meas))
+    fit = cal.fit()
+    path = tmp_path / "result.json"
+    write_serial_result(path, serial_result_dict(kind="dh", robot_file="ur5", measurement=meas, fit=fit,
+                                                 gauge=cal.gauge))
+    back = load_serial_result(path).model
+    assert back.names == model.names
+    p = model.positions(camp.commands, camp.dirs, fit.x[:model.n_params])
+    assert np.allclose(back.positions(camp.commands, camp.dirs), p, atol=1e-9)
