@@ -1,12 +1,13 @@
 """``olti multilaterate`` and ``olti uncertainty`` of a machine-tool result, 2D (paper 001) or 3D (the
 machine tool in 3D, formats.md): argument handling and printing only; the work is in
-:mod:`olti_drake.estimation.multilateration` and :mod:`olti_drake.estimation.uncertainty`. mm."""
+:mod:`olti_drake.estimation.multilateration` and :mod:`olti_drake.estimation.uncertainty`. mm.
+numpy is imported inside the verbs: ``olti --help`` builds the parser without it."""
 
-import numpy as np
 
-
-def _norm_um(v_mm) -> np.ndarray:
+def _norm_um(v_mm):
     """The 2-norm of each row (N, D) mm, in µm."""
+    import numpy as np
+
     return 1e3 * np.sqrt(np.sum(np.square(v_mm), axis=1))
 
 
@@ -82,6 +83,8 @@ def uncertainty_multilateration(args, t0, propagate) -> int:
     """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14), 2D or 3D: targets, stations, dead
     paths; ``propagate(ident, x, errors, args)`` is the verb's linear / Monte Carlo propagation."""
     import time
+
+    import numpy as np
 
     from olti_drake.estimation.multilateration import (Multilateration, MultilaterationOptions, load_machine_campaign,
                                                        load_result)
