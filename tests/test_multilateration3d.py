@@ -302,3 +302,12 @@ def test_3d_result_reads_back_and_is_reported(tmp_path, campaign3d):
     assert campaign_digest(moved)["sha256"] != campaign_digest(machine_campaign(campaign3d[0]))["sha256"]
     retooled = machine_campaign({**campaign3d[0], "tool": campaign3d[0]["target"] % 2})
     assert campaign_digest(retooled)["sha256"] != campaign_digest(machine_campaign(campaign3d[0]))["sha256"]
+
+
+def test_3d_heads_aim_open_loop_from_their_estimates():
+    """001 Eq. (1) in 3D: the head points at the commanded tool point from its ESTIMATED centre, so an
+    estimate off by more than the cat's eye's acceptance (1 mm) loses the beam; the truth's µm do not."""
+    good, _ = simulate_machine_campaign_3d(Machine3DScenario(seed=6, head_error_mdeg=0.0))
+    bad, _ = simulate_machine_campaign_3d(Machine3DScenario(seed=6, head_error_mdeg=0.0,
+                                                            station_estimate_sigma_um=3000.0))
+    assert good["valid"].mean() > 0.95 and bad["valid"].mean() < 0.6
