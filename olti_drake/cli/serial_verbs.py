@@ -164,3 +164,58 @@ def _predicted_readings(res, jt, p, scol, path):
     idx = np.searchsorted(labels, station) if np.all(np.diff(labels) > 0) else np.array(
         [list(labels).index(j) for j in station])
     return np.linalg.norm(p - res.stations_mm[idx], axis=1) - res.dead_paths_mm[idx]
+
+
+def compensate(args) -> int:
+    """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]`` for a
+    serial robot: targets x_mm, y_mm, z_mm with their nominal pose theta1_deg .. thetaN_deg (and dirs)."""
+    import numpy as np
+
+    from olti_drake.estimation.compensation import compensation_table
+    from olti_drake.estimation.serial_compensation import compensate_serial
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.serial_io import load_serial_result
+
+    res = load_serial_result(args.result, outside=args.outside)
+    model = res.model
+    tables = [os.path.join(args.tables, f"{m.joint}_compensation.csv") for m in model.maps] if args.tables else []
+    _preflight(args, [args.out, args.urdf_out] + tables,
+               [args.result, args.targets, res.robot_path], dirs=[args.tables] if args.tables else [])
+    if args.tables and not model.maps:
+        raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is "
+                         f"'{model.kind}'")
+    jt = _commands(res, args.targets, ("x_mm", "y_mm", "z_mm"))
+    targets = np.column_stack([jt.table[c] for c in ("x_mm", "y_mm", "z_mm")])
+    comp = compensate_serial(model, targets, jt.commands, jt.dirs, jt.line, args.targets)
+    from olti_drake.io.serial_io import JointTable
+
+    out, fmt = _joint_columns(JointTable(comp.commands, jt.dirs, jt.table, jt.source))
+    out.update({"x_mm": targets[:, 0], "y_mm": targets[:, 1], "z_mm": targets[:, 2],
+                "residual_mm": comp.residual_mm, "orientation_change_deg": comp.orientation_change_deg})
+    fmt.update({"x_mm": "%.6f", "y_mm": "%.6f", "z_mm": "%.6f", "residual_mm": "%.3g",
+                "orientation_change_deg": "%.3g"})
+    write_table(args.out, out, fmt, comments=[
+        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
+        "executed with these directions the commands put the tool point on x_mm, y_mm, z_mm by the model; "
+        "residual_mm: how far by the model; orientation_change_deg: tool orientation off the nominal pose's"])
+    corr = np.abs(comp.correction_deg)
+    print(f"compensated {len(targets)} targets ({model.kind} model of {res.data['robot']['file']}): "
+          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm, corrections up to "
+          f"{1e3 * corr.max():.2f} mdeg, tool orientation kept within {comp.orientation_change_deg.max():.2g} deg")
+    print(f"wrote {args.out}")
+    if tables:
+        from olti_drake.io.outputs import make_dir
+
+        make_dir(args.tables)
+    for m, path in zip(model.maps, tables):
+        write_table(path, compensation_table(m.emap), {}, comments=[
+            f"olti compensate: bidirectional compensation table of {m.joint} from {args.result}; degrees",
+            "angle_deg: wanted actual angle (map node); forward/reverse_command_deg: the command to send when "
+            "approaching in +1/-1 (000 Eq. 7 inverted)"])
+        print(f"wrote {path}")
+    if args.urdf_out:
+        from olti_drake.io.identified_urdf import write_identified_urdf
+
+        point = write_identified_urdf(model, res.robot_path, args.urdf_out, f"Result: {args.result}.")
+        print(f"wrote {args.urdf_out} (identified joint origins; tool point = link '{point}')")
+    return 0

@@ -632,6 +632,12 @@ def cmd_report(args) -> int:
 
 def cmd_compensate(args) -> int:
     """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    from olti_drake.cli.serial_verbs import compensate, is_serial_result
+
+    if is_serial_result(args.result):
+        return compensate(args)
+    if args.urdf_out:
+        raise ValueError("--urdf-out needs the result of a robot model file (olti identify --robot)")
     from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
     from olti_drake.io.result import load_result
 
@@ -920,6 +926,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
                                     "compensation tables at the map nodes) into this directory")
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
+                                      "identified joint origins and the tool point as a link")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)
