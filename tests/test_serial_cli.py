@@ -170,9 +170,12 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, files):
          f"nan.csv:{k + 3}: column 'displacement_mm': nan is not finite"),
         (["identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--grid1-deg", "0:10:5"],
          "--grid1-deg is a SCARA option"),
+        (["identify", d / "campaign.csv", "--grid-step-deg", "5"], "--grid-step-deg needs --robot FILE"),
+        (["uncertainty", d / "truth.json", d / "campaign.csv", "--method", "linear"],
+         "a serial robot's result (olti identify --robot); olti uncertainty takes SCARA"),
     ]
     for args, expect in cases:
-        err = olti(*args, *base, expect=2).stderr
+        err = olti(*args, *(base if args[0] == "identify" else base[2:]), expect=2).stderr
         assert expect in err, (args, err)
         assert not out.exists()
 

@@ -45,7 +45,7 @@ def identify(args) -> int:
     campaign = read_serial_campaign(args.campaign, chain.n_joints, robot=args.robot)
     options = SerialIdentificationOptions(
         model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
-        grid_step_deg=args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
+        grid_step_deg=15.0 if args.grid_step_deg is None else args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
         outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
     if args.budget:
         from olti_drake.io.budget import load_budget
@@ -219,3 +219,11 @@ def compensate(args) -> int:
         point = write_identified_urdf(model, res.robot_path, args.urdf_out, f"Result: {args.result}.")
         print(f"wrote {args.urdf_out} (identified joint origins; tool point = link '{point}')")
     return 0
+
+
+def refuse_serial_result(path, verb: str) -> None:
+    """One line for a verb that does not take a serial robot's result (yet), instead of a SCARA key error."""
+    if is_serial_result(path):
+        raise ValueError(f"{path}: a serial robot's result (olti identify --robot); olti {verb} takes SCARA and "
+                         f"machine-tool results only so far -- its 'uncertainty' object holds the linear standard "
+                         f"uncertainties (k = 1) of every parameter")

@@ -208,6 +208,10 @@ def cmd_identify(args) -> int:
         if not args.robot:
             raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
         return identify(args)
+    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg)):
+        if value is not None:
+            raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
+                             f"--nominal-mm and --grid1-deg/--grid2-deg")
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -427,6 +431,9 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
+    from olti_drake.cli.serial_verbs import refuse_serial_result
+
+    refuse_serial_result(args.result, "uncertainty")
     import types
 
     import numpy as np
@@ -522,6 +529,9 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
+    from olti_drake.cli.serial_verbs import refuse_serial_result
+
+    refuse_serial_result(args.result, "design")
     from olti_drake.io.budget import budget_or_default
     from olti_drake.estimation.design import (DesignReport, LayoutEvaluator, candidate_grid, design_layout,
                                               evaluate_layout, load_regions, measured_commands, workspace_commands)
@@ -617,6 +627,9 @@ def cmd_diagrams(args) -> int:
 
 def cmd_report(args) -> int:
     """The calibration report: DIR/report.html, self-contained (figures embedded, also written as PNG)."""
+    from olti_drake.cli.serial_verbs import refuse_serial_result
+
+    refuse_serial_result(args.result, "report")
     from olti_drake.report.html import write_report
 
     t0 = time.perf_counter()
@@ -764,9 +777,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA or serial-robot campaign",
                        description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
-                                   "from a campaign CSV; print a summary; write RESULT.json.")
+                                   "from a campaign CSV; print a summary; write RESULT.json. With --robot FILE "
+                                   "--tool-frame NAME: any serial robot Drake loads (URDF/SDFormat; ur5 and scara "
+                                   "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
+                                   "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
     p.add_argument("--model", choices=("dh", "errormap"), required=True)
     p.add_argument("--out", required=True, help="result JSON to write")
@@ -784,7 +800,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
-    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=15.0,
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
                    help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
     _add_solver_options(p)
     _add_force(p)
@@ -792,7 +808,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
                        description="Apply an identified model to commands (formats.md commands.csv); write "
-                                   "the commands with the predicted x_mm, y_mm.")
+                                   "the commands with the predicted x_mm, y_mm. A serial robot's result: "
+                                   "theta1_deg .. thetaN_deg [, dir1 .. dirN] in, x_mm, y_mm, z_mm out; a distance "
+                                   "campaign given as FILE also gets predicted_displacement_mm (cross-validation).")
     p.add_argument("result", help="result JSON from olti identify")
     p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
     p.add_argument("--out", required=True, help="prediction CSV to write")
@@ -918,7 +936,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "theta2_deg and approach directions that put the end effector on it. Without "
                                    "dir columns the directions follow the compensated sequence itself "
                                    "(formats.md rule). Targets beyond the reach or the map grid are refused "
-                                   "with their line. mm and degrees.")
+                                   "with their line. A serial robot's result: TARGETS.csv has x_mm, y_mm, z_mm "
+                                   "and the nominal pose theta1_deg .. thetaN_deg [, dir1 .. dirN]; the commands "
+                                   "keep the nominal pose's tool orientation and directions. mm and degrees.")
     p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
     p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
     p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
