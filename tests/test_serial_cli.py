@@ -98,22 +98,45 @@ def test_identify_errormap_recovers_the_backlash_of_a_truth_outside_the_model(er
     assert "rigid motion of the robot together with the stations" in res["gauge"]
 
 
-def test_seven_joint_floating_root_with_fingers(tmp_path):
-    """The 7-joint arm (floating root welded, finger joints ignored, a continuous joint): a dh campaign of
-    its own truth is identified; the result names the 7 chain joints only."""
+@pytest.fixture(scope="module")
+def arm7(tmp_path_factory):
+    """The 7-joint arm (floating root welded, finger joints ignored, a continuous joint): its own truth, a dh
+    result from 80 one-directional poses x 4 stations."""
+    d = tmp_path_factory.mktemp("arm7")
     chain = load_robot(DATA / "arm7_floating.urdf", "tcp")
     truth = synthetic_truth(chain, seed=7, tool_offset_mm=(20.0, 10.0, 30.0))
     camp = synthetic_campaign(truth, 80, seed=8, noise_mm=NOISE_MM, directions=False)
-    write_distance(tmp_path / "c.csv", camp, dirs=False)
-    olti("identify", tmp_path / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
-         "--tool-offset-mm=20,10,30", "--model", "dh", "--out", tmp_path / "r.json")
-    res = json.loads((tmp_path / "r.json").read_text())
+    write_distance(d / "c.csv", camp, dirs=False)
+    olti("identify", d / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
+         "--tool-offset-mm=20,10,30", "--model", "dh", "--out", d / "r.json")
+    return d, chain
+
+
+def test_seven_joint_floating_root_with_fingers(arm7):
+    """The result names the 7 chain joints only (no finger), the model file relative to itself, a tool offset
+    near the truth's, and fits the harmonic truth as a dh model can (< 0.2 mm RMS)."""
+    d, _ = arm7
+    res = json.loads((d / "r.json").read_text())
     assert res["robot"]["joints"] == ["j1", "j2", "j3", "j4", "j5", "j6", "j7"]
-    assert res["robot"]["file"] == os.path.relpath(DATA / "arm7_floating.urdf", tmp_path)
+    assert res["robot"]["file"] == os.path.relpath(DATA / "arm7_floating.urdf", d)
     assert np.abs(np.array(res["tool_offset_mm"]) - (20.0, 10.0, 30.0)).max() < 1.0
     assert {k.split("_")[0] for k in res if k.endswith(("_dx_mm", "_drx_deg", "_offset_deg"))} <= set(
         res["robot"]["joints"])
     assert res["residual_rms_mm"] < 0.2
+
+
+def test_missing_meshes_are_noted_once_and_identified(tmp_path):
+    """A model whose meshes cannot be found identifies (kinematics only) and says so once, in the output and
+    the result's notes."""
+    chain = load_robot(DATA / "missing_mesh.urdf", "tool")
+    truth = synthetic_truth(chain, seed=2, tool_offset_mm=(10.0, 5.0, 0.0))
+    camp = synthetic_campaign(truth, 40, seed=3, noise_mm=NOISE_MM, directions=False)
+    write_distance(tmp_path / "c.csv", camp, dirs=False)
+    out = olti("identify", tmp_path / "c.csv", "--robot", DATA / "missing_mesh.urdf", "--tool-frame", "tool",
+               "--tool-offset-mm=10,5,0", "--model", "dh", "--out", tmp_path / "r.json").stdout
+    assert out.count("mesh file(s) cannot be found") == 1
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert sum("cannot be found" in n for n in res["notes"]) == 1 and res["robot"]["joints"] == ["j1", "j2"]
 
 
 def test_point_campaign_identifies_the_tracker_frame(tmp_path, truth):
@@ -282,20 +305,14 @@ def test_compensate_puts_the_true_tool_point_on_the_targets(errormap_result, fil
     assert "far.csv:2: target" in err and "cannot be reached" in err and not (d / "far_cmd.csv").exists()
 
 
-def test_compensate_seven_joints_keeps_the_nominal_null_space_choice(tmp_path):
+def test_compensate_seven_joints_keeps_the_nominal_null_space_choice(arm7):
     """A dh result of the 7-joint arm: compensated commands stay near the nominal poses (median largest joint
-    change < 0.3 deg, all < 2 deg: the redundant joint is not wandered off), hit the targets by the model, and the URDF round trip holds with
-    the dh offsets folded into the joint origins."""
+    change < 0.3 deg, all < 2 deg: the redundant joint is not wandered off), hit the targets by the model, and
+    the URDF round trip holds with the dh offsets folded into the joint origins."""
     from olti_drake.io.serial_io import load_serial_result
     from olti_drake.model.chain import drake_kinematics
 
-    urdf = DATA / "arm7_floating.urdf"
-    chain = load_robot(urdf, "tcp")
-    truth = synthetic_truth(chain, seed=7, tool_offset_mm=(20.0, 10.0, 30.0))
-    camp = synthetic_campaign(truth, 80, seed=8, noise_mm=NOISE_MM, directions=False)
-    write_distance(tmp_path / "c.csv", camp, dirs=False)
-    olti("identify", tmp_path / "c.csv", "--robot", urdf, "--tool-frame", "tcp", "--tool-offset-mm=20,10,30",
-         "--model", "dh", "--out", tmp_path / "r.json")
+    tmp_path, chain = arm7
     poses = chain.random_angles(10, seed=21) * 0.5
     _targets(tmp_path / "t.csv", chain, poses, tool=(20.0, 10.0, 30.0))
     olti("compensate", tmp_path / "r.json", tmp_path / "t.csv", "--out", tmp_path / "cmd.csv", "--urdf-out",

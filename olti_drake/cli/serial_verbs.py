@@ -42,6 +42,8 @@ def identify(args) -> int:
         raise ValueError(f"--robot {args.robot}: give the tool frame with --tool-frame NAME")
     _preflight(args, [args.out], [args.campaign, args.budget, _robot_input(args.robot)])
     chain = load_robot(args.robot, args.tool_frame)
+    for note in chain.notes:  # said once, before the work (and kept in the result's notes)
+        print(f"note: {note}", flush=True)
     campaign = read_serial_campaign(args.campaign, chain.n_joints, robot=args.robot)
     options = SerialIdentificationOptions(
         model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
@@ -56,8 +58,6 @@ def identify(args) -> int:
                                 measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
                                 campaign_digest=campaign.digest(), notes=list(chain.notes) + ident.notes)
     write_serial_result(args.out, result)
-    for note in chain.notes:
-        print(f"note: {note}")
     print(summary(ident))
     print(f"wrote {args.out}")
     return 0
@@ -139,7 +139,8 @@ def predict(args) -> int:
                "predicted_displacement_mm": pred}
         miss = pred - jt.table["displacement_mm"]
         text += (f" and readings of {args.commands} ({jt.table['_skipped']} rows with valid = 0 skipped): "
-                 f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, max {1e3 * np.abs(miss).max():.3f} um")
+                 f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, "
+                 f"max {1e3 * np.abs(miss).max():.3f} um")
     write_table(args.out, out, fmt, comments=[f"olti predict: {args.result} applied to {args.commands}; "
                                               f"tool point in the robot's root frame; mm and degrees"])
     print(text)

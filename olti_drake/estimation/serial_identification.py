@@ -24,7 +24,7 @@ to the data cost ½ Σ r². Units: mm and degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 

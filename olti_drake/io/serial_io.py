@@ -469,7 +469,8 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
         params[loc_names.index(k)] = float(json_numbers(data, name, k))
     for k, v in (data.get("held") or {}).items():
         if k not in loc_names:
-            raise InputError(f"{name}: key 'held.{k}' is not a location error of the chain ({', '.join(GEOMETRIC_SUFFIXES)})")
+            raise InputError(f"{name}: key 'held.{k}' is not a location error of the chain "
+                             f"(<joint>_{', '.join(GEOMETRIC_SUFFIXES)})")
         params[loc_names.index(k)] = float(json_numbers(data["held"], name, k, label=f"held.{k}"))
     params[6 * n:] = json_numbers(data, name, "tool_offset_mm", (3,))
     offsets = [j for j in chain.joint_names if f"{j}_offset_deg" in data]
