@@ -40,6 +40,8 @@ def identify(args) -> int:
             raise ValueError(f"{flag} is a SCARA option; with --robot the model uses {instead}")
     if not args.tool_frame:
         raise ValueError(f"--robot {args.robot}: give the tool frame with --tool-frame NAME")
+    if args.tool_offset_mm and len(args.tool_offset_mm) != 1:
+        raise ValueError(f"--tool-offset-mm: one point x,y,z (mm), got {len(args.tool_offset_mm)}")
     _preflight(args, [args.out], [args.campaign, args.budget, _robot_input(args.robot)])
     chain = load_robot(args.robot, args.tool_frame)
     for note in chain.notes:  # said once, before the work (and kept in the result's notes)
