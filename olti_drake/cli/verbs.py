@@ -202,6 +202,16 @@ def identification_summary(ident) -> str:
 
 
 def cmd_identify(args) -> int:
+    if args.robot or args.tool_frame:
+        from olti_drake.cli.serial_verbs import identify
+
+        if not args.robot:
+            raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
+        return identify(args)
+    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg)):
+        if value is not None:
+            raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
+                             f"--nominal-mm and --grid1-deg/--grid2-deg")
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -292,6 +302,10 @@ def cmd_predict(args) -> int:
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
 
+    from olti_drake.cli.serial_verbs import is_serial_result, predict
+
+    if is_serial_result(args.result):
+        return predict(args)
     _check_outputs(args, [args.out], [args.result, args.commands])
     from olti_drake.model.errormap import OutsideGridError
 
@@ -418,6 +432,9 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
+    from olti_drake.cli.serial_verbs import refuse_serial_result
+
+    refuse_serial_result(args.result, "uncertainty")
     import types
 
     import numpy as np
@@ -632,6 +649,12 @@ def cmd_report(args) -> int:
 
 def cmd_compensate(args) -> int:
     """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    from olti_drake.cli.serial_verbs import compensate, is_serial_result
+
+    if is_serial_result(args.result):
+        return compensate(args)
+    if args.urdf_out:
+        raise ValueError("--urdf-out needs the result of a robot model file (olti identify --robot)")
     from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
     from olti_drake.io.result import load_result
 
@@ -758,9 +781,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA or serial-robot campaign",
                        description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
-                                   "from a campaign CSV; print a summary; write RESULT.json.")
+                                   "from a campaign CSV; print a summary; write RESULT.json. With --robot FILE "
+                                   "--tool-frame NAME: any serial robot Drake loads (URDF/SDFormat; ur5 and scara "
+                                   "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
+                                   "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
     p.add_argument("--model", choices=("dh", "errormap"), required=True)
     p.add_argument("--out", required=True, help="result JSON to write")
@@ -773,13 +799,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
                                     "against (warning above 3 x; default: 000 Table 2)")
+    p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
+                                   "the campaign then has theta1_deg..thetaN_deg (docs/serial_robots.md)")
+    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
+                   help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
+                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
                        description="Apply an identified model to commands (formats.md commands.csv); write "
-                                   "the commands with the predicted x_mm, y_mm.")
+                                   "the commands with the predicted x_mm, y_mm. A serial robot's result: "
+                                   "theta1_deg .. thetaN_deg [, dir1 .. dirN] in, x_mm, y_mm, z_mm out; a distance "
+                                   "campaign given as FILE also gets predicted_displacement_mm (cross-validation).")
     p.add_argument("result", help="result JSON from olti identify")
     p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
     p.add_argument("--out", required=True, help="prediction CSV to write")
@@ -907,7 +942,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "theta2_deg and approach directions that put the end effector on it. Without "
                                    "dir columns the directions follow the compensated sequence itself "
                                    "(formats.md rule). Targets beyond the reach or the map grid are refused "
-                                   "with their line. mm and degrees.")
+                                   "with their line. A serial robot's result: TARGETS.csv has x_mm, y_mm, z_mm "
+                                   "and the nominal pose theta1_deg .. thetaN_deg [, dir1 .. dirN]; the commands "
+                                   "keep the nominal pose's tool orientation and directions. mm and degrees.")
     p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
     p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
     p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
@@ -915,6 +952,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
                                     "compensation tables at the map nodes) into this directory")
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
+                                      "identified joint origins and the tool point as a link")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)
@@ -941,7 +980,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
-_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
+                         "--tool-offset-mm")
 
 
 def _join_signed_values(argv):
