@@ -50,7 +50,8 @@ def identify(args) -> int:
     options = SerialIdentificationOptions(
         model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
         grid_step_deg=15.0 if args.grid_step_deg is None else args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
-        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver,
+        compliance=args.compliance, drift=args.drift)
     if args.budget:
         from olti_drake.io.budget import load_budget
 
@@ -84,7 +85,7 @@ def _commands(res, path, required=(), integer=(), valid_only=False):
     from olti_drake.io.serial_io import read_joint_table
 
     model = res.model
-    jt = read_joint_table(path, model.chain.n_joints, required, integer=integer,
+    jt = read_joint_table(path, model.chain.n_joints, required, ("time_s",), integer=integer,
                           robot=res.data["robot"]["file"], valid_only=valid_only)
     if jt.dirs is None and model.bidirectional:
         raise ValueError(f"{path}: no direction columns, but the error maps of {res.data['robot']['file']} in the "
@@ -166,7 +167,15 @@ def _predicted_readings(res, jt, p, scol, path):
                          f"identified ({', '.join(str(j) for j in labels)})")
     idx = np.searchsorted(labels, station) if np.all(np.diff(labels) > 0) else np.array(
         [list(labels).index(j) for j in station])
-    return np.linalg.norm(p - res.stations_mm[idx], axis=1) - res.dead_paths_mm[idx]
+    d0 = res.dead_paths_mm[idx]
+    if "drift_mm_per_h" in res.data:  # --drift: d0_j(t) = d0_j + v_j (t - t_ref_j); without times, at t_ref_j
+        if "time_s" not in jt.table:
+            raise ValueError(f"{path}: the result has a dead-path drift (--drift): predicted_displacement_mm needs "
+                             f"the 'time_s' column of every reading")
+        v = np.asarray(res.data["drift_mm_per_h"], float)[idx]
+        ref = np.asarray(res.data["drift_reference_h"], float)[idx]
+        d0 = d0 + v * (jt.table["time_s"] / 3600.0 - ref)
+    return np.linalg.norm(p - res.stations_mm[idx], axis=1) - d0
 
 
 def compensate(args) -> int:

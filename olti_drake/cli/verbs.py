@@ -208,7 +208,8 @@ def cmd_identify(args) -> int:
         if not args.robot:
             raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
         return identify(args)
-    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg)):
+    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg),
+                        ("--compliance", args.compliance or None), ("--drift", args.drift or None)):
         if value is not None:
             raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
                              f"--nominal-mm and --grid1-deg/--grid2-deg")
@@ -806,6 +807,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
     p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
                    help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
+    p.add_argument("--compliance", action="store_true",
+                   help="with --robot: joint compliance under gravity, c_i deg/(N m) times the gravity torque from the "
+                        "model file's masses (joints with too little torque variation are dropped by name)")
+    p.add_argument("--drift", action="store_true",
+                   help="with --robot: linear drift of each station's dead path in time, mm/h (distance campaigns "
+                        "with a time_s column)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)

@@ -27,7 +27,7 @@ from olti_drake.report.iso230 import axis_statistics
 _VALUE_SUFFIXES = ("_mm", "_deg")
 _META = {"format", "model", "robot", "gauge", "residual_rms_mm", "n_readings", "uncertainty", "dropped", "iterations",
          "condition_number", "solver", "outliers", "converged", "warnings", "campaign", "notes", "held", "truth",
-         "date"}
+         "date", "station_labels", "drift_reference_h"}
 
 
 def value_keys(raw: dict) -> tuple:
@@ -67,6 +67,10 @@ def parameter_rows(raw: dict, std_src, k: float) -> list:
             rows.append(_row(f"station {j} {axis}", P[c], "mm", u, k))
     for j, d in enumerate(raw.get("dead_paths_mm", [])):
         rows.append(_row(f"dead path {j}", d, "mm", _u(std_src, "dead_paths_mm", j), k))
+    for j, v in enumerate(raw.get("drift_mm_per_h", [])):  # shown in µm/h
+        u = _u(std_src, "drift_mm_per_h", j)
+        rows.append((f"dead-path drift {j}", f"{1e3 * v:.3f} µm/h", ui.num(None if u is None else 1e3 * u, ".3f"),
+                     ui.num(None if u is None else 1e3 * k * u, ".3f"), "µm/h"))
     frame = raw.get("tracker_frame")
     if isinstance(frame, dict):
         uf = (std_src or {}).get("tracker_frame") or {}
