@@ -195,7 +195,7 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, files):
          "--grid1-deg is a SCARA option"),
         (["identify", d / "campaign.csv", "--grid-step-deg", "5"], "--grid-step-deg needs --robot FILE"),
         (["uncertainty", d / "truth.json", d / "campaign.csv", "--method", "linear"],
-         "a serial robot's result (olti identify --robot); olti uncertainty takes SCARA"),
+         "a simulation truth, not an identified result"),
     ]
     for args, expect in cases:
         err = olti(*args, *(base if args[0] == "identify" else base[2:]), expect=2).stderr

@@ -433,9 +433,6 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
-    from olti_drake.cli.serial_verbs import refuse_serial_result
-
-    refuse_serial_result(args.result, "uncertainty")
     import types
 
     import numpy as np
@@ -455,6 +452,12 @@ def cmd_uncertainty(args) -> int:
     if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
         raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
+    from olti_drake.cli.serial_verbs import is_serial_result
+
+    if is_serial_result(args.result):
+        from olti_drake.cli.serial_uncertainty import uncertainty
+
+        return uncertainty(args, _propagate)
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = budget_or_default(args.budget, "scara")
@@ -874,6 +877,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
                         "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
+    p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=400,
+                   help="robots from a model file: seeded workspace poses where the predicted tool point's u is "
+                        "evaluated (default 400)")
     p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
     p.add_argument("--out", required=True, help="uncertainty JSON to write")
     _add_force(p)

@@ -246,3 +246,26 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
                       f"(a point campaign: the distance between the measured and the predicted point), RMS {1e3 * np.sqrt(np.mean(r ** 2)):.2f} µm."))
         page.figure(lambda path: ui.plot_residuals(np.arange(len(r)), r, group, label, path), "fig_residuals.png",
                     f"Residuals per {label}")
+
+
+def plot_workspace_uncertainty(points_mm, expanded_um, path, k: float = 2.0, method: str = "", most: int = 4):
+    """The predicted tool point's expanded uncertainty over the workspace as slices of the volume (z bands,
+    001 Fig. 14 in 3D): one XY panel per band of equal count, one colour scale; µm."""
+    from olti_drake.report.figures import _pyplot, _save
+
+    plt = _pyplot()
+    p, U = np.asarray(points_mm, float), np.asarray(expanded_um, float)
+    n = min(most, max(1, len(p) // 20))
+    edges = np.quantile(p[:, 2], np.linspace(0, 1, n + 1))
+    fig, axes = plt.subplots(1, n, figsize=(5.0 * n + 1.5, 4.8), squeeze=False)
+    norm = plt.Normalize(U.min(), U.max())
+    for i, ax in enumerate(axes[0]):
+        at = (p[:, 2] >= edges[i]) & ((p[:, 2] <= edges[i + 1]) if i == n - 1 else (p[:, 2] < edges[i + 1]))
+        sc = ax.scatter(p[at, 0], p[at, 1], c=U[at], norm=norm, s=22, cmap="jet", edgecolors="none")
+        ax.set(xlabel="x, mm", ylabel="y, mm", title=f"z {edges[i]:.0f} … {edges[i + 1]:.0f} mm ({int(at.sum())} poses)")
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(sc, ax=axes[0][-1], label=f"U (k = {k:g}) = k·sqrt(u_x² + u_y² + u_z²), µm")
+    fig.suptitle(f"Predicted tool-point uncertainty over the workspace: max {U.max():.1f} µm, mean {U.mean():.1f} µm"
+                 + (f" -- {method}" if method else ""), fontsize=10)
+    return _save(fig, plt, path)
