@@ -246,10 +246,11 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
                                bad, "--out", tmp_path / "r.json")
         assert code == 2 and "--tool-offsets-mm" in err, err
         _one_error_line(err)
-    code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
-                           tools_option(2), "--out", tmp_path / "r.json")
-    assert code == 2 and "--tool-offsets-mm" in err and "0..2" in err
-    _one_error_line(err)
+    for offsets, count in ((tools_option(2), "2 offset(s)"), (tools_option(3) + ";1,1,1", "4 offset(s)")):
+        code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
+                               offsets, "--out", tmp_path / "r.json")
+        assert code == 2 and "--tool-offsets-mm" in err and count in err and "0..2" in err
+        _one_error_line(err)
     code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--out", tmp_path / "r.json")
     assert code == 2 and "3 tools" in err and "--tool-offsets-mm" in err
     code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--grid1-deg", "0:10:5",

@@ -146,9 +146,9 @@ def machine_config(data: VolumetricCampaign, options: VolumetricOptions) -> Mach
                              f"offsets with --tool-offsets-mm 'x,y,z;x,y,z;...' (mm, from the spindle reference point)")
         tools = [[0.0, 0.0, 0.0]]
     tools = np.asarray(tools, float)
-    if tools.ndim != 2 or tools.shape[1] != 3 or len(tools) < data.n_tools:
+    if tools.ndim != 2 or tools.shape[1] != 3 or len(tools) != data.n_tools:
         raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but the campaign uses tool indices "
-                         f"0..{data.n_tools - 1} (one 'x,y,z' per tool, separated by ';')")
+                         f"0..{data.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     if options.topology not in TOPOLOGIES:
         raise InputError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {options.topology!r}")
     spacing = options.knot_spacing_mm or default_knot_spacing(c)
