@@ -294,3 +294,43 @@ def test_a_campaign_at_one_z_refuses_z_by_name(identified, tmp_path, capsys):
                            tools_option(1), "--out", tmp_path / "r.json")
     assert code == 2 and "E_ZZ" in err and "z = 120" in err
     _one_error_line(err)
+
+
+def _pan_tilt_campaign(path, grid):
+    """The simulated pan/tilt campaign of model.machine (heads aimed by 001 Eq. (1) in 3D, cosine error,
+    λ/64, budget noise) on a command ``grid``, three tools; its truth on a 100 mm knot grid."""
+    from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d
+
+    cfg = MachineConfig(tool_offsets_mm=NOMINAL_TOOLS, knot_spacing_mm=100.0)
+    cols, _ = simulate_machine_campaign_3d(Machine3DScenario(config=cfg, grid=grid, tools=(0, 1, 2), seed=4))
+    write_machine_campaign(cols, path)
+    return cfg, synthetic_truth(cfg, 1)   # the scenario's truth_seed
+
+
+def test_the_simulated_pan_tilt_campaign_is_identified_with_the_default_knots(tmp_path, capsys):
+    """End to end on the other campaign source (model.machine.simulate_machine_campaign_3d): default knot
+    spacing from the grid (9, 8, 7 positions: 125 mm), every motion within 3 u of the truth (u from the
+    001 Table 4 budget, conservative here: the simulated readings scatter less than it predicts)."""
+    cfg, truth = _pan_tilt_campaign(tmp_path / "campaign.csv", (9, 8, 7))
+    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                           "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["representation"]["knot_spacing_mm"] == 125.0 and not doc["held_motions"] and not doc["warnings"]
+    for name, (err_, u, amplitude) in normalized_errors(doc, truth).items():
+        assert np.all(err_ <= 3 * u + 1e-12), name
+        assert u.max() < amplitude, name
+
+
+def test_too_few_positions_for_the_spline_are_refused_naming_the_axis(tmp_path, capsys):
+    """3 z positions cannot carry a cubic spline (4 coefficients): refused naming Z and its motions -- not
+    mistaken for a tool-geometry blind spot (nothing is held at 0); too fine knots likewise."""
+    _pan_tilt_campaign(tmp_path / "campaign.csv", (5, 4, 3))
+    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                           "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json")
+    assert code == 2 and "Z is commanded at 3 distinct positions" in err and "E_ZZ" in err and "held" not in err
+    _one_error_line(err)
+    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                           "--tool-offsets-mm", tools_option(3), "--knot-spacing-mm", "40", "--out", tmp_path / "r.json")
+    assert code == 2 and "X is commanded at 5 distinct positions" in err and "--knot-spacing-mm" in err
+    assert not (tmp_path / "r.json").exists()

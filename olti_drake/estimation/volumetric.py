@@ -154,11 +154,31 @@ def machine_config(data: VolumetricCampaign, options: VolumetricOptions) -> Mach
     spacing = options.knot_spacing_mm or default_knot_spacing(c)
     tool_chain, work_chain = TOPOLOGIES[options.topology]
     try:
-        return MachineConfig(tool_chain=tool_chain, work_chain=work_chain,
-                             travel_mm={a: (float(c[:, k].min()), float(c[:, k].max())) for k, a in enumerate(AXES)},
-                             knot_spacing_mm=float(spacing), tool_offsets_mm=tuple(map(tuple, tools)))
+        config = MachineConfig(tool_chain=tool_chain, work_chain=work_chain,
+                               travel_mm={a: (float(c[:, k].min()), float(c[:, k].max())) for k, a in enumerate(AXES)},
+                               knot_spacing_mm=float(spacing), tool_offsets_mm=tuple(map(tuple, tools)))
     except ValueError as e:
         raise InputError(f"{data.source}: {e}") from None
+    _check_positions(data, config)
+    return config
+
+
+def _check_positions(data: VolumetricCampaign, config: MachineConfig) -> None:
+    """Refuse, naming the axis, a spline richer than the campaign's positions along it: an angular motion
+    has n_basis − 1 free coefficients (0 at the start), so the axis needs n_basis distinct positions --
+    otherwise a combination of coefficients vanishing at every position is seen by no reading (this is
+    the knot spacing's fault, not the tools', and is not held at 0 as a tool-geometry blind spot is)."""
+    for k, a in enumerate(AXES):
+        distinct = len(np.unique(np.round(data.commands_mm[:, k], 6)))
+        need = config.n_basis(a)
+        if distinct < need:
+            intervals = need - 3
+            raise UnidentifiableError(
+                f"{data.source}: {a} is commanded at {distinct} distinct positions, but the cubic B-splines of its "
+                f"motions ({', '.join(motion_names(a))}) have {need} coefficients ({intervals} knot interval(s) of "
+                f"<= {config.knot_spacing_mm:g} mm) and need at least {need}: "
+                + ("a cubic spline needs 4 -- add positions along " + a if need == 4 else
+                   f"give a larger --knot-spacing-mm or more positions along {a}"), list(motion_names(a)))
 
 
 def _priority(obs, name) -> tuple:
