@@ -425,6 +425,9 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
+    if _result_format(args.result) == "olti-volumetric/1":
+        raise ValueError(f"{args.result}: a volumetric result carries its linear uncertainties (key 'uncertainty', "
+                         f"k = 1); olti uncertainty takes SCARA and multilateration results")
     import types
 
     import numpy as np
