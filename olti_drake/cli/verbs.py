@@ -202,6 +202,11 @@ def identification_summary(ident) -> str:
 
 
 def cmd_identify(args) -> int:
+    if args.model == "volumetric":
+        from olti_drake.cli.volumetric_verbs import identify
+        return identify(args)
+    if args.tool_offsets_mm or args.knot_spacing_mm or args.topology != "serial" or args.pitch_mm:
+        raise ValueError("--tool-offsets-mm, --knot-spacing-mm, --topology and --pitch-mm apply to --model volumetric")
     if args.robot or args.tool_frame:
         from olti_drake.cli.serial_verbs import identify
 
@@ -299,6 +304,9 @@ def _add_solver_options(p):
 
 
 def cmd_predict(args) -> int:
+    if _result_format(args.result) == "olti-volumetric/1":
+        from olti_drake.cli.volumetric_verbs import predict
+        return predict(args)
     from olti_drake.io.campaign_io import load_commands
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
@@ -433,6 +441,9 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
+    if _result_format(args.result) == "olti-volumetric/1":
+        raise ValueError(f"{args.result}: a volumetric result carries its linear uncertainties (key 'uncertainty', "
+                         f"k = 1); olti uncertainty takes SCARA and multilateration results")
     import types
 
     import numpy as np
@@ -653,6 +664,9 @@ def cmd_report(args) -> int:
 
 def cmd_compensate(args) -> int:
     """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    if _result_format(args.result) == "olti-volumetric/1":
+        from olti_drake.cli.volumetric_verbs import compensate
+        return compensate(args)
     from olti_drake.cli.serial_verbs import compensate, is_serial_result
 
     if is_serial_result(args.result):
@@ -792,7 +806,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
                                    "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
-    p.add_argument("--model", choices=("dh", "errormap"), required=True)
+    p.add_argument("--model", choices=("dh", "errormap", "volumetric"), required=True,
+                   help="volumetric: the 21 ISO 230-1 error motions of a 3-axis machine from a 3D machine campaign "
+                        "(docs/machine_3d.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
     p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
     p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
@@ -801,6 +817,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
                    help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
+    p.add_argument("--tool-offsets-mm", type=cliargs.pairs_mm(3),
+                   help="volumetric: the offset of every tool index 'x,y,z;x,y,z;...' mm from the spindle reference "
+                        "point (tool 0's taken as given, the others' estimated; default 0,0,0 for a 1-tool campaign)")
+    p.add_argument("--knot-spacing-mm", type=cliargs.length_mm,
+                   help="volumetric: largest B-spline knot interval of the error motions (default: up to 8 intervals "
+                        "per axis, fewer when the campaign has few distinct positions)")
+    p.add_argument("--topology", choices=("serial", "table-xy", "table-yx"), default="serial",
+                   help="volumetric: serial X-Y-Z (default); table-xy: table carries X on Y, column Z; table-yx: "
+                        "table carries Y on X, column Z")
+    p.add_argument("--pitch-mm", type=cliargs.length_mm,
+                   help="volumetric: the motion values and their uncertainties every S mm (default 10)")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
                                     "against (warning above 3 x; default: 000 Table 2)")
     p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
@@ -967,6 +994,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
     p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
                                       "identified joint origins and the tool point as a link")
+    p.add_argument("--pitch-mm", type=cliargs.length_mm,
+                   help="volumetric --tables: axis tables every S mm (default 10)")
+    p.add_argument("--grid-pitch-mm", type=cliargs.length_mm,
+                   help="volumetric --tables: the 3D grid of positioning-error vectors every S mm (default 50)")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)
@@ -994,7 +1025,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: Options whose values may start with '-' (negative angles, coordinates).
 _SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
-                         "--tool-offset-mm")
+                         "--tool-offset-mm", "--tool-offsets-mm")
 
 
 def _join_signed_values(argv):

@@ -22,26 +22,40 @@ from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOption
 
 
 def distance_rows(p, pcols, dpx, dpy, P, d0, station, readings, station_col: int, dead_path_col: int):
-    """The distance residual of both papers, r = ‖p − P_j‖ − d0_j − d (000 Eq. 10, 001 Eq. 3), batched, mm.
+    """The distance residual of both papers in 2D (000 Eq. 10, 001 Eq. 3); see :func:`distance_rows_nd`.
+
+    ``dpx``, ``dpy``: (K, m) the position model's ∂p_x, ∂p_y (broadcastable).
+    """
+    return distance_rows_nd(p, pcols, (dpx, dpy), P, d0, station, readings, station_col, dead_path_col)
+
+
+def distance_rows_nd(p, pcols, dp, P, d0, station, readings, station_col: int, dead_path_col: int):
+    """The distance residual of both papers, r = ‖p − P_j‖ − d0_j − d (000 Eq. 10, 001 Eq. 3), batched, mm,
+    in D = 2 or 3 dimensions (001 Eq. 3 with p_i, P_j in R^D).
 
     Args:
-        p: (T, K, 2) the position of every reading in T parameter vectors, mm.
-        pcols, dpx, dpy: (K, m) the position model's parameter columns and (T, K, m) the matching
-            ∂p_x, ∂p_y (broadcastable).
-        P, d0: (T, N, 2) stations and (T, N) dead paths; ``station`` (K,) the station of each reading.
+        p: (T, K, D) the position of every reading in T parameter vectors, mm.
+        pcols, dp: (K, m) the position model's parameter columns and, per coordinate c < D, the
+            matching (T, K, m) ∂p_c (broadcastable).
+        P, d0: (T, N, D) stations and (T, N) dead paths; ``station`` (K,) the station of each reading.
         readings: (K,) or (T, K) the readings d, mm.
-        station_col, dead_path_col: where P_0x and d0_0 sit in the parameter vector (P_jx, P_jy pairs).
+        station_col, dead_path_col: where P_0x and d0_0 sit in the parameter vector (P_j's D coordinates
+            consecutive).
 
     Returns:
-        r (T, K); cols (K, m + 3) shared by the trials; vals (T, K, m + 3): u·∂p, −u on P_j, −1 on d0_j
-        (u the unit vector from P_j to p).
+        r (T, K); cols (K, m + D + 1) shared by the trials; vals (T, K, m + D + 1): u·∂p, −u on P_j, −1 on
+        d0_j (u the unit vector from P_j to p).
     """
+    D = p.shape[-1]
     diff = p - P[:, station]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
+    dist = np.hypot.reduce(diff, axis=-1)  # = np.hypot(dx, dy) bit for bit in 2D
     u = diff / dist[..., None]
     r = dist - d0[:, station] - readings
-    cols = np.column_stack([pcols, station_col + 2 * station, station_col + 2 * station + 1, dead_path_col + station])
-    vals = np.concatenate([u[..., :1] * dpx + u[..., 1:] * dpy, -u, -np.ones(r.shape + (1,))], axis=-1)
+    dr_dp = u[..., :1] * dp[0]
+    for c in range(1, D):
+        dr_dp = dr_dp + u[..., c:c + 1] * dp[c]
+    cols = np.column_stack([pcols] + [station_col + D * station + c for c in range(D)] + [dead_path_col + station])
+    vals = np.concatenate([dr_dp, -u, -np.ones(r.shape + (1,))], axis=-1)
     return r, cols, vals
 
 
@@ -79,30 +93,30 @@ class Calibration(LeastSquaresProgram):
 
 
 def station_fit(points_mm, readings_mm, start_mm=None):
-    """(P, L0) of one station from known points p (K, 2) or (K, 3) and readings d = ‖p − P‖ − L0 (K,), mm.
+    """(P, L0) of one station from known points p (K, D), D = 2 or 3, and readings d = ‖p − P‖ − L0 (K,), mm.
 
     Without a start: the linearized multilateration ‖p‖² − 2p·P + ‖P‖² =
     (d + L0)² is linear in (P, L0, ‖P‖² − L0²); then Gauss-Newton on Eq. (3)
     of 001 (Eq. (5) of 000 for a SCARA reflector; the 3D station of an N-joint robot).
     """
     p, d = np.asarray(points_mm, dtype=float), np.asarray(readings_mm, dtype=float)
-    dim = p.shape[1]
-    if np.linalg.matrix_rank(p - p.mean(axis=0), tol=1e-9 * max(1.0, np.abs(p).max())) < dim:
-        raise ValueError("the points lie on one line: distances cannot tell the two sides of it apart" if dim == 2
-                         else "the points lie in one plane: distances cannot tell the two sides of it apart")
+    D = p.shape[1]
+    if np.linalg.matrix_rank(p - p.mean(axis=0), tol=1e-9 * max(1.0, np.abs(p).max())) < D:
+        raise ValueError(f"the points lie on one {'line' if D == 2 else 'plane'}: distances cannot tell the two "
+                         f"sides of it apart")
     if start_mm is None:
         A = np.column_stack([-2 * p, -2 * d, np.ones(len(d))])
         sol, *_ = np.linalg.lstsq(A, d ** 2 - np.sum(p ** 2, axis=1), rcond=None)
-        P, L0 = sol[:dim], sol[dim]
+        P, L0 = sol[:D], sol[D]
     else:
         P = np.asarray(start_mm, dtype=float)
-        L0 = np.mean(_norms(p - P) - d)
+        L0 = np.mean(np.hypot.reduce(p - P, axis=1) - d)
     for _ in range(20):
         diff = p - P
-        dist = _norms(diff)
+        dist = np.hypot.reduce(diff, axis=1)
         J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
         step = np.linalg.lstsq(J, -(dist - L0 - d), rcond=None)[0]
-        P, L0 = P + step[:dim], L0 + step[dim]
+        P, L0 = P + step[:D], L0 + step[D]
         if np.max(np.abs(step)) < 1e-12:
             break
     return P, L0

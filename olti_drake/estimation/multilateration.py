@@ -1,16 +1,27 @@
-"""Self-calibrating multilateration of paper 001 §2.3 (Eq. 2-6), on the shared least-squares program.
+"""Self-calibrating multilateration of paper 001 §2.3 (Eq. 2-6), on the shared least-squares program,
+in D = 2 dimensions (the paper's table) or D = 3 (the machine tool in 3D, formats.md).
 
-Unknowns (Eq. 4, in 2D): the target positions p_i, the station (rotary-table
-interferometer) positions P_j and the dead paths L0_j; readings
-ΔL_ij = ‖p_i − P_j‖ − L0_j (Eq. 3). Distances cannot see where the frame is:
-two translations and one rotation (the 2D counterpart of 001's six
-constraints) are fixed explicitly as linear constraints and stated in the
-result's ``gauge``.
+Unknowns (Eq. 4): the target positions p_i ∈ R^D, the station (rotary-table or
+pan/tilt-head interferometer) positions P_j ∈ R^D and the dead paths L0_j;
+readings ΔL_ij = ‖p_i − P_j‖ − L0_j (Eq. 3). Distances cannot see where the
+frame is: D translations and D(D − 1)/2 rotations (3 in 2D; 001's six
+constraints in 3D) are fixed explicitly as linear constraints and stated in
+the result's ``gauge``.
 
-Counting (2D): 2N_i + 3N_j − 3 unknowns against N_i·N_j readings, so
-N_i > (3N_j − 3)/(N_j − 2) with N_j ≥ 3 (001 gives the 3D form
-N_i > (4N_j − 6)/(N_j − 3)). Geometry that leaves the problem singular (e.g.
-stations on one line with the targets) is caught by the rank check.
+Counting: D·N_i + (D + 1)·N_j − D(D + 1)/2 unknowns against N_i·N_j readings, so
+N_i > ((D + 1)N_j − D(D + 1)/2)/(N_j − D) with N_j ≥ D + 1: in 2D
+N_i > (3N_j − 3)/(N_j − 2), in 3D 001's N_i > (4N_j − 6)/(N_j − 3).
+
+Degenerate geometry is refused by name before solving: targets whose
+positions lie on one line (2D) or plane (3D) -- the stations' mirror images
+through it give the same readings, and a station fit from them is ambiguous;
+stations on one line (2D) or plane (3D) -- the Jacobian loses rank beyond the
+gauge (a target's offset across the station plane trades against the dead
+paths to first order). What is left singular is caught by the rank check.
+
+Several reflector mountings on the spindle (``tool`` column, 3D) make target i
+the point command_i + t_tool(i); the nominal offsets t are given, or
+estimated from the data relative to tool 0 (then stated in the notes).
 
 Units: mm.
 """
@@ -25,21 +36,27 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
                     json_numbers, read_json,
                     read_table)
 from olti_drake.model.scara import rows_to_csr
-from olti_drake.estimation.calibration import distance_rows, station_fit  # noqa: F401 (station_fit re-exported)
+from olti_drake.estimation.calibration import distance_rows_nd, station_fit  # noqa: F401 (station_fit re-exported)
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
 
 FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
-GAUGES = ("best-fit", "first-two")
-#: ∂p/∂(p_x, p_y) of a free point: the identity, as the rows of :func:`calibration.distance_rows`.
-_UNIT_X, _UNIT_Y = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+#: The command columns of a D-dimensional campaign: the first D of these (3D when ``z_cmd_mm`` is present).
+COMMAND_COLUMNS = ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm")
+#: The gauges of each dimension; ``GAUGES`` is every name.
+GAUGES_BY_DIM = {2: ("best-fit", "first-two"), 3: ("best-fit", "first-three")}
+GAUGES = ("best-fit", "first-two", "first-three")
+#: ∂p/∂(p coordinates) of a free point in D dimensions: the identity, as the rows of
+#: :func:`calibration.distance_rows_nd`.
+_UNITS = {D: tuple(np.eye(D)) for D in (2, 3)}
 
 
 @dataclass(frozen=True)
 class MachineCampaign:
     """Valid readings of a machine-tool campaign (formats.md): station j, target i, ΔL_ij (mm).
 
-    ``commands_mm`` (N_i, 2) is the command position p*_i of every target index.
+    ``commands_mm`` (N_i, D) is the command position p*_i of every target index (D = 3 when the file has
+    ``z_cmd_mm``); ``tool`` (N_i,) the reflector mounting index of every target (default 0).
     """
 
     station: np.ndarray
@@ -48,6 +65,20 @@ class MachineCampaign:
     displacement_mm: np.ndarray
     line: np.ndarray
     source: str = ""
+    tool: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        if self.tool is None:
+            object.__setattr__(self, "tool", np.zeros(len(self.commands_mm), dtype=int))
+
+    @property
+    def dim(self) -> int:
+        """2 (001's table) or 3 (the machine tool in 3D)."""
+        return int(self.commands_mm.shape[1])
+
+    @property
+    def n_tools(self) -> int:
+        return int(self.tool.max()) + 1
 
     def __len__(self) -> int:
         return self.station.size
@@ -65,10 +96,11 @@ def load_machine_campaign(path) -> MachineCampaign:
     """Load a machine-tool campaign CSV (formats.md); skip ``valid`` = 0 rows.
 
     One-line errors name file, line and column; the same target index must
-    carry the same command position on every row.
+    carry the same command position (and tool) on every row. 3D when the file
+    has ``z_cmd_mm``; ``tool`` optional (default 0).
     """
-    return machine_campaign(read_table(path, REQUIRED, ("valid",), integer=("station", "target", "valid")),
-                            os.fspath(path))
+    return machine_campaign(read_table(path, REQUIRED, ("z_cmd_mm", "tool", "valid"),
+                                       integer=("station", "target", "tool", "valid")), os.fspath(path))
 
 
 def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign:
@@ -83,36 +115,55 @@ def machine_campaign(columns: dict, source: str = "campaign") -> MachineCampaign
     if "_same_as" in columns:
         t["_same_as"] = t["_same_as"].astype(int)
         check_no_duplicate_rows(t, source)
-    check_finite(t, source, REQUIRED)
+    D = 3 if "z_cmd_mm" in t else 2
+    check_finite(t, source, REQUIRED + COMMAND_COLUMNS[2:D])
     i, j = check_indices(t, source, "target"), check_indices(t, source, "station")
-    xy = np.column_stack([t["x_cmd_mm"], t["y_cmd_mm"]])
-    cmd = np.full((i.max() + 1, 2), np.nan)
-    cmd[i[::-1]] = xy[::-1]  # the first row of a target defines its command
-    clash = np.flatnonzero(np.any(np.abs(cmd[i] - xy) > 1e-9, axis=1))
-    if clash.size:
-        k = clash[0]
-        raise InputError(f"{source}:{t['_line'][k]}: target {i[k]} has command ({xy[k, 0]:g}, {xy[k, 1]:g}) mm, "
-                         f"but ({cmd[i[k], 0]:g}, {cmd[i[k], 1]:g}) mm elsewhere")
-    size = np.hypot(*np.ptp(cmd, axis=0))
+    tool = check_indices(t, source, "tool") if "tool" in t else np.zeros(len(i), dtype=int)
+    xy = np.column_stack([t[c] for c in COMMAND_COLUMNS[:D]])
+    cmd, tools = _per_target(i, xy, tool, t["_line"], source)
+    size = np.hypot.reduce(np.ptp(cmd, axis=0))
     check_spread(t["displacement_mm"], j, t["_line"], source, "displacement_mm", 1.5 * size + 10.0, "station",
                  f"the {size:g} mm diagonal of the commands, with a margin")
-    return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source)
+    return MachineCampaign(j, i, cmd, t["displacement_mm"], t["_line"], source, tools)
+
+
+def _per_target(i, xy, tool, lines, source):
+    """Command (N_i, D) and tool (N_i,) of every target index, from its first row; a row that disagrees
+    with that first row is refused naming both lines (a target index names one command and one tool)."""
+    first = np.full(i.max() + 1, -1)
+    first[i[::-1]] = np.arange(len(i))[::-1]  # the first row of a target defines its command and tool
+    cmd, tools = xy[first], tool[first]
+    clash = np.flatnonzero(np.any(np.abs(cmd[i] - xy) > 1e-9, axis=1) | (tools[i] != tool))
+    if clash.size:
+        k = clash[0]
+        k0 = first[i[k]]
+
+        def says(r):
+            return "(" + ", ".join(f"{v:g}" for v in xy[r]) + ") mm" + (f", tool {tool[r]}" if tool.any() else "")
+
+        raise InputError(f"{source}:{lines[k]}: target {i[k]} has command {says(k)}, but {says(k0)} on line "
+                         f"{lines[k0]} (a target index names one command position and tool)")
+    return cmd, tools
 
 
 @dataclass
 class MultilaterationOptions(SolverOptions):
     """Solver options plus: initial station positions (mm, e.g. from the rotation-centre
-    estimate of 001 §2.2) and the gauge (``best-fit``: the estimated targets have no mean
-    translation or rotation from their commands; ``first-two``: target 0 at its command, target 1
-    on the line of its command direction)."""
+    estimate of 001 §2.2), the gauge (``best-fit``: the estimated targets have no mean
+    translation or rotation from their nominal positions; ``first-two`` (2D): target 0 at its
+    command, target 1 on the line of its command direction; ``first-three`` (3D): target 0 at its
+    command, target 1 on that line, target 2 in the plane of the first three commands), and the
+    nominal tool offsets (M, D) mm of the campaign's tool indices (default: zero for one tool,
+    estimated relative to tool 0 for several)."""
 
     stations_mm: Optional[np.ndarray] = None
     gauge: str = "best-fit"
+    tool_offsets_mm: Optional[np.ndarray] = None
 
 
 @dataclass
 class MultilaterationResult:
-    """Estimated targets (N_i, 2), stations (N_j, 2), dead paths (N_j,) mm, uncertainties (k = 1)."""
+    """Estimated targets (N_i, D), stations (N_j, D), dead paths (N_j,) mm, uncertainties (k = 1)."""
 
     targets_mm: np.ndarray
     stations_mm: np.ndarray
@@ -124,23 +175,39 @@ class MultilaterationResult:
     gauge_kind: str = "best-fit"
     #: The campaign solved from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
     campaign: dict = field(default_factory=dict)
+    #: Tool index of every target and the nominal tool offsets used (3D campaigns), mm.
+    tools: Optional[np.ndarray] = None
+    tool_offsets_mm: Optional[np.ndarray] = None
 
     @property
     def residual_rms_mm(self) -> float:
         return float(np.sqrt(np.mean(self.fit.residuals ** 2)))
 
+    @property
+    def dim(self) -> int:
+        return int(self.targets_mm.shape[1])
+
+    @property
+    def nominal_mm(self) -> np.ndarray:
+        """Nominal target positions: commands plus their tools' nominal offsets, mm."""
+        if self.tool_offsets_mm is None:
+            return self.commands_mm
+        return self.commands_mm + self.tool_offsets_mm[self.tools]
+
     def to_dict(self) -> dict:
-        """The machine-tool ``result.json`` of formats.md."""
+        """The machine-tool ``result.json`` of formats.md (2D, or 3D with ``tools`` and ``tool_offsets_mm``)."""
         f = self.fit
-        n_i, n_j = len(self.targets_mm), len(self.stations_mm)
+        n_i, n_j, D = len(self.targets_mm), len(self.stations_mm), self.dim
         std = f.std
+        tools = {} if self.tool_offsets_mm is None else {"tools": self.tools.tolist(),
+                                                          "tool_offsets_mm": self.tool_offsets_mm.tolist()}
         return {"format": FORMAT, "targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
                 "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge": self.gauge, "gauge_kind": self.gauge_kind,
                 "residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
-                "commands_mm": self.commands_mm.tolist(),
+                "commands_mm": self.commands_mm.tolist(), **tools,
                 "uncertainty": {"k": 1, "targets_mm": self.targets_std_mm.tolist(),
-                                "stations_mm": std[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2).tolist(),
-                                "dead_paths_mm": std[2 * n_i + 2 * n_j:].tolist(),
+                                "stations_mm": std[D * n_i:D * n_i + D * n_j].reshape(-1, D).tolist(),
+                                "dead_paths_mm": std[D * n_i + D * n_j:].tolist(),
                                 "method": "linear propagation (JCGM 100): " + (
                                     "of the budget" if any("budget" in n for n in f.notes)
                                     else "of the residual variance")},
@@ -149,10 +216,33 @@ class MultilaterationResult:
                 **({"campaign": self.campaign} if self.campaign else {}), **({"notes": f.notes} if f.notes else {})}
 
 
-class Multilateration(LeastSquaresProgram):
-    """The self-calibrating multilateration problem (001 Eq. 2-6) as a Drake MathematicalProgram.
+def counting_bound(n_stations: int, dim: int) -> float:
+    """The fewest targets N_i must exceed (001 Eq. 4 counting): unknowns D N_i + (D + 1) N_j − D(D + 1)/2
+    (targets, stations with their dead paths, less the gauge) below the N_i N_j readings, so
+    N_i > ((D + 1) N_j − D(D + 1)/2)/(N_j − D); 2D (3 N_j − 3)/(N_j − 2), 3D (4 N_j − 6)/(N_j − 3).
+    Needs N_j > D (infinite otherwise)."""
+    if n_stations <= dim:
+        return float("inf")
+    return ((dim + 1) * n_stations - dim * (dim + 1) / 2) / (n_stations - dim)
 
-    Variables ``p{i}_x_mm``, ``p{i}_y_mm``, ``P{j}_x_mm``, ``P{j}_y_mm``, ``L0_{j}_mm``.
+
+def affine_rank(points, rel_tol: float = 1e-9) -> int:
+    """Dimension of the affine hull of ``points`` (K, D): 0 one point, 1 a line, 2 a plane, 3 a volume."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 2:
+        return 0
+    return int(np.linalg.matrix_rank(p - p.mean(axis=0), tol=rel_tol * max(1.0, float(np.abs(p).max()))))
+
+
+def _flat_name(dim: int) -> str:
+    return "line" if dim == 2 else "plane"
+
+
+class Multilateration(LeastSquaresProgram):
+    """The self-calibrating multilateration problem (001 Eq. 2-6) as a Drake MathematicalProgram, 2D or 3D.
+
+    Variables ``p{i}_x_mm``, ``p{i}_y_mm`` (, ``p{i}_z_mm``), ``P{j}_x_mm`` … , ``L0_{j}_mm``. The Jacobian
+    is sparse (a reading touches one target and one station): :meth:`residuals` returns it as CSR.
     """
 
     rank_hint = "check the station layout: stations on one line with the targets cannot locate them"
@@ -160,14 +250,21 @@ class Multilateration(LeastSquaresProgram):
 
     def __init__(self, data: MachineCampaign, options: MultilaterationOptions = None):
         o = options or MultilaterationOptions()
-        if o.gauge not in GAUGES:
-            raise InputError(f"gauge must be one of {', '.join(GAUGES)}, got {o.gauge!r}")
+        if o.gauge not in GAUGES_BY_DIM[data.dim]:
+            raise InputError(f"gauge must be one of {', '.join(GAUGES_BY_DIM[data.dim])} for a {data.dim}D "
+                             f"campaign, got {o.gauge!r}")
         self.data = data
+        self.dim = D = data.dim
         self._check_counts()
+        self._check_geometry_of_targets()
         n_i, n_j = data.n_targets, data.n_stations
-        self._declare([f"p{i}_{c}_mm" for i in range(n_i) for c in "xy"]
-                      + [f"P{j}_{c}_mm" for j in range(n_j) for c in "xy"] + [f"L0_{j}_mm" for j in range(n_j)], o)
+        axes = "xyz"[:D]
+        self._declare([f"p{i}_{c}_mm" for i in range(n_i) for c in axes]
+                      + [f"P{j}_{c}_mm" for j in range(n_j) for c in axes] + [f"L0_{j}_mm" for j in range(n_j)], o)
+        self.tool_offsets_mm = self._tool_offsets()
+        self.nominal_mm = data.commands_mm + (0.0 if self.tool_offsets_mm is None else self.tool_offsets_mm[data.tool])
         self.x0 = self._initial_guess()
+        self._check_geometry_of_stations(self.x0)
         self.gauge = self._add_gauge()
 
     #: A station farther than this many command spans from the command centroid is absurd.
@@ -175,19 +272,26 @@ class Multilateration(LeastSquaresProgram):
     #: A target estimated farther than this fraction of the command span from its command is absurd.
     TARGET_SPAN_FRACTION = 0.1
 
+    def _split(self, x):
+        """(targets (N_i, D), stations (N_j, D), dead paths (N_j,)) of a parameter vector."""
+        n_i, n_j, D = self.data.n_targets, self.data.n_stations, self.dim
+        x = np.asarray(x)
+        return (x[:D * n_i].reshape(-1, D), x[D * n_i:D * n_i + D * n_j].reshape(-1, D), x[D * n_i + D * n_j:])
+
     def implausible(self, x) -> list:
         """Stations beyond :attr:`STATION_SPANS` command spans from the command centroid, or targets more than
-        :attr:`TARGET_SPAN_FRACTION` of the span off their commands (a machine's errors are far smaller)."""
-        c = self.data.commands_mm
-        n_i, n_j = self.data.n_targets, self.data.n_stations
+        :attr:`TARGET_SPAN_FRACTION` of the span off their nominal positions (a machine's errors are far
+        smaller)."""
+        c = self.nominal_mm
         span = max(float(np.ptp(c, axis=0).max()), 1e-9)
         out = []
-        far = np.hypot(*(x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2) - c.mean(axis=0)).T)
+        targets, stations, _ = self._split(x)
+        far = np.hypot.reduce(stations - c.mean(axis=0), axis=1)
         if far.max() > self.STATION_SPANS * span:
             j = int(np.argmax(far))
             out.append(f"station {j} lies {far[j]:.6g} mm from the command centroid, over {self.STATION_SPANS:g} "
                        f"x the command span {span:g} mm")
-        off = np.hypot(*(x[:2 * n_i].reshape(-1, 2) - c).T)
+        off = np.hypot.reduce(targets - c, axis=1)
         if off.max() > self.TARGET_SPAN_FRACTION * span:
             i = int(np.argmax(off))
             out.append(f"target {i} is estimated {off[i]:.6g} mm from its command, over "
@@ -201,25 +305,59 @@ class Multilateration(LeastSquaresProgram):
         return getattr(self, "_solve_budget", None) or default_budget("machine")
 
     def _check_counts(self):
-        d = self.data
+        d, D = self.data, self.dim
         n_i, n_j = d.n_targets, d.n_stations
-        if n_j < 3:
+        gauge = D * (D + 1) // 2
+        if n_j < D + 1:
             raise UnidentifiableError(
-                f"{d.source}: {n_j} station position(s); 2D self-calibrating multilateration needs at least 3 "
-                f"(each target has 2 unknowns and each station 3, less the 3 of the gauge) -- the stations and "
-                f"dead paths are not identifiable", [f"P{j}" for j in range(n_j)])
-        need = (3 * n_j - 3) / (n_j - 2)
+                f"{d.source}: {n_j} station position(s); {D}D self-calibrating multilateration needs at least "
+                f"{D + 1} (each target has {D} unknowns and each station {D + 1}, less the {gauge} of the gauge) -- "
+                f"the stations and dead paths are not identifiable", [f"P{j}" for j in range(n_j)])
+        need = counting_bound(n_j, D)
         if not n_i > need:
+            form = "(3 N_j - 3)/(N_j - 2)" if D == 2 else "(4 N_j - 6)/(N_j - 3)"
             raise UnidentifiableError(
-                f"{d.source}: {n_i} targets with {n_j} stations; 2D needs N_i > (3 N_j - 3)/(N_j - 2) = {need:g} "
-                f"(unknowns 2 N_i + 3 N_j - 3 against N_i N_j readings; 001 Eq. (4) counts it in 3D)")
+                f"{d.source}: {n_i} targets with {n_j} stations; {D}D needs N_i > {form} = {need:g} "
+                f"(unknowns {D} N_i + {D + 1} N_j - {gauge} against N_i N_j readings; 001 Eq. (4))")
         seen = np.zeros((n_i, n_j), dtype=bool)
         seen[d.target, d.station] = True
-        lonely = np.flatnonzero(seen.sum(axis=1) < 2)
+        lonely = np.flatnonzero(seen.sum(axis=1) < D)
         if lonely.size:
             raise UnidentifiableError(f"{d.source}: target {lonely[0]} is read from {seen[lonely[0]].sum()} station(s); "
-                                      f"a 2D position needs at least 2 (and redundancy more)",
-                                      [f"p{lonely[0]}_x_mm", f"p{lonely[0]}_y_mm"])
+                                      f"a {D}D position needs at least {D} (and redundancy more)",
+                                      [f"p{lonely[0]}_{c}_mm" for c in "xyz"[:D]])
+        few = np.flatnonzero(seen.sum(axis=0) < D + 2)
+        if few.size:
+            j = int(few[0])
+            raise UnidentifiableError(f"{d.source}: station {j} reads {seen[:, j].sum()} target(s); its position and "
+                                      f"dead path ({D + 1} unknowns) need at least {D + 2}",
+                                      [f"P{j}_{c}_mm" for c in "xyz"[:D]] + [f"L0_{j}_mm"])
+
+    def _check_geometry_of_targets(self):
+        """Refuse targets whose commands span less than the space: on one line (2D) or one plane (3D)."""
+        d, D = self.data, self.dim
+        if affine_rank(d.commands_mm) < D:
+            flat = _flat_name(D)
+            raise UnidentifiableError(
+                f"{d.source}: not identifiable: P0..P{d.n_stations - 1} -- the {d.n_targets} target command "
+                f"positions lie on one {flat}: the stations' mirror images through it explain every reading "
+                f"alike (spread the targets over the {'plane' if D == 2 else 'volume'})",
+                [f"P{j}_{c}_mm" for j in range(d.n_stations) for c in "xyz"[:D]])
+
+    def _check_geometry_of_stations(self, x):
+        """Refuse stations (as first estimated) on one line (2D) or one plane (3D): the Jacobian loses rank
+        beyond the gauge (found numerically; the condition number is infinite)."""
+        d, D = self.data, self.dim
+        _, stations, _ = self._split(x)
+        span = float(np.ptp(stations, axis=0).max())
+        # Tolerance: a millionth of the layout's span (the estimate's noise is µm over metres).
+        if affine_rank(stations, 1e-6 * span / max(1.0, float(np.abs(stations).max()))) < D:
+            flat = _flat_name(D)
+            raise UnidentifiableError(
+                f"{d.source}: not identifiable: P0..P{d.n_stations - 1} -- the {d.n_stations} stations lie on one "
+                f"{flat}: a target's offset across it trades against the dead paths (rank deficient beyond the "
+                f"gauge; raise or lower {'one station off the line' if D == 2 else 'one or two heads off the plane'})",
+                [f"P{j}_{c}_mm" for j in range(d.n_stations) for c in "xyz"[:D]])
 
     def residual_rows(self, X, displacement_mm=None):
         """Eq. (3) of 001 for T parameter vectors at once, Jacobian row-compressed (for the Monte Carlo).
@@ -229,19 +367,19 @@ class Multilateration(LeastSquaresProgram):
             displacement_mm: readings ΔL_ij (K,) or per trial (T, K), mm; default the campaign's.
 
         Returns:
-            r (T, K) = ‖p_i − P_j‖ − L0_j − ΔL_ij, mm; cols (K, 5) parameter indices shared by all
-            trials (p_i x, y; P_j x, y; L0_j); vals (T, K, 5) the matching dr/dx entries (u, −u, −1),
-            u the unit vector from P_j to p_i.
+            r (T, K) = ‖p_i − P_j‖ − L0_j − ΔL_ij, mm; cols (K, 2D + 1) parameter indices shared by all
+            trials (p_i coordinates; P_j coordinates; L0_j); vals (T, K, 2D + 1) the matching dr/dx entries
+            (u, −u, −1), u the unit vector from P_j to p_i.
         """
         X = np.atleast_2d(X)
-        d = self.data
+        d, D = self.data, self.dim
         n_i, n_j = d.n_targets, d.n_stations
-        p = X[:, :2 * n_i].reshape(len(X), n_i, 2)[:, d.target]  # free points: the position model is x itself
-        P = X[:, 2 * n_i:2 * n_i + 2 * n_j].reshape(len(X), n_j, 2)
+        p = X[:, :D * n_i].reshape(len(X), n_i, D)[:, d.target]  # free points: the position model is x itself
+        P = X[:, D * n_i:D * n_i + D * n_j].reshape(len(X), n_j, D)
         readings = d.displacement_mm if displacement_mm is None else displacement_mm
-        pcols = np.column_stack([2 * d.target, 2 * d.target + 1])
-        return distance_rows(p, pcols, _UNIT_X, _UNIT_Y, P, X[:, 2 * n_i + 2 * n_j:], d.station, readings,
-                             2 * n_i, 2 * n_i + 2 * n_j)
+        pcols = np.column_stack([D * d.target + c for c in range(D)])
+        return distance_rows_nd(p, pcols, _UNITS[D], P, X[:, D * n_i + D * n_j:], d.station, readings,
+                                D * n_i, D * n_i + D * n_j)
 
     def residuals(self, x):
         """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
@@ -254,54 +392,73 @@ class Multilateration(LeastSquaresProgram):
 
     def layout(self, v) -> dict:
         """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
-        n_i, n_j = self.data.n_targets, self.data.n_stations
-        v = np.asarray(v, dtype=float)
-        return {"targets_mm": v[:2 * n_i].reshape(-1, 2).tolist(),
-                "stations_mm": v[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2).tolist(),
-                "dead_paths_mm": v[2 * n_i + 2 * n_j:].tolist()}
+        targets, stations, dead = self._split(np.asarray(v, dtype=float))
+        return {"targets_mm": targets.tolist(), "stations_mm": stations.tolist(), "dead_paths_mm": dead.tolist()}
 
     def beam_lengths(self, x) -> np.ndarray:
         """‖p_i − P_j‖ of every reading at x, mm."""
         r, _ = self.residuals(x)
-        return r + x[2 * self.data.n_targets + 2 * self.data.n_stations:][self.data.station] + self.data.displacement_mm
+        return r + self._split(x)[2][self.data.station] + self.data.displacement_mm
 
-    def _initial_guess(self) -> np.ndarray:
-        """Targets at their commands (001 §2.3), stations from the data or the given estimates."""
-        d, o = self.data, self.options
-        S = None if o.stations_mm is None else np.asarray(o.stations_mm, dtype=float).reshape(-1, 2)
-        if S is not None and len(S) != d.n_stations:
-            raise InputError(f"stations_mm gives {len(S)} positions but the campaign has {d.n_stations} stations")
+    def _station_fits(self, points_mm, rows, S=None):
+        """(P_j, L0_j) of every station from known points (N_i, D) at the readings ``rows`` (bool mask)."""
+        d, D = self.data, self.dim
         fits = []
         for j in range(d.n_stations):
+            sel = rows & (d.station == j)
             try:
-                fits.append(station_fit(d.commands_mm[d.target[d.station == j]], d.displacement_mm[d.station == j],
-                                        None if S is None else S[j]))
+                fits.append(station_fit(points_mm[d.target[sel]], d.displacement_mm[sel], None if S is None else S[j]))
             except ValueError as e:
-                raise UnidentifiableError(f"{d.source}: station {j}: not identifiable: P{j}_x_mm, P{j}_y_mm -- the "
-                                          f"targets it reads lie on one line ({e})",
-                                          [f"P{j}_x_mm", f"P{j}_y_mm"]) from None
-        return np.concatenate([d.commands_mm.ravel(), np.ravel([f[0] for f in fits]), [f[1] for f in fits]])
+                names = [f"P{j}_{c}_mm" for c in "xyz"[:D]]
+                raise UnidentifiableError(f"{d.source}: station {j}: not identifiable: {', '.join(names)} -- the "
+                                          f"targets it reads lie on one {_flat_name(D)} ({e})", names) from None
+        return fits
+
+    def _tool_offsets(self):
+        """Nominal tool offsets (M, D) mm: given, zero for a one-tool 3D campaign, estimated for several (relative
+        to tool 0: stations from tool 0's targets at their commands, then each tool's common offset by
+        Gauss-Newton on its readings); None for a 2D campaign without tools (the 2D result is unchanged)."""
+        d, D, o = self.data, self.dim, self.options
+        if o.tool_offsets_mm is not None:
+            t = np.asarray(o.tool_offsets_mm, dtype=float).reshape(-1, D)
+            if len(t) < d.n_tools:
+                raise InputError(f"tool_offsets_mm gives {len(t)} offset(s) but the campaign uses tools "
+                                 f"0..{d.n_tools - 1}")
+            return t
+        if d.n_tools == 1:
+            return None if D == 2 else np.zeros((1, D))
+        fits = self._station_fits(d.commands_mm, d.tool[d.target] == 0)
+        P = np.array([f[0] for f in fits])
+        L0 = np.array([f[1] for f in fits])
+        t = np.zeros((d.n_tools, D))
+        for m in range(1, d.n_tools):
+            sel = d.tool[d.target] == m
+            if not sel.any():
+                continue
+            c, j, reading = d.commands_mm[d.target[sel]], d.station[sel], d.displacement_mm[sel]
+            for _ in range(30):
+                diff = c + t[m] - P[j]
+                dist = np.hypot.reduce(diff, axis=1)
+                step = np.linalg.lstsq(diff / dist[:, None], -(dist - L0[j] - reading), rcond=None)[0]
+                t[m] += step
+                if np.max(np.abs(step)) < 1e-10:
+                    break
+        self.notes.append("tool offsets estimated from the data relative to tool 0 (mm): "
+                          + "; ".join(",".join(f"{v:.4f}" for v in row) for row in t))
+        return t
+
+    def _initial_guess(self) -> np.ndarray:
+        """Targets at their nominal positions (commands, 001 §2.3, plus tool offsets), stations from the data
+        or the given estimates."""
+        d, o, D = self.data, self.options, self.dim
+        S = None if o.stations_mm is None else np.asarray(o.stations_mm, dtype=float).reshape(-1, D)
+        if S is not None and len(S) != d.n_stations:
+            raise InputError(f"stations_mm gives {len(S)} positions but the campaign has {d.n_stations} stations")
+        fits = self._station_fits(self.nominal_mm, np.ones(len(d), dtype=bool), S)
+        return np.concatenate([self.nominal_mm.ravel(), np.ravel([f[0] for f in fits]), [f[1] for f in fits]])
 
     def _add_gauge(self) -> str:
-        c = self.data.commands_mm
-        n = len(self.names)
-        A = np.zeros((3, n))
-        if self.options.gauge == "best-fit":
-            A[0, 0:2 * len(c):2] = 1.0  # Σ (p_i − p*_i)_x = 0
-            A[1, 1:2 * len(c):2] = 1.0
-            rel = c - c.mean(axis=0)  # Σ (p*_i − c) × (p_i − p*_i) = 0: no mean rotation about the centroid
-            A[2, 0:2 * len(c):2], A[2, 1:2 * len(c):2] = -rel[:, 1], rel[:, 0]
-            b = A[:, :2 * len(c)] @ c.ravel()
-            text = ("two translations and the rotation fixed by linear constraints: the estimated targets have no "
-                    "mean translation and no mean rotation (about the command centroid) from their command "
-                    "positions -- the frame best fits the commands")
-        else:
-            e = c[1] - c[0]
-            A[0, 0], A[1, 1] = 1.0, 1.0
-            A[2, 2], A[2, 3] = -e[1], e[0]  # target 1 on the line through p*_0 along p*_1 − p*_0
-            b = np.array([c[0, 0], c[0, 1], -e[1] * c[0, 0] + e[0] * c[0, 1]])
-            text = ("origin fixed at target 0's command position and the X direction along the command "
-                    "direction from target 0 to target 1 (target 1 constrained to that line)")
+        A, b, text = _gauge_rows(self.options.gauge, self.nominal_mm, len(self.names))
         self.prog.AddLinearEqualityConstraint(A, b, self.variables).evaluator().set_description("gauge")
         return text
 
@@ -324,24 +481,81 @@ class Multilateration(LeastSquaresProgram):
             f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
             f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
             f.notes.append(f"uncertainty: linear propagation of the budget '{budget.name}'")
-        n_i, n_j = self.data.n_targets, self.data.n_stations
-        return MultilaterationResult(f.x[:2 * n_i].reshape(-1, 2), f.x[2 * n_i:2 * n_i + 2 * n_j].reshape(-1, 2),
-                                     f.x[2 * n_i + 2 * n_j:], f.std[:2 * n_i].reshape(-1, 2), f, self.gauge,
-                                     self.data.commands_mm, self.options.gauge, campaign_digest(self.data))
+        targets, stations, dead = self._split(f.x)
+        return MultilaterationResult(targets, stations, dead, self._split(f.std)[0], f, self.gauge,
+                                     self.data.commands_mm, self.options.gauge, campaign_digest(self.data),
+                                     None if self.tool_offsets_mm is None else self.data.tool,
+                                     self.tool_offsets_mm)
+
+
+def _gauge_rows(kind: str, c, n: int):
+    """(A, b, sentence) of the gauge over n parameters whose first D N_i are the targets, from the nominal
+    target positions c (N_i, D) mm: D translations and D(D − 1)/2 rotations fixed."""
+    n_i, D = c.shape
+    if kind == "best-fit":
+        rel = c - c.mean(axis=0)
+        # Σ (p_i − c_i) = 0 (no mean translation); Σ rel_i × (p_i − c_i) = 0 (no mean rotation about the
+        # centroid): in 2D the z component only, in 3D all three.
+        rot = [(0, 1)] if D == 2 else [(1, 2), (2, 0), (0, 1)]
+        A = np.zeros((D + len(rot), n))
+        for k in range(D):
+            A[k, k:D * n_i:D] = 1.0
+        for r, (a, e) in enumerate(rot):  # (rel × d)_axis = rel_a d_e − rel_e d_a
+            A[D + r, a:D * n_i:D], A[D + r, e:D * n_i:D] = -rel[:, e], rel[:, a]
+        b = A[:, :D * n_i] @ c.ravel()
+        if D == 2:
+            return A, b, ("two translations and the rotation fixed by linear constraints: the estimated targets "
+                          "have no mean translation and no mean rotation (about the command centroid) from their "
+                          "command positions -- the frame best fits the commands")
+        return A, b, ("three translations and three rotations fixed by linear constraints: the estimated targets "
+                      "have no mean translation and no mean rotation (about the centroid of their nominal "
+                      "positions, the commands plus the tool offsets) from their nominal positions -- the frame "
+                      "best fits the commands")
+    if D == 2:
+        A = np.zeros((3, n))
+        e = c[1] - c[0]
+        A[0, 0], A[1, 1] = 1.0, 1.0
+        A[2, 2], A[2, 3] = -e[1], e[0]  # target 1 on the line through p*_0 along p*_1 − p*_0
+        b = np.array([c[0, 0], c[0, 1], -e[1] * c[0, 0] + e[0] * c[0, 1]])
+        return A, b, ("origin fixed at target 0's command position and the X direction along the command "
+                      "direction from target 0 to target 1 (target 1 constrained to that line)")
+    e1, e2 = c[1] - c[0], c[2] - c[0]
+    normal = np.cross(e1, e2)
+    if np.linalg.norm(normal) <= 1e-9 * np.linalg.norm(e1) * max(np.linalg.norm(e2), 1e-300):
+        raise InputError("gauge first-three: targets 0, 1, 2 have commands on one line; use best-fit or reorder")
+    # Two directions across e1: target 1 stays on the line; the normal keeps target 2 in the plane.
+    across = np.linalg.svd(e1[None])[2][1:]
+    A = np.zeros((6, n))
+    A[0:3, 0:3] = np.eye(3)
+    A[3:5, 3:6] = across
+    A[5, 6:9] = normal
+    b = np.concatenate([c[0], across @ c[0], [normal @ c[0]]])
+    return A, b, ("origin fixed at target 0's nominal position, the X direction along the command direction "
+                  "from target 0 to target 1 (target 1 constrained to that line) and the XY plane through "
+                  "targets 0, 1, 2's nominal positions (target 2 constrained to it)")
 
 
 def load_result(path) -> dict:
-    """Read a machine-tool result.json (formats.md), its schema checked where it is read: targets N x 2,
-    stations M x 2 and dead paths M (mm; commands N x 2 and standard uncertainties of the same shapes,
-    >= 0, when present), every number finite and within +-1e5 mm, ``gauge`` a sentence; a SCARA result
-    or a campaign is refused by its ``format``. Errors are one line naming the file and the key."""
+    """Read a machine-tool result.json (formats.md), its schema checked where it is read: targets N x D
+    (D = 2, or 3 for a 3D campaign), stations M x D and dead paths M (mm; commands N x D and standard
+    uncertainties of the same shapes, >= 0, when present; 3D: ``tools`` N and ``tool_offsets_mm``), every
+    number finite and within +-1e5 mm, ``gauge`` a sentence; a SCARA result or a campaign is refused by its
+    ``format``. Errors are one line naming the file and the key."""
     name = os.fspath(path)
     data = read_json(path, FORMAT, "a machine-tool result (olti multilaterate)")
-    T = json_numbers(data, name, "targets_mm", (None, 2))
-    S = json_numbers(data, name, "stations_mm", (None, 2))
+    width = np.shape(data.get("targets_mm"))[1:2]
+    D = 3 if width == (3,) else 2
+    T = json_numbers(data, name, "targets_mm", (None, D))
+    S = json_numbers(data, name, "stations_mm", (None, D))
     json_numbers(data, name, "dead_paths_mm", (len(S),))
     if "commands_mm" in data:
         json_numbers(data, name, "commands_mm", T.shape)
+    if "tool_offsets_mm" in data:
+        json_numbers(data, name, "tool_offsets_mm", (None, D))
+        tools = np.asarray(data.get("tools"))
+        if tools.shape != (len(T),) or not np.issubdtype(tools.dtype, np.integer) or np.any(tools < 0) \
+                or np.any(tools >= len(data["tool_offsets_mm"])):
+            raise InputError(f"{name}: key 'tools': expected {len(T)} tool indices into tool_offsets_mm")
     if not isinstance(data.get("gauge"), str):
         raise InputError(f"{name}: key 'gauge': expected the sentence stating the gauge, got {data.get('gauge')!r}")
     unc = data.get("uncertainty")
@@ -350,8 +564,9 @@ def load_result(path) -> dict:
             if np.any(json_numbers(unc, name, key, shape, label=f"uncertainty.{key}") < 0):
                 raise InputError(f"{name}: key 'uncertainty.{key}': a standard uncertainty is < 0")
     data.setdefault("gauge_kind", "first-two" if "target 0" in data["gauge"] else "best-fit")
-    if data["gauge_kind"] not in GAUGES:
-        raise InputError(f"{name}: key 'gauge_kind' must be one of {', '.join(GAUGES)}, got {data['gauge_kind']!r}")
+    if data["gauge_kind"] not in GAUGES_BY_DIM[D]:
+        raise InputError(f"{name}: key 'gauge_kind' must be one of {', '.join(GAUGES_BY_DIM[D])}, "
+                         f"got {data['gauge_kind']!r}")
     return data
 
 

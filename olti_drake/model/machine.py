@@ -12,6 +12,12 @@ Units: mm (µm in the error fields, as "thousandths of the command unit" of
   *estimated* station (Eq. 1 of 001); the reading is the interferometer model
   of :mod:`olti_drake.model.interferometer` (cosine error, beam loss, λ/64, budget
   noise: 001 Table 4).
+* :func:`simulate_machine_campaign_3d` -- the same campaign in 3D (formats.md
+  "Machine tool in 3D"): pan/tilt heads on the table aimed at the *commanded*
+  tool point from the *estimated* head centre (001 Eq. 1 in 3D,
+  :func:`~olti_drake.model.aiming3d.pan_tilt_commands`), the true tool points
+  from a :func:`~olti_drake.model.volumetric3d.synthetic_truth` of the 21 error
+  motions (smooth sines, in no fitted family), several tool mountings.
 """
 
 from dataclasses import dataclass, field
@@ -130,18 +136,20 @@ class MachineRun:
         return self.actual_mm[first]
 
 
-def machine_sequence(commands_mm, n_stations: int) -> dict:
+def machine_sequence(commands_mm, n_stations: int, dim: int = 2) -> dict:
     """Every (station, target) row in execution order: targets in order, once per station.
 
     Directions run over the whole campaign (station j's run starts where
     j − 1's ended), by the rule of formats.md. Returns dict of (K,) arrays:
-    station, target (int), x_cmd_mm, y_cmd_mm, dir_x, dir_y.
+    station, target (int), x_cmd_mm, y_cmd_mm (, z_cmd_mm), dir_x, dir_y (, dir_z) for ``dim`` = 2 (3).
     """
-    cmd = np.asarray(commands_mm, dtype=float).reshape(-1, 2)
+    cmd = np.asarray(commands_mm, dtype=float).reshape(-1, dim)
     i = np.tile(np.arange(len(cmd)), n_stations)
     d = approach_directions(cmd[i])
-    return {"station": np.repeat(np.arange(n_stations), len(cmd)), "target": i, "x_cmd_mm": cmd[i, 0],
-            "y_cmd_mm": cmd[i, 1], "dir_x": d[:, 0], "dir_y": d[:, 1]}
+    out = {"station": np.repeat(np.arange(n_stations), len(cmd)), "target": i}
+    out.update({f"{a}_cmd_mm": cmd[i, k] for k, a in enumerate("xyz"[:dim])})
+    out.update({f"dir_{a}": d[:, k] for k, a in enumerate("xyz"[:dim])})
+    return out
 
 
 def machine_run(scenario: MachineScenario, rng: np.random.Generator) -> MachineRun:
@@ -197,8 +205,102 @@ def simulate_machine_campaign(scenario: MachineScenario, budget=None):
     return cols, truth
 
 
+# ----------------------------------------------------------------------------- 3D
+def _default_heads():
+    # Five heads on the table around and below the default volumetric3d travel (tool 0 at z 100..350 mm),
+    # at different heights: coplanar heads cannot calibrate themselves (multilateration refuses them).
+    return [[-250.0, -200.0, -80.0], [650.0, -180.0, -150.0], [620.0, 520.0, -240.0], [-220.0, 480.0, -110.0],
+            [200.0, 150.0, -320.0]]
+
+
+@dataclass
+class Machine3DScenario:
+    """A simulated 3D campaign of the machine tool (formats.md "Machine tool in 3D"), mm, µm, µrad.
+
+    ``config``: the machine (:class:`~olti_drake.model.volumetric3d.MachineConfig`: travel, tool offsets);
+    the truth is ``synthetic_truth(config, truth_seed)``. Targets: a ``grid`` (nx, ny, nz) of commands
+    over the travel, each once per tool of ``tools``: target i names one command and one tool.
+    ``heads_mm``: the true pan/tilt centres; ``station_estimate_sigma_um`` and ``zero_angle_sigma_urad``:
+    errors of their §2.2 estimates (centre, pan and tilt zeros); ``head_error_mdeg``: amplitude of the
+    heads' own angular positioning error (:func:`~olti_drake.model.aiming3d.harmonic_head_error`).
+    ``catseye_axis``: the reflector's axis (world; it faces the table). Seeded by ``seed``.
+    """
+
+    config: object = None
+    grid: tuple = (5, 4, 3)
+    tools: tuple = (0,)
+    heads_mm: list = field(default_factory=_default_heads)
+    station_estimate_sigma_um: float = 5.75
+    zero_angle_sigma_urad: float = 2.8
+    head_error_mdeg: float = 0.5
+    catseye_axis: tuple = (0.0, 0.0, -1.0)
+    truth_seed: int = 1
+    interferometer: InterferometerOptions = field(default_factory=InterferometerOptions)
+    seed: int = 0
+
+
+def grid_commands_3d(config, grid, tools=(0,)):
+    """Commands (N, 3) mm on an nx × ny × nz grid over the travel, repeated per tool, and their tools (N,)."""
+    from olti_drake.model.volumetric3d import AXES
+
+    n = np.asarray(grid, dtype=int).reshape(3)
+    if np.any(n < 2):
+        raise ValueError(f"grid must have >= 2 points per axis, got {tuple(grid)!r}")
+    ticks = [np.linspace(*config.travel_mm[a], k) for a, k in zip(AXES, n)]
+    pts = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+    tools = np.asarray(tools, dtype=int)
+    return np.tile(pts, (len(tools), 1)), np.repeat(tools, len(pts))
+
+
+def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
+    """Readings of every target from every pan/tilt head (001 §2 in 3D): (columns dict, truth dict).
+
+    Each head aims by 001 Eq. (1) in 3D at the COMMANDED tool point (command + the tool's nominal offset)
+    from its ESTIMATED centre and zeros; the beam leaves the TRUE centre in the direction of the TRUE
+    angles (zeros and the head's own error included) and reads the TRUE tool point (the volumetric3d
+    truth), by :func:`~olti_drake.model.aiming3d.read_beam` (cosine error, beam loss, budget noise,
+    λ/64). The counter of head j is zeroed at its first reading (L0_j, 001 Eq. 3). Columns follow
+    formats.md (station, target, x/y/z_cmd_mm, tool, displacement_mm, valid).
+    """
+    from olti_drake.model import aiming3d
+    from olti_drake.model.volumetric3d import MachineConfig, synthetic_truth, tool_positions
+
+    s = scenario
+    config = s.config or MachineConfig()
+    rng = np.random.default_rng(s.seed)
+    P = np.asarray(s.heads_mm, dtype=float).reshape(-1, 3)
+    zeros = rng.uniform(-180.0, 180.0, (len(P), 2)) * [1.0, 0.0]  # pan zero anywhere, tilt level
+    P_est = P + 1e-3 * s.station_estimate_sigma_um * rng.standard_normal(P.shape)
+    zeros_est = zeros - np.degrees(1e-6 * s.zero_angle_sigma_urad * rng.standard_normal(zeros.shape))
+    cmd, tool = grid_commands_3d(config, s.grid, s.tools)
+    seq = machine_sequence(cmd, len(P), dim=3)
+    i, j = seq["target"], seq["station"]
+    truth = synthetic_truth(config, s.truth_seed)
+    actual = tool_positions(config, truth, cmd, tool)
+    nominal = cmd + config.tools[tool]
+    heads_true, heads_est = aiming3d.PanTiltHeads(P, zeros), aiming3d.PanTiltHeads(P_est, zeros_est)
+    angles = aiming3d.pan_tilt_commands(heads_est, j, nominal[i])
+    err = aiming3d.harmonic_head_error(s.seed + 1, s.head_error_mdeg) if s.head_error_mdeg else None
+    origin, u = aiming3d.pan_tilt_beam(heads_true, j, angles, err)
+    first = np.array([np.flatnonzero(j == k)[0] for k in range(len(P))])
+    dead = np.hypot.reduce(actual[i[first]] - P, axis=1)
+    beam = aiming3d.read_beam(origin, u, actual[i], np.asarray(s.catseye_axis, float), dead[j], s.interferometer,
+                              budget or paper001_budget(), rng)
+    cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1], "z_cmd_mm": cmd[i, 2],
+            "tool": tool[i], "displacement_mm": np.where(beam.valid, beam.reading_mm, np.nan),
+            "valid": beam.valid.astype(int)}
+    truth_doc = {"format": "olti-multilateration/1", "targets_mm": actual.tolist(), "stations_mm": P.tolist(),
+                 "dead_paths_mm": dead.tolist(), "commands_mm": cmd.tolist(), "tools": tool.tolist(),
+                 "tool_offsets_mm": config.tools.tolist(),
+                 "gauge": "simulation truth: the machine's command frame (workpiece side)", "residual_rms_mm": 0.0,
+                 "n_readings": int(beam.valid.sum()), "stations_estimate_mm": P_est.tolist(), "seed": s.seed,
+                 "truth_seed": s.truth_seed}
+    return cols, truth_doc
+
+
 def write_machine_campaign(columns: dict, path) -> None:
-    """The machine-tool campaign CSV of formats.md."""
-    write_table(path, columns, {"station": "%d", "target": "%d", "x_cmd_mm": "%.6f", "y_cmd_mm": "%.6f",
-                                "displacement_mm": "%.9f", "valid": "%d"},
+    """The machine-tool campaign CSV of formats.md (2D, or 3D when the columns have ``z_cmd_mm``)."""
+    fmt = {"station": "%d", "target": "%d", "x_cmd_mm": "%.6f", "y_cmd_mm": "%.6f", "z_cmd_mm": "%.6f",
+           "tool": "%d", "displacement_mm": "%.9f", "valid": "%d"}
+    write_table(path, {k: columns[k] for k in fmt if k in columns}, {k: v for k, v in fmt.items() if k in columns},
                 comments=["olti_drake machine-tool campaign (001, formats.md): mm; valid 0 = beam lost"])
