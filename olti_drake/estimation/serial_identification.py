@@ -106,7 +106,10 @@ def start_stations(model, campaign) -> tuple:
         try:
             Pj, d0j = station_fit(p[sel], campaign.displacement_mm[sel])
         except ValueError as e:
-            raise InputError(f"{campaign.source}: station {j}: {e}") from None
+            hint = (" (a planar robot: its stations cannot be started in 3D; a SCARA is identified by olti identify "
+                    "without --robot)") if "one plane" in str(e) else ""
+            raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}{hint}") \
+                from None
         P.append(Pj)
         d0.append(d0j)
     return np.array(P), np.array(d0)
