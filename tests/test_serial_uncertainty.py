@@ -83,3 +83,18 @@ def test_the_wrong_campaign_is_refused(identified, tmp_path):
                tmp_path / "u.json")
     assert run.returncode == 2 and "not the campaign" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "u.json").exists()
+
+
+def test_without_tool_offset_the_model_is_rebuilt_around_the_fitted_tool_point(identified, tmp_path):
+    """No --tool-offset-mm: the start's tool point lies on the last axis, which hides the last joint's map; the
+    fitted tool point is off the axis, so the model is rebuilt around it: the same result as with the offset
+    given (residual and tool offset), and a note says so."""
+    d = identified
+    run = olti("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--model", "errormap",
+               "--grid-step-deg", "45", "--out", tmp_path / "r.json")
+    assert run.returncode == 0, run.stderr
+    a = json.loads((tmp_path / "r.json").read_text())
+    b = json.loads((d / "result.json").read_text())
+    assert "wrist_3_joint" in a["error_map"] and any("rebuilt around it" in n for n in a["notes"])
+    assert a["residual_rms_mm"] == pytest.approx(b["residual_rms_mm"], rel=1e-6)
+    assert np.allclose(a["tool_offset_mm"], b["tool_offset_mm"], atol=1e-6)

@@ -23,6 +23,7 @@ to the data cost ½ Σ r². Units: mm and degrees.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -167,11 +168,45 @@ def _regularize(cal: SerialCalibration, names) -> str:
             f"of {1e3 * PRIOR_READING_MM:g} um (estimation.serial_identification.PRIOR_SIGMA)")
 
 
+#: A fitted tool point this far (mm) from the start that was given (or the tool frame's origin) rebuilds the
+#: model around it: the start decides which parameters the readings can see (a tool point on the last axis
+#: hides that joint's map), so a campaign run without ``--tool-offset-mm`` loses nothing.
+TOOL_RESTART_MM = 1.0
+
+
+def _unseen_at_start(model) -> list:
+    return [name for name, why in model.dropped if why.startswith("no reading depends")]
+
+
 def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> SerialIdentification:
     """Identify the model ``options.model`` of ``chain`` from ``campaign`` (io.serial_io.SerialCampaign).
 
     Raises (one line) before solving when the campaign cannot identify a parameter (named), unless
-    ``options.regularize``; refuses a fit that did not converge (leastsquares.FitRefused)."""
+    ``options.regularize``; refuses a fit that did not converge (leastsquares.FitRefused). When parameters
+    were left out because the start's tool point lies on a joint axis and the fitted tool point does not
+    (:data:`TOOL_RESTART_MM`), the model is rebuilt around the fitted tool point and identified again, and
+    the notes say so."""
+    ident = _identify_once(chain, campaign, options)
+    unseen = _unseen_at_start(ident.model)
+    if not unseen:
+        return ident
+    n = ident.model.n_params
+    tool = ident.model.chain_parameters(ident.fit.x[:n])[-3:]
+    moved = float(np.linalg.norm(tool - np.asarray(options.tool_offset_mm, float)))
+    if moved < TOOL_RESTART_MM:
+        return ident
+    again = dataclasses.replace(options, tool_offset_mm=tuple(tool))
+    second = _identify_once(chain, campaign, again)
+    if len(_unseen_at_start(second.model)) >= len(unseen):
+        return ident
+    second.notes.insert(0, f"the tool point was fitted at ({tool[0]:.3f}, {tool[1]:.3f}, {tool[2]:.3f}) mm in the "
+                           f"tool frame, {moved:.1f} mm from the start: the model was rebuilt around it and "
+                           f"identified again, so {', '.join(unseen)} (unseen from the start, the tool point on the "
+                           f"axis) are identified")
+    return second
+
+
+def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> SerialIdentification:
     meas = build_problem(chain, campaign, options)
     try:
         gauge = find_gauge(meas)
