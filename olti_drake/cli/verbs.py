@@ -122,6 +122,11 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
+    if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
+        print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
+                                      _progress(True), args.meshcat))
+        return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
