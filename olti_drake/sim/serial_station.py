@@ -38,7 +38,8 @@ import numpy as np
 from olti_drake.model import aiming3d as a3
 from olti_drake.model.errormap import approach_directions
 from olti_drake.sim.scenario import stream_rng, stream_seed
-from olti_drake.sim.serial_scenario import FloorTracers, SerialScenario, load_serial_scenario, scenario_kind
+from olti_drake.sim.serial_scenario import (SHIPPED_MODELS, FloorTracers, SerialScenario, load_serial_scenario,
+                                            scenario_kind)
 
 M_TO_MM = 1e3
 #: Truth error maps in truth.json: nodes every TRUTH_GRID_DEG over each joint's commanded range.
@@ -287,23 +288,34 @@ def _systems():
 
     class PanTiltSteering(LeafSystem):
         """Open-loop pan/tilt command of the head in use (001 Eq. (1) in 3D): from the ESTIMATED centre
-        and zero angles to the NOMINAL tool point of the commanded joints. Inputs ``joint_command``
-        (N, rad), ``reflector`` (1); output ``head_command`` (2, rad)."""
+        and zero angles to the NOMINAL tool point of the commanded joints (the model file's plant,
+        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1); output
+        ``head_command`` (2, rad)."""
 
         def __init__(self, chain, tool_offset_mm, heads_est):
             super().__init__()
             set_default_name(self)
-            self._chain, self._heads = chain, heads_est
-            self._params = chain.nominal_parameters(tool_offset_mm)
-            self.DeclareVectorInputPort("joint_command", chain.n_joints)
+            self._plant, self._heads = chain.plant, heads_est
+            self._tool = chain.plant.get_frame(chain.tool_frame_index)
+            self._point = np.asarray(tool_offset_mm, float).reshape(3, 1) / M_TO_MM
+            self._starts = np.array([chain.plant.GetJointByName(n).position_start() for n in chain.joint_names])
+            command = self.DeclareVectorInputPort("joint_command", chain.n_joints)
             self.DeclareVectorInputPort("reflector", 1)
+            self._plant_context = self.DeclareCacheEntry(
+                "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
+                                               calc=self._calc_plant_context), {command.ticket()})
             self.DeclareVectorOutputPort("head_command", 2, self._calc)
 
+        def _calc_plant_context(self, context, value):
+            q = np.zeros(self._plant.num_positions())
+            q[self._starts] = self.get_input_port(0).Eval(context)
+            self._plant.SetPositions(value.get_mutable_value(), q)
+
         def _calc(self, context, output):
-            q = np.degrees(self.get_input_port(0).Eval(context))
             j = int(self.get_input_port(1).Eval(context)[0])
-            p = self._chain.positions(q[None], self._params)
-            output.SetFromVector(np.radians(a3.pan_tilt_commands(self._heads, [j], p)[0]))
+            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._point,
+                                                self._plant.world_frame())[:, 0] * M_TO_MM
+            output.SetFromVector(np.radians(a3.pan_tilt_commands(self._heads, [j], p[None])[0]))
 
     class SerialLaserInterferometer(LeafSystem):
         """The interferometer of a six-axis campaign in 3D (000 §5: cosine error, acceptance, λ/64, noise).
@@ -410,9 +422,9 @@ def _systems():
             self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
 
         def record(self, context):
-            cmd, direction, disp, valid, refl, measure, row = (self.get_input_port(i).Eval(context) for i in range(7))
-            if measure[0] < 0.5:
-                return None
+            if self.GetInputPort("measure").Eval(context)[0] < 0.5:
+                return None  # an approach row: nothing read (nor computed)
+            cmd, direction, disp, valid, refl, _, row = (self.get_input_port(i).Eval(context) for i in range(7))
             ok = valid[0] > 0.5
             return ((int(refl[0]),) + tuple(np.degrees(cmd)) + tuple(int(d) for d in direction)
                     + (disp[0] * M_TO_MM if ok else np.nan, int(ok), int(row[0])))
@@ -515,64 +527,57 @@ def run_serial_campaign(setup: SerialSetup, progress=None) -> SerialCampaign:
 
 # ---------------------------------------------------------------- the truth
 def serial_truth_result(setup: SerialSetup, columns: dict) -> dict:
-    """The simulated truth in the serial result format (formats.md, *Serial robots*): the robot, the
-    joint deviations sampled every ``TRUTH_GRID_DEG`` over each joint's commanded range (forward =
-    direction +1, reverse = −1; linear interpolation between 1° nodes is within ~0.03 mdeg of the
-    harmonics), every joint frame's location errors by name, the tool offset, the true stations
-    (or floor reflectors) and dead paths; ``truth`` keeps the scheme's estimates and seeds."""
-    chain, truth = setup.chain, setup.truth
+    """The simulated truth in the serial result format (formats.md, *Serial robots*;
+    :func:`olti_drake.io.serial_io.serial_truth_dict`): the robot (its shipped name, else the model
+    path), every joint frame's location errors by name, the tool offset, the joint deviations
+    sampled every ``TRUTH_GRID_DEG`` over each joint's commanded range (forward = direction +1,
+    reverse = −1; linear interpolation between 1° nodes is within ~0.03 mdeg of the harmonics),
+    the true stations (or floor reflectors) and dead paths, so ``olti predict truth.json`` gives
+    true positions; ``simulation`` keeps the scheme's estimates and the seeds."""
+    from olti_drake.io.serial_io import serial_truth_dict
+
+    chain, s = setup.chain, setup.scenario
     n = chain.n_joints
-    maps = {}
-    for i, (joint, dev) in enumerate(zip(chain.joint_names, truth.deviations)):
-        th = columns[f"theta{i + 1}_deg"]
-        lo, hi = (np.floor(th.min()), np.ceil(th.max())) if len(th) else (0.0, 0.0)
-        grid = np.arange(lo, hi + TRUTH_GRID_DEG / 2, TRUTH_GRID_DEG)
-        maps[joint] = {"grid_deg": grid.tolist(), "forward_deg": dev(grid, 1.0).tolist(),
-                       "reverse_deg": dev(grid, -1.0).tolist()}
-    names = chain.parameter_names()[:6 * n]
-    s = setup.scenario
+    th = np.column_stack([columns[f"theta{i + 1}_deg"] for i in range(n)])
+    ranges = (np.column_stack([np.floor(th.min(axis=0)), np.ceil(th.max(axis=0))]) if len(th)
+              else np.zeros((n, 2)))
+    out = serial_truth_dict(setup.truth, s.robot.file if s.robot.file in SHIPPED_MODELS else chain.path,
+                            grid_step_deg=TRUTH_GRID_DEG, ranges_deg=ranges)
+    out.pop("tracker_frame", None)  # a distance campaign: no tracker
+    out["gauge"] = ("simulation truth in the robot's root frame: every joint frame's location errors and the full "
+                    "joint deviations (zero offsets included); an identified result fixes the unseen freedoms by "
+                    "its own gauge, so compare predicted positions or readings, not parameters")
+    out["residual_rms_mm"] = 0.0
+    out["n_readings"] = int(np.sum(columns["valid"] > 0))
     extra = ({"heads_zeros_deg": setup.heads_true.zeros_deg.tolist(),
               "heads_zeros_estimate_deg": setup.heads_est.zeros_deg.tolist()} if setup.tracers else
              {"laser_direction_tool": list(setup.laser_true.direction),
               "unreachable_targets": {str(j): v.tolist() for j, v in setup.unreachable.items()}})
-    return {
-        "format": "olti-result/1",
-        "model": "errormap",
-        "robot": {"file": chain.path, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)},
-        "error_map": maps,
-        "geometric": {k: float(v) for k, v in zip(names, truth.chain_params[:6 * n])},
-        "tool_offset_mm": truth.chain_params[6 * n:].tolist(),
-        "stations_mm": setup.stations_mm.tolist(),
-        "dead_paths_mm": truth.dead_paths_mm.tolist(),
-        "gauge": ("simulation truth in the robot's root frame: every joint frame's location errors and the full "
-                  "joint deviations (their zero offsets included); an identified result fixes the unseen "
-                  "freedoms by its own gauge, so compare predicted positions or readings, not parameters"),
-        "residual_rms_mm": 0.0,
-        "n_readings": int(np.sum(columns["valid"] > 0)),
-        "truth": {"scheme": type(s.scheme).__name__, "stations_estimate_mm": setup.stations_estimate_mm.tolist(),
-                  "seed": s.seed, "truth_seed": s.robot.truth.seed, "plan_seed": s.plan.seed,
-                  "nominal_tool_offset_mm": setup.tool_offset_mm.tolist(), **extra},
-    }
+    out["simulation"] = {"scheme": type(s.scheme).__name__, "stations_estimate_mm": setup.stations_estimate_mm.tolist(),
+                         "seed": s.seed, "truth_seed": s.robot.truth.seed, "plan_seed": s.plan.seed,
+                         "nominal_tool_offset_mm": setup.tool_offset_mm.tolist(), **extra}
+    return out
 
 
 # ------------------------------------------------------------------ writing
-CAMPAIGN_COMMENT = ("olti_drake six-axis distance campaign (shared/spec/formats.md, Serial robots): mm and degrees; "
-                    "dir = approach direction; valid 0 = beam lost (no reading)")
+CAMPAIGN_COMMENT = ("olti_drake six-axis distance campaign (olti simulate): dir = approach direction; "
+                    "valid 0 = beam lost (no reading)")
 
 
 def write_serial_simulation(campaign: SerialCampaign, out_dir: str, comments=()) -> tuple:
-    """Write ``campaign.csv`` (N-joint distance campaign) and ``truth.json`` (measurements: never
-    replacing a file); returns both paths."""
-    from olti_drake.io.csvio import write_table
+    """Write ``campaign.csv`` (N-joint distance campaign, :func:`olti_drake.io.serial_io.write_serial_campaign`)
+    and ``truth.json`` (measurements: never replacing a file); returns both paths."""
     from olti_drake.io.outputs import make_dir, write_json
+    from olti_drake.io.serial_io import write_serial_campaign
 
     make_dir(out_dir)
     csv_path, truth_path = os.path.join(out_dir, "campaign.csv"), os.path.join(out_dir, "truth.json")
-    cols = campaign.columns
-    formats = {k: "%d" if k in ("station", "valid", "plan_row") or k.startswith("dir") else
-               "%.12g" if k.startswith("theta") else "%.9f" for k in cols}
-    write_table(csv_path, {k: cols[k] for k in cols if k != "plan_row"}, formats,
-                comments=list(comments) + [CAMPAIGN_COMMENT], measurement=True)
+    c = campaign.columns
+    n = sum(k.startswith("theta") for k in c)
+    write_serial_campaign(csv_path, np.column_stack([c[f"theta{i + 1}_deg"] for i in range(n)]),
+                          np.column_stack([c[f"dir{i + 1}"] for i in range(n)]), station=c["station"],
+                          displacement_mm=c["displacement_mm"], valid=c["valid"],
+                          comments=list(comments) + [CAMPAIGN_COMMENT])
     write_json(truth_path, campaign.truth, measurement=True)
     return csv_path, truth_path
 
