@@ -207,6 +207,12 @@ def identification_summary(ident) -> str:
 
 
 def cmd_identify(args) -> int:
+    if args.robot or args.tool_frame:
+        from olti_drake.cli.serial_verbs import identify
+
+        if not args.robot:
+            raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
+        return identify(args)
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -297,6 +303,10 @@ def cmd_predict(args) -> int:
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
 
+    from olti_drake.cli.serial_verbs import is_serial_result, predict
+
+    if is_serial_result(args.result):
+        return predict(args)
     _check_outputs(args, [args.out], [args.result, args.commands])
     from olti_drake.model.errormap import OutsideGridError
 
@@ -768,6 +778,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
                                     "against (warning above 3 x; default: 000 Table 2)")
+    p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
+                                   "the campaign then has theta1_deg..thetaN_deg (docs/serial_robots.md)")
+    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
+                   help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=15.0,
+                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
@@ -934,7 +951,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
-_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
+                         "--tool-offset-mm")
 
 
 def _join_signed_values(argv):

@@ -324,6 +324,8 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     out = {"format": FORMAT, "model": kind,
            "robot": {"file": robot_file, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)}}
     out.update(measurement.layout(x))
+    if hasattr(measurement, "labels"):  # the campaign's station index of each row of stations_mm
+        out["station_labels"] = [int(j) for j in measurement.labels]
     held = {name: float(v) for name, v in zip(chain.parameter_names(), model.chain_params)
             if name not in model.names and name not in ("tool_x_mm", "tool_y_mm", "tool_z_mm") and v != 0.0}
     if held:
@@ -413,8 +415,11 @@ class SerialResult:
         return self.model.start_vector()
 
     @property
-    def station_labels(self):
-        return np.arange(0 if self.stations_mm is None else len(self.stations_mm))
+    def station_labels(self) -> np.ndarray:
+        """The campaign's station index of each row of ``stations_mm`` (default 0, 1, ...)."""
+        n = 0 if self.stations_mm is None else len(self.stations_mm)
+        labels = self.data.get("station_labels")
+        return np.arange(n) if labels is None else np.asarray(labels, int)
 
 
 def is_serial_result(data: dict) -> bool:
@@ -483,6 +488,10 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
         raise InputError(f"{name}: {e}") from None
     P = json_numbers(data, name, "stations_mm", (None, 3)) if "stations_mm" in data else None
     d0 = json_numbers(data, name, "dead_paths_mm", (len(P),)) if P is not None else None
+    if P is not None and "station_labels" in data:
+        labels = json_numbers(data, name, "station_labels", (len(P),))
+        if np.any(labels < 0) or np.any(labels != np.round(labels)) or len(set(labels)) != len(labels):
+            raise InputError(f"{name}: key 'station_labels': distinct whole numbers >= 0 expected")
     frame = None
     if isinstance(data.get("tracker_frame"), dict):
         tf = data["tracker_frame"]
