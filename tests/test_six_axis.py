@@ -74,9 +74,24 @@ def test_bad_scenario_values_are_named(text, words):
         load_serial_scenario(SIX_AXIS, None, text)
 
 
-def test_plan_ranges_must_match_the_robot():
-    with pytest.raises(ValueError, match="ranges_deg has 2 pairs, the robot 6 joints"):
-        _setup("{plan: {ranges_deg: [[-10, 10], [-10, 10]]}}")
+@pytest.mark.parametrize("text, words", [
+    ("{plan: {ranges_deg: [[-10, 10], [-10, 10]]}}", "plan.ranges_deg has 2 pairs, the robot 6 joints"),
+    ("{robot: {tool_frame: nope}}", "robot: tool frame 'nope' not found"),
+    ("{plan: {floor_z_mm: 5000.0}}", "plan: joint shoulder_pan_joint node -90 deg direction +1 not covered"),
+    ("{scheme: !RobotMounted {start_deg: [0, 0]}}", "scheme.start_deg has 2 angles, the robot 6 joints"),
+])
+def test_scenario_problems_found_with_the_robot_are_named(text, words):
+    with pytest.raises(InputError, match=r"^scenario .*six_axis\.yaml: " + words.replace("(", r"\(").replace("+", r"\+")):
+        _setup(text)
+
+
+def test_simulate_refuses_bad_six_axis_input_in_one_line(tmp_path):
+    """A scenario problem found with the robot is one `error:` line naming the scenario, exit 2, no output;
+    --meshcat is refused for a six-axis scenario before any work."""
+    for extra in (["--scenario-text", "{robot: {tool_frame: nope}}"], ["--meshcat"]):
+        r = _olti("simulate", SIX_AXIS, *extra, "--out", tmp_path / "x")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: "), r.stderr
+        assert "six_axis.yaml" in r.stderr and not (tmp_path / "x").exists()
 
 
 # ------------------------------------------------------------------ olti simulate

@@ -35,6 +35,7 @@ from typing import Optional
 
 import numpy as np
 
+from olti_drake.io.csvio import InputError
 from olti_drake.model import aiming3d as a3
 from olti_drake.model.errormap import approach_directions
 from olti_drake.sim.scenario import stream_rng, stream_seed
@@ -95,10 +96,14 @@ def prepare_serial(scenario: SerialScenario) -> SerialSetup:
     from olti_drake.model.serial import synthetic_truth
 
     source = getattr(scenario, "source_file", None)
-    scenario.validate(f"scenario {source}" if source else "scenario")
+    where = f"scenario {source}" if source else "scenario"
+    scenario.validate(where)
     r, s = scenario.robot, scenario.scheme
-    chain = load_serial_chain(scenario.robot_path(), r.tool_frame)
-    _check_joints(scenario, chain)
+    try:
+        chain = load_serial_chain(scenario.robot_path(), r.tool_frame)
+    except ValueError as e:
+        raise InputError(f"{where}: robot: {e}") from None
+    _check_joints(scenario, chain, where)
     tool = np.asarray(r.tool_offset_mm, float)
     true_points = np.asarray(s.stations_mm if scenario_is_tracers(scenario) else s.reflectors_mm, float)
     t = r.truth
@@ -108,7 +113,10 @@ def prepare_serial(scenario: SerialScenario) -> SerialSetup:
     truth = dataclasses.replace(truth, stations_mm=true_points, dead_paths_mm=np.zeros(len(true_points)))
     rng = stream_rng(scenario.seed, "reflector_estimate")
     build = _prepare_tracers if scenario_is_tracers(scenario) else _prepare_mounted
-    setup = build(scenario, chain, truth, tool, rng)
+    try:
+        setup = build(scenario, chain, truth, tool, rng)
+    except ValueError as e:  # e.g. a (joint, node, direction) no readable pose covers: name the scenario
+        raise InputError(f"{where}: {e}") from None
     dead = _dead_paths(setup)
     setup.truth = dataclasses.replace(setup.truth, dead_paths_mm=dead)
     return setup
@@ -118,13 +126,13 @@ def scenario_is_tracers(scenario) -> bool:
     return isinstance(scenario.scheme, FloorTracers)
 
 
-def _check_joints(scenario, chain):
+def _check_joints(scenario, chain, where):
     n = chain.n_joints
     if scenario.plan.ranges_deg and len(scenario.plan.ranges_deg) != n:
-        raise ValueError(f"scenario: plan.ranges_deg has {len(scenario.plan.ranges_deg)} pairs, the robot "
+        raise InputError(f"{where}: plan.ranges_deg has {len(scenario.plan.ranges_deg)} pairs, the robot "
                          f"{n} joints ({', '.join(chain.joint_names)})")
     if not scenario_is_tracers(scenario) and len(scenario.scheme.start_deg) != n:
-        raise ValueError(f"scenario: scheme.start_deg has {len(scenario.scheme.start_deg)} angles, the robot "
+        raise InputError(f"{where}: scheme.start_deg has {len(scenario.scheme.start_deg)} angles, the robot "
                          f"{n} joints")
 
 
