@@ -285,3 +285,18 @@ def test_six_axis_demo_simulates_identifies_and_validates(tmp_path):
     assert any(ln.startswith("  errormap") for ln in lines)
     with pytest.raises(ValueError, match="campaign.csv"):
         run_six_axis_demo(tmp_path, force=True, scenario_text=text)
+
+
+def test_six_axis_diagram_offers_the_scara_station_ports():
+    """The committed six-axis wiring (olti diagrams) is the code's; its station takes and gives the SCARA
+    station's ports (plus the head command of the floor tracers) and the error map feeds the interferometer."""
+    from olti_drake.report.diagram_pictures import DIAGRAMS_DIR, campaign_diagram, read_wiring, wiring_lines
+
+    with campaign_diagram(DIAGRAMS_DIR / "six_axis.yaml") as diagram:
+        lines = wiring_lines(diagram)
+        names = {diagram.station.get_output_port(i).get_name() for i in range(diagram.station.num_output_ports())}
+    assert read_wiring(DIAGRAMS_DIR / "six_axis.wiring.txt") == lines
+    assert names >= {"displacement", "valid", "miss", "status", "direction", "measured_position", "true_position"}
+    inputs = {ln.split(" -> ")[1] for ln in lines if " -> station." in ln and "/" not in ln}
+    assert inputs == {"station.joint_command", "station.reflector", "station.head_command"}
+    assert "station/error_map_joint.position -> station/serial_laser_interferometer.position" in lines
