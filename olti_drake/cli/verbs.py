@@ -122,6 +122,11 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
+    if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
+        print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
+                                      _progress(True), args.meshcat))
+        return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
@@ -133,6 +138,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_demo(args) -> int:
     """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
+    if args.robot == "six_axis":  # the six-axis story (olti_drake/report/six_axis_demo.py)
+        from olti_drake.report.six_axis_demo import run_six_axis_demo
+        print("\n".join(run_six_axis_demo(args.out, args.force)))
+        return 0
     from olti_drake.report.figures import CAMPAIGN_FIGURES, write_campaign_figures
     from olti_drake.io.result import write_result
     from olti_drake.report.validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
@@ -786,6 +795,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the identification (000 §4.3), write result_dh.json, "
                                    "result_errormap.json and figures (PNG).")
     p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
+    p.add_argument("--robot", choices=("scara", "six_axis"), default="scara",
+                   help="scara: the paper-000 experiment (default); six_axis: the UR5-class campaign of "
+                        "diagrams/six_axis.yaml (floor tracers), identified and validated the same way")
     _add_force(p)
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
