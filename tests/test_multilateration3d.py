@@ -57,7 +57,10 @@ def test_3d_simulation_is_seeded_and_reads_the_volumetric_truth(campaign3d):
     T, P, L0 = (np.asarray(truth[k]) for k in ("targets_mm", "stations_mm", "dead_paths_mm"))
     i, j, ok = cols["target"], cols["station"], cols["valid"] == 1
     model = np.linalg.norm(T[i] - P[j], axis=1) - L0[j]
-    assert ok.mean() > 0.95 and np.abs(model - cols["displacement_mm"])[ok].max() < 2e-3
+    from olti_drake.model.machine import paper001_budget
+
+    pose = paper001_budget().combined("pose")  # the head's radial error motion moves the beam origin (001 Table 4)
+    assert ok.mean() > 0.95 and np.abs(model - cols["displacement_mm"])[ok].max() < 2e-3 + 5 * pose
     # The truth is not the commands: the 21 motions move the tool by micrometres.
     dev = np.asarray(truth["targets_mm"]) - (np.asarray(truth["commands_mm"]) + np.asarray(truth["tool_offsets_mm"])[0])
     assert 1e-3 < np.abs(dev).max() < 0.2

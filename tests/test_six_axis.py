@@ -263,7 +263,7 @@ def test_small_simulated_campaign_identified_within_its_uncertainty():
     check = DistanceMeasurement(model, np.tile(new, (nt, 1)), np.tile(new_dirs, (nt, 1)), new_st, true_d)
     r, jac = check.residuals(fit.x)  # predicted − true
     sigma = np.sqrt(np.einsum("ij,jk,ik->i", jac.toarray(), fit.covariance, jac.toarray()))
-    assert np.median(sigma) < 0.02
+    assert np.median(sigma) < 4 * u  # a small campaign predicts unseen readings within a few readings' u
     assert np.all(np.abs(r) < 4 * sigma + 5e-4), np.max(np.abs(r) / (sigma + 5e-4))
 
 

@@ -412,7 +412,7 @@ def _systems():
                 target, axis = s.stations_mm[j][None], self._axis
             rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
             r = a3.read_beam(origin, u, target, axis, s.truth.dead_paths_mm[j], s.scenario.interferometer,
-                             s.budget, rng)
+                             s.budget, rng, pose_noise_on="target" if s.tracers else "origin")
             value.set_value(np.array([r.reading_mm[0] / M_TO_MM, float(r.valid[0]), r.miss_mm[0] / M_TO_MM]))
 
     class SerialCampaignRecorder(ReadingRecorder):
