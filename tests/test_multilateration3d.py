@@ -57,7 +57,10 @@ def test_3d_simulation_is_seeded_and_reads_the_volumetric_truth(campaign3d):
     T, P, L0 = (np.asarray(truth[k]) for k in ("targets_mm", "stations_mm", "dead_paths_mm"))
     i, j, ok = cols["target"], cols["station"], cols["valid"] == 1
     model = np.linalg.norm(T[i] - P[j], axis=1) - L0[j]
-    assert ok.mean() > 0.95 and np.abs(model - cols["displacement_mm"])[ok].max() < 2e-3
+    from olti_drake.model.machine import paper001_budget
+
+    pose = paper001_budget().combined("pose")  # the head's radial error motion moves the beam origin (001 Table 4)
+    assert ok.mean() > 0.95 and np.abs(model - cols["displacement_mm"])[ok].max() < 2e-3 + 5 * pose
     # The truth is not the commands: the 21 motions move the tool by micrometres.
     dev = np.asarray(truth["targets_mm"]) - (np.asarray(truth["commands_mm"]) + np.asarray(truth["tool_offsets_mm"])[0])
     assert 1e-3 < np.abs(dev).max() < 0.2
@@ -85,31 +88,29 @@ def _aligned_truth(res, truth):
 
 
 def test_3d_recovers_targets_within_the_stated_uncertainty():
-    """Criterion: the target errors (truth moved into the best-fit gauge) against the linear covariance from
-    the residual variance give chi^2/dof in [0.7, 1.4] (dof = 3 N_i - 6, sd 0.075 here); against the
-    Table 4 budget (larger terms than the simulated noise) every coordinate is within 3 u."""
-    from olti_drake.estimation.multilateration import multilaterate
+    """Criterion: the target errors (truth moved into the best-fit gauge) against the stated covariance give
+    chi^2/dof in [0.7, 1.4] (dof = 3 N_i - 6 = 354, sd 0.075), at least 99 % of the coordinates within 3 u
+    and none beyond 4.5 u -- with the covariance from the residual variance and from the 001 Table 4 budget
+    (the simulation's own noise: reading and head pose); the heads are found within 4 u."""
+    from olti_drake.estimation.multilateration import align_to_commands, multilaterate
     from olti_drake.model.machine import paper001_budget
 
     cols, truth = simulate_machine_campaign_3d(Machine3DScenario(seed=2, grid=(6, 5, 4)))
     data = machine_campaign(cols)
-    res = multilaterate(data)
-    assert res.targets_mm.shape == (120, 3) and res.stations_mm.shape == (5, 3)
-    assert "three translations and three rotations" in res.gauge
-    e = (res.targets_mm - _aligned_truth(res, truth)).ravel()
-    C = res.fit.covariance[:e.size, :e.size]
-    chi2 = e @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ e / (e.size - 6)
-    assert 0.7 < chi2 < 1.4
-    assert np.abs(e).max() > 1e-5  # errors exist: the test could fail
-    res_b = multilaterate(data, budget=paper001_budget())
-    e_b = res_b.targets_mm - _aligned_truth(res_b, truth)
-    assert np.all(np.abs(e_b) < 3 * res_b.targets_std_mm)
-    # The heads are found too (truth in the same gauge), within 3 u.
-    from olti_drake.estimation.multilateration import align_to_commands
-
-    _, S = align_to_commands(np.asarray(truth["targets_mm"]), res_b.nominal_mm, np.asarray(truth["stations_mm"]))
-    u_S = np.asarray(res_b.to_dict()["uncertainty"]["stations_mm"])
-    assert np.all(np.abs(res_b.stations_mm - S) < 3 * u_S)
+    for budget in (None, paper001_budget()):
+        res = multilaterate(data, budget=budget)
+        assert res.targets_mm.shape == (120, 3) and res.stations_mm.shape == (5, 3)
+        assert "three translations and three rotations" in res.gauge
+        T, S = align_to_commands(np.asarray(truth["targets_mm"]), res.nominal_mm, np.asarray(truth["stations_mm"]))
+        e = (res.targets_mm - T).ravel()
+        C = res.fit.covariance[:e.size, :e.size]
+        chi2 = e @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ e / (e.size - 6)
+        assert 0.7 < chi2 < 1.4
+        assert np.abs(e).max() > 1e-4  # errors exist: the test could fail
+        z = np.abs(res.targets_mm - T) / res.targets_std_mm
+        assert np.mean(z < 3) >= 0.99 and z.max() < 4.5
+        u_S = np.asarray(res.to_dict()["uncertainty"]["stations_mm"])
+        assert np.all(np.abs(res.stations_mm - S) < 4 * u_S)
 
 
 def test_3d_two_tools_are_two_targets_per_command_and_their_offset_is_found():
@@ -242,11 +243,11 @@ def test_cli_multilaterate_and_uncertainty_in_3d(tmp_path, campaign3d):
     assert np.shape(res["targets_mm"]) == (60, 3) and np.shape(res["stations_mm"]) == (5, 3)
     assert np.shape(res["uncertainty"]["targets_mm"]) == (60, 3) and "three rotations" in res["gauge"]
     assert res["tools"] == [0] * 60 and res["tool_offsets_mm"] == [[0.0, 0.0, 0.0]]
-    # Table 4 budget (the default): every coordinate within 3 u of the truth, in the same gauge.
+    # Table 4 budget (the default): 99 % of the coordinates within 3 u of the truth, in the same gauge.
     from olti_drake.estimation.multilateration import align_to_commands
 
     T = align_to_commands(np.asarray(truth["targets_mm"]), np.asarray(res["commands_mm"]))
-    assert np.all(np.abs(np.asarray(res["targets_mm"]) - T) < 3 * np.asarray(res["uncertainty"]["targets_mm"]))
+    assert np.mean(np.abs(np.asarray(res["targets_mm"]) - T) < 3 * np.asarray(res["uncertainty"]["targets_mm"])) >= 0.99
     lin = _olti("uncertainty", tmp_path / "r.json", camp, "--method", "linear", "--out", tmp_path / "u.json",
                 "--map", tmp_path / "u.png")
     assert lin.returncode == 0, lin.stderr

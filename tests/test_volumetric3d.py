@@ -519,3 +519,33 @@ def test_write_tables_csv(tmp_path):
     np.testing.assert_allclose(data[:, 1:], truth.evaluate("Y", data[:, 0]), atol=1e-6)
     grid = np.loadtxt(tmp_path / "grid_tool1.csv", delimiter=",", comments="#", skiprows=2)
     assert grid.shape == (5 * 4 * 4, 6)
+
+
+@pytest.mark.parametrize("stations", [None, STATIONS])
+def test_holding_the_one_tool_blind_angles_makes_the_rest_separable(stations):
+    """held=: the motions taken out of the unknowns are not reported, the rest is checked without them;
+    holding the four angular motions one tool cannot see leaves its straightness and squareness of Z
+    separable (they then carry the tilt's effect at the tool point)."""
+    cfg = MachineConfig(tool_offsets_mm=ONE_TOOL)
+    held = ("E_CY", "E_CZ", "E_AZ", "E_BZ")
+    obs = observability(VolumetricModel(cfg), *campaign(cfg), stations_mm=stations, held=held)
+    assert not obs.inseparable and obs.null_dimension == 0 and obs.held == held
+    assert not set(held) & set(obs.separable)
+    assert obs.describe().startswith("all 17 error motions separable") and "E_AZ, E_BZ held at 0" in obs.describe()
+    partly = observability(VolumetricModel(cfg), *campaign(cfg), stations_mm=stations, held=("E_CY", "E_CZ"))
+    assert set(partly.inseparable) == ONE_TOOL_BLIND - {"E_CY", "E_CZ"}
+
+
+def test_predict_positions_refuses_or_holds_the_motions_outside_the_travel():
+    from olti_drake.model.volumetric3d import predict_positions
+
+    cfg = MachineConfig(tool_offsets_mm=THREE_TOOLS)
+    truth = synthetic_truth(cfg, 2)
+    c = np.array([[100.0, 50.0, 30.0], [400.0, 300.0, 250.0], [430.0, 300.0, 250.0]])
+    with pytest.raises(ValueError, match=r"line 9: x = 430 mm is outside the X travel"):
+        predict_positions(cfg, truth, c, [0, 1, 2], lines=[7, 8, 9])
+    p = predict_positions(cfg, truth, c, [0, 1, 2], outside="clamp")
+    assert np.allclose(p[:2], tool_positions(cfg, truth, c[:2], [0, 1]), atol=1e-12)
+    # beyond the end X's motions stop changing: X is the first link, so the point moves by exactly 30 mm along x
+    before = predict_positions(cfg, truth, [[400.0, 300.0, 250.0]], [2])
+    assert np.allclose(p[2] - before[0], [30.0, 0.0, 0.0], atol=1e-12)

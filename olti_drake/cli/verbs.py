@@ -122,6 +122,11 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
+    if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
+        print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
+                                      _progress(True), args.meshcat))
+        return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
@@ -133,6 +138,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_demo(args) -> int:
     """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
+    if args.robot == "six_axis":  # the six-axis story (olti_drake/report/six_axis_demo.py)
+        from olti_drake.report.six_axis_demo import run_six_axis_demo
+        print("\n".join(run_six_axis_demo(args.out, args.force)))
+        return 0
     from olti_drake.report.figures import CAMPAIGN_FIGURES, write_campaign_figures
     from olti_drake.io.result import write_result
     from olti_drake.report.validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
@@ -202,6 +211,22 @@ def identification_summary(ident) -> str:
 
 
 def cmd_identify(args) -> int:
+    if args.model == "volumetric":
+        from olti_drake.cli.volumetric_verbs import identify
+        return identify(args)
+    if args.tool_offsets_mm or args.knot_spacing_mm or args.topology != "serial" or args.pitch_mm:
+        raise ValueError("--tool-offsets-mm, --knot-spacing-mm, --topology and --pitch-mm apply to --model volumetric")
+    if args.robot or args.tool_frame:
+        from olti_drake.cli.serial_verbs import identify
+
+        if not args.robot:
+            raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
+        return identify(args)
+    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg),
+                        ("--compliance", args.compliance or None), ("--drift", args.drift or None)):
+        if value is not None:
+            raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
+                             f"--nominal-mm and --grid1-deg/--grid2-deg")
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -254,10 +279,17 @@ def _add_solver_options(p):
 
 
 def cmd_predict(args) -> int:
+    if _result_format(args.result) == "olti-volumetric/1":
+        from olti_drake.cli.volumetric_verbs import predict
+        return predict(args)
     from olti_drake.io.campaign_io import load_commands
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
 
+    from olti_drake.cli.serial_verbs import is_serial_result, predict
+
+    if is_serial_result(args.result):
+        return predict(args)
     _check_outputs(args, [args.out], [args.result, args.commands])
     from olti_drake.model.errormap import OutsideGridError
 
@@ -348,6 +380,9 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
+    if _result_format(args.result) == "olti-volumetric/1":
+        raise ValueError(f"{args.result}: a volumetric result carries its linear uncertainties (key 'uncertainty', "
+                         f"k = 1); olti uncertainty takes SCARA and multilateration results")
     import types
 
     import numpy as np
@@ -367,6 +402,12 @@ def cmd_uncertainty(args) -> int:
     if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
         raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
+    from olti_drake.cli.serial_verbs import is_serial_result
+
+    if is_serial_result(args.result):
+        from olti_drake.cli.serial_uncertainty import uncertainty
+
+        return uncertainty(args, _propagate)
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = budget_or_default(args.budget, "scara")
@@ -562,6 +603,15 @@ def cmd_report(args) -> int:
 
 def cmd_compensate(args) -> int:
     """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    if _result_format(args.result) == "olti-volumetric/1":
+        from olti_drake.cli.volumetric_verbs import compensate
+        return compensate(args)
+    from olti_drake.cli.serial_verbs import compensate, is_serial_result
+
+    if is_serial_result(args.result):
+        return compensate(args)
+    if args.urdf_out:
+        raise ValueError("--urdf-out needs the result of a robot model file (olti identify --robot)")
     from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
     from olti_drake.io.result import load_result
 
@@ -675,6 +725,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the identification (000 §4.3), write result_dh.json, "
                                    "result_errormap.json and figures (PNG).")
     p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
+    p.add_argument("--robot", choices=("scara", "six_axis"), default="scara",
+                   help="scara: the paper-000 experiment (default); six_axis: the UR5-class campaign of "
+                        "diagrams/six_axis.yaml (floor tracers), identified and validated the same way")
     _add_force(p)
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
@@ -688,11 +741,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA or serial-robot campaign",
                        description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
-                                   "from a campaign CSV; print a summary; write RESULT.json.")
+                                   "from a campaign CSV; print a summary; write RESULT.json. With --robot FILE "
+                                   "--tool-frame NAME: any serial robot Drake loads (URDF/SDFormat; ur5 and scara "
+                                   "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
+                                   "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
-    p.add_argument("--model", choices=("dh", "errormap"), required=True)
+    p.add_argument("--model", choices=("dh", "errormap", "volumetric"), required=True,
+                   help="volumetric: the 21 ISO 230-1 error motions of a 3-axis machine from a 3D machine campaign "
+                        "(docs/machine_3d.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
     p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
     p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
@@ -701,15 +759,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reflectors-mm", type=cliargs.pairs_mm(2),
                    help="initial reflector positions 'x,y;x,y;...' mm (e.g. the Eq. (2) search)")
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
+    p.add_argument("--tool-offsets-mm", type=cliargs.pairs_mm(3),
+                   help="volumetric: the offset of every tool index 'x,y,z;x,y,z;...' mm from the spindle reference "
+                        "point (tool 0's taken as given, the others' estimated; default 0,0,0 for a 1-tool campaign)")
+    p.add_argument("--knot-spacing-mm", type=cliargs.length_mm,
+                   help="volumetric: largest B-spline knot interval of the error motions (default: up to 8 intervals "
+                        "per axis, fewer when the campaign has few distinct positions)")
+    p.add_argument("--topology", choices=("serial", "table-xy", "table-yx"), default="serial",
+                   help="volumetric: serial X-Y-Z (default); table-xy: table carries X on Y, column Z; table-yx: "
+                        "table carries Y on X, column Z")
+    p.add_argument("--pitch-mm", type=cliargs.length_mm,
+                   help="volumetric: the motion values and their uncertainties every S mm (default 10)")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
                                     "against (warning above 3 x; default: 000 Table 2)")
+    p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
+                                   "the campaign then has theta1_deg..thetaN_deg (docs/serial_robots.md)")
+    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
+                   help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
+                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
+    p.add_argument("--compliance", action="store_true",
+                   help="with --robot: joint compliance under gravity, c_i deg/(N m) times the gravity torque from the "
+                        "model file's masses (joints with too little torque variation are dropped by name)")
+    p.add_argument("--drift", action="store_true",
+                   help="with --robot: linear drift of each station's dead path in time, mm/h (distance campaigns "
+                        "with a time_s column)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
                        description="Apply an identified model to commands (formats.md commands.csv); write "
-                                   "the commands with the predicted x_mm, y_mm.")
+                                   "the commands with the predicted x_mm, y_mm. A serial robot's result: "
+                                   "theta1_deg .. thetaN_deg [, dir1 .. dirN] in, x_mm, y_mm, z_mm out; a distance "
+                                   "campaign given as FILE also gets predicted_displacement_mm (cross-validation).")
     p.add_argument("result", help="result JSON from olti identify")
     p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
     p.add_argument("--out", required=True, help="prediction CSV to write")
@@ -760,6 +844,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
                         "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
+    p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=400,
+                   help="robots from a model file: seeded workspace poses where the predicted tool point's u is "
+                        "evaluated (default 400)")
     p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
     p.add_argument("--out", required=True, help="uncertainty JSON to write")
     _add_force(p)
@@ -835,7 +922,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "theta2_deg and approach directions that put the end effector on it. Without "
                                    "dir columns the directions follow the compensated sequence itself "
                                    "(formats.md rule). Targets beyond the reach or the map grid are refused "
-                                   "with their line. mm and degrees.")
+                                   "with their line. A serial robot's result: TARGETS.csv has x_mm, y_mm, z_mm "
+                                   "and the nominal pose theta1_deg .. thetaN_deg [, dir1 .. dirN]; the commands "
+                                   "keep the nominal pose's tool orientation and directions. mm and degrees.")
     p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
     p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
     p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
@@ -843,6 +932,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
                                     "compensation tables at the map nodes) into this directory")
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
+                                      "identified joint origins and the tool point as a link")
+    p.add_argument("--pitch-mm", type=cliargs.length_mm,
+                   help="volumetric --tables: axis tables every S mm (default 10)")
+    p.add_argument("--grid-pitch-mm", type=cliargs.length_mm,
+                   help="volumetric --tables: the 3D grid of positioning-error vectors every S mm (default 50)")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)
@@ -869,7 +964,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
-_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
+                         "--tool-offset-mm", "--tool-offsets-mm")
 
 
 def _join_signed_values(argv):

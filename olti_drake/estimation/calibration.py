@@ -97,7 +97,7 @@ def station_fit(points_mm, readings_mm, start_mm=None):
 
     Without a start: the linearized multilateration ‖p‖² − 2p·P + ‖P‖² =
     (d + L0)² is linear in (P, L0, ‖P‖² − L0²); then Gauss-Newton on Eq. (3)
-    of 001 (Eq. (5) of 000 for a SCARA reflector).
+    of 001 (Eq. (5) of 000 for a SCARA reflector; the 3D station of an N-joint robot).
     """
     p, d = np.asarray(points_mm, dtype=float), np.asarray(readings_mm, dtype=float)
     D = p.shape[1]
@@ -120,3 +120,8 @@ def station_fit(points_mm, readings_mm, start_mm=None):
         if np.max(np.abs(step)) < 1e-12:
             break
     return P, L0
+
+
+def _norms(diff) -> np.ndarray:
+    """Row lengths; np.hypot in 2D (the arithmetic the SCARA and machine results were written with)."""
+    return np.hypot(*diff.T) if diff.shape[1] == 2 else np.linalg.norm(diff, axis=1)

@@ -129,23 +129,37 @@ def viewing_angle_deg(u, catseye_axis) -> np.ndarray:
 
 
 def read_beam(origin_mm, u, target_mm, catseye_axis, dead_path_mm, options: InterferometerOptions,
-              budget: Optional[Budget] = None, rng=None) -> BeamReadings:
+              budget: Optional[Budget] = None, rng=None, pose_noise_on: str = "") -> BeamReadings:
     """What the interferometer reports for beams (origin, unit u) (M, 3) at cat's eyes ``target_mm``.
 
     Reading = (T − o)·u − d0 (``options.cosine_error``; else |T − o| − d0), plus the budget's
-    ``reading`` noise (normal, seeded ``rng``) and λ/``resolution_divisor`` quantization as
-    switched in ``options`` (interferometer.py's model, 000 §5). Invalid when the miss exceeds
+    noise (normal, seeded ``rng``, four normals per reading whatever is switched on): ``pose`` —
+    a random 3D displacement (σ per coordinate, so its projection on the beam has σ, as in the
+    2D model) of the element the moving axes carry, ``pose_noise_on`` = "target" (a cat's eye on a
+    robot's tool) or "origin" (a laser on the robot, a head on a rotary table; "" = none) —
+    and ``reading`` (along the beam); then λ/``resolution_divisor`` quantization, as switched in
+    ``options`` (interferometer.py's model, 000 §5). Invalid when the miss exceeds
     ``options.acceptance_mm`` or the viewing angle exceeds ±``MAX_VIEWING_DEG`` (``beam_loss``).
     """
     u = _unit(np.atleast_2d(u))
     origin = np.broadcast_to(np.asarray(origin_mm, float), u.shape)
     target = np.broadcast_to(np.asarray(target_mm, float), u.shape)
+    noisy = options.noise and budget is not None
+    z = np.random.default_rng(rng).standard_normal((len(u), 4)) if noisy else None
+    if noisy and pose_noise_on:
+        if pose_noise_on not in ("target", "origin"):
+            raise ValueError(f"pose_noise_on: 'target', 'origin' or '', not {pose_noise_on!r}")
+        shift = budget.combined("pose") * z[:, :3]
+        if pose_noise_on == "target":
+            target = target + shift
+        else:
+            origin = origin + shift
     along, miss = beam_geometry_3d(origin, u, target)
     view = viewing_angle_deg(u, _unit(catseye_axis))
     length = along if options.cosine_error else np.hypot(along, miss)
     reading = length - np.asarray(dead_path_mm, float)
-    if options.noise and budget is not None:
-        reading = reading + budget.combined("reading") * np.random.default_rng(rng).standard_normal(len(u))
+    if noisy:
+        reading = reading + budget.combined("reading") * z[:, 3]
     if options.quantization:
         reading = quantize(reading, options.resolution_mm)
     lost = (miss > options.acceptance_mm) | (view > MAX_VIEWING_DEG) | (along <= 0)
@@ -234,7 +248,7 @@ def _read_catseye_on_tool(robot, commands, dirs, origin, u, axis_tool, dead, opt
     pts = tool_frame_points(robot, commands, dirs, np.vstack([np.zeros(3), _unit(axis_tool)]))
     centre = robot.chain.positions(robot.actual_angles(commands, dirs), robot.chain_params)
     return read_beam(origin, u, centre, pts[:, 1] - pts[:, 0], dead,
-                     options or InterferometerOptions(), budget, rng)
+                     options or InterferometerOptions(), budget, rng, pose_noise_on="target")
 
 
 # ------------------------------------------------------- robot-mounted laser
@@ -383,7 +397,7 @@ def robot_beam_readings(robot_true, commands, dirs, laser: LaserOnTool, reflecto
     origin, u = tool_frame_line(robot_true, commands, dirs, laser.origin_mm, laser.direction)
     target = np.broadcast_to(np.asarray(reflector_true_mm, float), origin.shape)
     return read_beam(origin, u, target, _unit(reflector_axis), dead_path_mm,
-                     options or InterferometerOptions(), budget, rng)
+                     options or InterferometerOptions(), budget, rng, pose_noise_on="origin")
 
 
 # --------------------------------------------------- initial estimate: reflector

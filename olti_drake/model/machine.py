@@ -285,7 +285,7 @@ def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
     first = np.array([np.flatnonzero(j == k)[0] for k in range(len(P))])
     dead = np.hypot.reduce(actual[i[first]] - P, axis=1)
     beam = aiming3d.read_beam(origin, u, actual[i], np.asarray(s.catseye_axis, float), dead[j], s.interferometer,
-                              budget or paper001_budget(), rng)
+                              budget or paper001_budget(), rng, pose_noise_on="origin")  # 001: the head's axis
     cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1], "z_cmd_mm": cmd[i, 2],
             "tool": tool[i], "displacement_mm": np.where(beam.valid, beam.reading_mm, np.nan),
             "valid": beam.valid.astype(int)}

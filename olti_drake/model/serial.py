@@ -541,12 +541,18 @@ class DistanceMeasurement(_Measurement):
     r_k = ‖p_k − P_j‖ − d0_j − d_k for reading k taken from station j. Own
     parameters: ``P<j>_x_mm, P<j>_y_mm, P<j>_z_mm`` per station, then
     ``d0_<j>_mm`` per station (j = the station labels of the file, ascending).
+
+    With ``time_h`` (the time of every reading, hours) the dead path drifts
+    linearly during the campaign (air, thermal growth of the beam path):
+    d0_j(t) = d0_j + v_j·(t − t̄_j), own parameters ``drift_<j>_mm_per_h`` after
+    the dead paths; t̄_j (``drift_reference_h``) is the mean time of station j's
+    readings, so d0_j stays the dead path at mid-campaign.
     """
 
     kind = "distance"
 
     def __init__(self, model, commands, dirs, station, displacement_mm,
-                 stations_mm=None, dead_paths_mm=None):
+                 stations_mm=None, dead_paths_mm=None, time_h=None, drift_mm_per_h=None, drift_reference_h=None):
         super().__init__(model, commands, dirs)
         station = np.asarray(station).ravel()
         self.labels = np.unique(station)
@@ -560,15 +566,35 @@ class DistanceMeasurement(_Measurement):
         P = np.zeros((nt, 3)) if stations_mm is None else np.asarray(stations_mm, float).reshape(nt, 3)
         d0 = np.zeros(nt) if dead_paths_mm is None else np.asarray(dead_paths_mm, float).reshape(nt)
         self._own_start = np.concatenate([P.ravel(), d0])
+        self.time_h = self.drift_reference_h = None
+        if time_h is not None:
+            self.time_h = np.asarray(time_h, float).ravel()
+            if self.time_h.shape != self.displacement.shape or not np.all(np.isfinite(self.time_h)):
+                raise ValueError("distance campaign: times must be finite, one per reading")
+            self.drift_reference_h = (np.array([self.time_h[self.station == j].mean() for j in range(nt)])
+                                      if drift_reference_h is None else np.asarray(drift_reference_h, float))
+            v = np.zeros(nt) if drift_mm_per_h is None else np.asarray(drift_mm_per_h, float).reshape(nt)
+            self.own_names += tuple(f"drift_{j}_mm_per_h" for j in self.labels)
+            self._own_start = np.concatenate([self._own_start, v])
 
     def _parts(self, x):
+        """Model part, stations (Nt, 3), and the dead path of every reading (drift included)."""
         xm, own = self._split(x)
         nt = len(self.labels)
-        return xm, own[:3 * nt].reshape(nt, 3), own[3 * nt:]
+        d0 = own[3 * nt:4 * nt][self.station]
+        if self.time_h is not None:
+            d0 = d0 + own[4 * nt:][self.station] * self._dt()
+        return xm, own[:3 * nt].reshape(nt, 3), d0
+
+    def _dt(self) -> np.ndarray:
+        return self.time_h - self.drift_reference_h[self.station]
 
     def _own_layout(self, own) -> dict:
         nt = len(self.labels)
-        return {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:].tolist()}
+        out = {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:4 * nt].tolist()}
+        if self.time_h is not None:  # (the result adds drift_reference_h: a constant, not a parameter)
+            out["drift_mm_per_h"] = own[4 * nt:].tolist()
+        return out
 
     def beam_lengths(self, x) -> np.ndarray:
         """‖p − P_j‖ of every reading at x, mm."""
@@ -579,7 +605,7 @@ class DistanceMeasurement(_Measurement):
         """Expected readings ‖p − P_j‖ − d0_j (mm)."""
         xm, P, d0 = self._parts(x)
         p = self.model.positions(self.commands, self.dirs, xm)
-        return np.linalg.norm(p - P[self.station], axis=1) - d0[self.station]
+        return np.linalg.norm(p - P[self.station], axis=1) - d0
 
     def residuals(self, x):
         """r (M,) mm and the sparse dr/dx (M, P + 4 Nt): u·∂p/∂x, −u for P_j, −1 for d0_j."""
@@ -588,11 +614,14 @@ class DistanceMeasurement(_Measurement):
         diff = p - P[self.station]
         dist = np.linalg.norm(diff, axis=1)
         u = diff / dist[:, None]
-        r = dist - d0[self.station] - self.displacement
+        r = dist - d0 - self.displacement
         pm, nt = self.model.n_params, len(self.labels)
-        cols = np.column_stack([pm + 3 * self.station + c for c in range(3)] + [pm + 3 * nt + self.station])
-        vals = np.column_stack([-u, -np.ones(len(u))])
-        return r, jp.contract(u, vals, cols, len(self.names))
+        cols = [pm + 3 * self.station + c for c in range(3)] + [pm + 3 * nt + self.station]
+        vals = [-u, -np.ones((len(u), 1))]
+        if self.time_h is not None:  # ∂r/∂v_j = −(t − t̄_j)
+            cols.append(pm + 4 * nt + self.station)
+            vals.append(-self._dt()[:, None])
+        return r, jp.contract(u, np.hstack(vals), np.column_stack(cols), len(self.names))
 
     def probe(self, model, commands, dirs, rng):
         """The same kind of measurement for ``model`` at other poses, with random stations
@@ -604,8 +633,9 @@ class DistanceMeasurement(_Measurement):
         P *= (1.5 * reach / np.linalg.norm(P, axis=1))[:, None]
         m = len(commands)
         tiled_dirs = None if dirs is None else np.tile(dirs, (nt, 1))
+        times = None if self.time_h is None else rng.uniform(0.0, 1.0, nt * m)  # drift: generic, seen
         return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
-                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt))
+                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times)
 
 
 class PointMeasurement(_Measurement):

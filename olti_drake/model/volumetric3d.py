@@ -145,31 +145,73 @@ class MachineConfig:
         return len(self.knots(axis)) - DEGREE - 1
 
 
-def check_points(points_mm, tool, n_tools: int, what: str):
-    """(M, 3) finite points and (M,) tool indices: one-line ValueError naming the row or the indices."""
+def _row(k: int, lines=None) -> str:
+    """How a row is named in a message: its file line when the caller knows it, else its index."""
+    return f"row {k}" if lines is None else f"line {int(lines[k])}"
+
+
+def check_points(points_mm, tool, n_tools: int, what: str, lines=None):
+    """(M, 3) finite points and (M,) tool indices: one-line ValueError naming the row (``lines``: the
+    file line of every row) or the indices."""
     c = np.asarray(points_mm, dtype=float)
     c = c.reshape(1, 3) if c.shape == (3,) else c
     if c.ndim != 2 or c.shape[1] != 3:
         raise ValueError(f"{what}: expected (M, 3) x, y, z in mm, got shape {np.shape(points_mm)}")
     bad = np.flatnonzero(~np.all(np.isfinite(c), axis=1))
     if bad.size:
-        raise ValueError(f"{what}: row {bad[0]}: {c[bad[0]].tolist()} mm is not finite")
+        raise ValueError(f"{what}: {_row(bad[0], lines)}: {c[bad[0]].tolist()} mm is not finite")
     m = np.zeros(len(c), int) if tool is None else np.broadcast_to(np.asarray(tool), (len(c),))
     if not np.issubdtype(m.dtype, np.integer) or np.any((m < 0) | (m >= n_tools)):
         raise ValueError(f"tool: indices must be integers in 0..{n_tools - 1}, got {np.unique(m)[:5].tolist()}")
     return c, m.astype(int)
 
 
-def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "commands"):
+def check_commands(config: MachineConfig, commands_mm, tool=None, what: str = "commands", lines=None):
     """(M, 3) commands within the travel and (M,) tool indices: one-line ValueError naming row and axis."""
-    c, m = check_points(commands_mm, tool, len(config.tools), what)
+    c, m = check_points(commands_mm, tool, len(config.tools), what, lines)
     for k, a in enumerate(AXES):
         lo, hi = config.travel_mm[a]
         bad = np.flatnonzero((c[:, k] < lo - 1e-9) | (c[:, k] > hi + 1e-9))
         if bad.size:
-            raise ValueError(f"{what}: row {bad[0]}: {a.lower()} = {c[bad[0], k]:g} mm is outside the "
+            raise ValueError(f"{what}: {_row(bad[0], lines)}: {a.lower()} = {c[bad[0], k]:g} mm is outside the "
                              f"{a} travel [{lo}, {hi}] mm")
     return c, m
+
+
+class HeldEnds:
+    """``motions`` with every motion held at its travel-end value beyond the travel (``--outside clamp``):
+    the axis still moves nominally there, its error motions stop changing (derivative 0)."""
+
+    def __init__(self, motions, config: MachineConfig):
+        self.inner, self.config = motions, config
+        self.squareness_urad = motions.squareness_urad
+        self.tool_offset_errors_mm = motions.tool_offset_errors_mm
+
+    def evaluate(self, axis: str, q, derivative: int = 0) -> np.ndarray:
+        lo, hi = self.config.travel_mm[axis]
+        q = np.asarray(q, float)
+        v = self.inner.evaluate(axis, np.clip(q, lo, hi), derivative)
+        return np.where(((q < lo) | (q > hi))[:, None], 0.0, v) if derivative else v
+
+
+def predict_positions(config: MachineConfig, motions, commands_mm, tool=None, outside: str = "error",
+                      lines=None) -> np.ndarray:
+    """Actual tool points (M, 3) mm for commands (M, 3) mm; ``outside``: 'error' refuses a command beyond
+    the travel (one line naming its row or file line), 'clamp' holds the motions at the travel ends."""
+    if outside == "clamp":
+        c, m = check_points(commands_mm, tool, len(config.tools), "commands", lines)
+        return chain_state(config, HeldEnds(motions, config), c, m).p
+    if outside != "error":
+        raise ValueError(f"outside must be 'error' or 'clamp', got {outside!r}")
+    c, m = check_commands(config, commands_mm, tool, "commands", lines)
+    return chain_state(config, motions, c, m).p
+
+
+def clamp_commands(config: MachineConfig, commands_mm) -> np.ndarray:
+    """Commands (M, 3) mm moved into the travel box (each axis clipped to its [start, end])."""
+    lo = [config.travel_mm[a][0] for a in AXES]
+    hi = [config.travel_mm[a][1] for a in AXES]
+    return np.clip(np.asarray(commands_mm, float), lo, hi)
 
 
 # --------------------------------------------------------------------------- error motions
@@ -513,6 +555,8 @@ class MotionObservability:
     singular_values: np.ndarray
     rtol: float
     measurement: str
+    #: Motions taken out of the campaign's unknowns (held at 0) before the check: not in the other fields.
+    held: Tuple[str, ...] = ()
 
     @property
     def inseparable(self) -> Tuple[str, ...]:
@@ -523,8 +567,9 @@ class MotionObservability:
         if not self.inseparable:
             tools = [n for n in self.separable if n.startswith("tool")]
             extra = f" and {len(tools)} tool offsets" if tools else ""
+            held = f", {', '.join(self.held)} held at 0" if self.held else ""
             return (f"all {len(self.separable) - len(tools)} error motions{extra} separable ({self.measurement}; "
-                    f"rtol {self.rtol:g})")
+                    f"rtol {self.rtol:g}{held})")
         return "\n".join(f"{n}: not separable, " + (f"trades with {', '.join(self.trades_with[n])}"
                                                     if self.trades_with[n] else "no reading depends on it")
                          for n in self.inseparable)
@@ -555,7 +600,7 @@ def _distance_rows(p, J, stations_mm):
 
 
 def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, params=None,
-                  rtol: float = 1e-8, share: float = 1e-3) -> MotionObservability:
+                  rtol: float = 1e-8, share: float = 1e-3, held: Sequence[str] = ()) -> MotionObservability:
     """Which of the 21 error motions a campaign layout separates (up to the representation's gauge).
 
     Measurement: 3D target positions in an unknown frame (``stations_mm`` None:
@@ -567,7 +612,8 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
     when the null space has no more than ``share`` of its coefficient block
     (2-norm of the block of the orthonormal null basis); an inseparable one is
     reported with the motions sharing its null directions ("gauge" when the
-    nuisance columns take part).
+    nuisance columns take part). ``held``: motions (or ``tool<m>`` groups) taken out of the
+    unknowns, as held at 0: their columns are dropped and they are not reported.
     """
     x = model.zeros() if params is None else np.asarray(params, float)
     p, J = model.jacobian(commands_mm, tool, x)
@@ -576,6 +622,10 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
     else:
         A, N = _distance_rows(p, J, stations_mm)
         what = f"distances from {len(np.asarray(stations_mm).reshape(-1, 3))} stations, unknown stations and dead paths"
+    if held:  # a held motion is no unknown: its zeroed columns add null directions outside every other block
+        A = A.copy()
+        for g in held:
+            A[:, model.slices[g]] = 0.0
     norms = np.linalg.norm(A, axis=0)  # a column no reading depends on stays 0: a null direction
     unit = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
     with single_thread_blas():  # medium SVDs: BLAS threads spin-wait on a shared machine (50x slower)
@@ -584,7 +634,7 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         proj = unit - Qn @ (Qn.T @ unit)
         _, s, Vt = np.linalg.svd(proj, full_matrices=False)
     null = Vt[s <= rtol * s[0]].T
-    groups = list(ALL_MOTIONS) + list(SQUARENESS) + list(model.tool_groups)
+    groups = [g for g in list(ALL_MOTIONS) + list(SQUARENESS) + list(model.tool_groups) if g not in held]
     block = {g: np.linalg.norm(null[model.slices[g]], 2) if null.size else 0.0 for g in groups}
     separable = {g: bool(block[g] <= share) for g in groups}
     trades = {}
@@ -598,7 +648,8 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         if np.linalg.norm(unit @ vecs) > 1e-6:
             partners.append("gauge")
         trades[g] = tuple(partners)
-    return MotionObservability(separable, trades, null.shape[1], s, rtol, what)
+    n_held = sum(model.slices[g].stop - model.slices[g].start for g in held)
+    return MotionObservability(separable, trades, null.shape[1] - n_held, s, rtol, what, tuple(held))
 
 
 # --------------------------------------------------------------------------- compensation
@@ -639,15 +690,15 @@ def error_grid(motions, config: MachineConfig, pitch_mm: float, tool: int = 0) -
 
 
 def compensate(motions, config: MachineConfig, targets_mm, tool=None, tol_mm: float = 1e-11,
-               max_iter: int = 20):
+               max_iter: int = 20, lines=None):
     """Commands (M, 3) mm that put the tool point on ``targets_mm`` (M, 3) mm (workpiece frame).
 
     Newton on the model, vectorized over points: q ← q + (∂p/∂q)⁻¹ (target − p(q)),
     from q = target − tool offset. Returns (commands, residual norms mm). Raises
-    ValueError (naming the first point) when a command leaves the travel or the
-    iteration does not reach ``tol_mm`` in ``max_iter`` steps (refused, not returned).
+    ValueError (naming the first point; ``lines``: by its file line) when a command leaves the travel or
+    the iteration does not reach ``tol_mm`` in ``max_iter`` steps (refused, not returned).
     """
-    target, m = check_points(targets_mm, tool, len(config.tools), "targets")
+    target, m = check_points(targets_mm, tool, len(config.tools), "targets", lines)
     q = target - config.tools[m]
     for _ in range(max_iter):
         state = chain_state(config, motions, q, m)
@@ -658,8 +709,9 @@ def compensate(motions, config: MachineConfig, targets_mm, tool=None, tol_mm: fl
         q = q + np.linalg.solve(command_jacobian(config, motions, state), r[:, :, None])[:, :, 0]
     else:
         bad = int(np.argmax(err))
-        raise ValueError(f"compensate: point {bad} did not converge ({err[bad]:.3g} mm after {max_iter} steps)")
-    check_commands(config, q, m, "compensated commands")
+        raise ValueError(f"compensate: {'point ' + str(bad) if lines is None else _row(bad, lines)} did not "
+                         f"converge ({err[bad]:.3g} mm after {max_iter} steps)")
+    check_commands(config, q, m, "compensated commands", lines)
     return q, err
 
 

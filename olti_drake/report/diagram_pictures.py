@@ -31,7 +31,8 @@ DIAGRAMS_DIR = shipped("diagrams")
 #: Output name -> scenario file in ``diagrams/``.
 SCENARIOS = {"paper000_scara": "paper000_scara.yaml",
              "paper000_emulated": "paper000_emulated.yaml",
-             "paper000_hardware": "paper000_hardware.yaml"}
+             "paper000_hardware": "paper000_hardware.yaml",
+             "six_axis": "six_axis.yaml"}
 _ADDRESS = re.compile(r"@[0-9a-fA-F]{8,}")   # unnamed systems: drake/geometry/SceneGraph@0000...
 _SOURCE_ID = re.compile(r"\bSource_\d+_")    # SceneGraph ports carry a process-wide source id
 
@@ -54,7 +55,12 @@ def campaign_diagram(scenario_path, extend=None):
     from olti_drake.hardware.station import AddStation
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.sim.scenario import Hardware, load_scenario
+    from olti_drake.sim.serial_station import build_serial_diagram, is_serial_scenario, prepare_serial
+    from olti_drake.sim.serial_scenario import load_serial_scenario
 
+    if is_serial_scenario(scenario_path):  # a six-axis scenario: the N-joint diagram (sim/serial_station.py)
+        yield build_serial_diagram(prepare_serial(load_serial_scenario(scenario_path)))[0]
+        return
     setup = prepare(load_scenario(scenario_path))
     factory = unopened_hardware_station if isinstance(setup.scenario.station, Hardware) else AddStation
     diagram, _, _ = build_campaign_diagram(setup, station_factory=factory, extend=extend)

@@ -27,7 +27,7 @@ from olti_drake.report.iso230 import axis_statistics
 _VALUE_SUFFIXES = ("_mm", "_deg")
 _META = {"format", "model", "robot", "gauge", "residual_rms_mm", "n_readings", "uncertainty", "dropped", "iterations",
          "condition_number", "solver", "outliers", "converged", "warnings", "campaign", "notes", "held", "truth",
-         "date"}
+         "date", "station_labels", "drift_reference_h"}
 
 
 def value_keys(raw: dict) -> tuple:
@@ -67,6 +67,10 @@ def parameter_rows(raw: dict, std_src, k: float) -> list:
             rows.append(_row(f"station {j} {axis}", P[c], "mm", u, k))
     for j, d in enumerate(raw.get("dead_paths_mm", [])):
         rows.append(_row(f"dead path {j}", d, "mm", _u(std_src, "dead_paths_mm", j), k))
+    for j, v in enumerate(raw.get("drift_mm_per_h", [])):  # shown in µm/h
+        u = _u(std_src, "drift_mm_per_h", j)
+        rows.append((f"dead-path drift {j}", f"{1e3 * v:.3f} µm/h", ui.num(None if u is None else 1e3 * u, ".3f"),
+                     ui.num(None if u is None else 1e3 * k * u, ".3f"), "µm/h"))
     frame = raw.get("tracker_frame")
     if isinstance(frame, dict):
         uf = (std_src or {}).get("tracker_frame") or {}
@@ -242,3 +246,26 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
                       f"(a point campaign: the distance between the measured and the predicted point), RMS {1e3 * np.sqrt(np.mean(r ** 2)):.2f} µm."))
         page.figure(lambda path: ui.plot_residuals(np.arange(len(r)), r, group, label, path), "fig_residuals.png",
                     f"Residuals per {label}")
+
+
+def plot_workspace_uncertainty(points_mm, expanded_um, path, k: float = 2.0, method: str = "", most: int = 4):
+    """The predicted tool point's expanded uncertainty over the workspace as slices of the volume (z bands,
+    001 Fig. 14 in 3D): one XY panel per band of equal count, one colour scale; µm."""
+    from olti_drake.report.figures import _pyplot, _save
+
+    plt = _pyplot()
+    p, U = np.asarray(points_mm, float), np.asarray(expanded_um, float)
+    n = min(most, max(1, len(p) // 20))
+    edges = np.quantile(p[:, 2], np.linspace(0, 1, n + 1))
+    fig, axes = plt.subplots(1, n, figsize=(5.0 * n + 1.5, 4.8), squeeze=False)
+    norm = plt.Normalize(U.min(), U.max())
+    for i, ax in enumerate(axes[0]):
+        at = (p[:, 2] >= edges[i]) & ((p[:, 2] <= edges[i + 1]) if i == n - 1 else (p[:, 2] < edges[i + 1]))
+        sc = ax.scatter(p[at, 0], p[at, 1], c=U[at], norm=norm, s=22, cmap="jet", edgecolors="none")
+        ax.set(xlabel="x, mm", ylabel="y, mm", title=f"z {edges[i]:.0f} … {edges[i + 1]:.0f} mm ({int(at.sum())} poses)")
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(sc, ax=axes[0][-1], label=f"U (k = {k:g}) = k·sqrt(u_x² + u_y² + u_z²), µm")
+    fig.suptitle(f"Predicted tool-point uncertainty over the workspace: max {U.max():.1f} µm, mean {U.mean():.1f} µm"
+                 + (f" -- {method}" if method else ""), fontsize=10)
+    return _save(fig, plt, path)

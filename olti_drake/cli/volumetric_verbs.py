@@ -1,0 +1,175 @@
+"""The volumetric (3-axis machine, 21 ISO 230-1 error motions) side of ``olti identify``, ``predict`` and
+``compensate`` (docs/machine_3d.md): read the files, call the layers below, write, print a summary.
+
+``olti identify CAMPAIGN.csv --model volumetric`` (estimation.volumetric), ``olti predict R.json
+POINTS.csv`` and ``olti compensate R.json WANTED.csv [--tables DIR]`` on an ``olti-volumetric/1``
+result (io.volumetric_io). Units: mm, µrad. Bad input raises ValueError (one line; verbs.main prints it).
+"""
+
+import os
+
+import numpy as np
+
+#: The options of the SCARA identification that mean nothing to the volumetric model (refused, not ignored).
+_SCARA_ONLY = ("grid1_deg", "grid2_deg", "nominal_mm", "reflectors_mm", "fix_reflectors")
+
+
+def _preflight(args, files, inputs, dirs=()):
+    from olti_drake.io.outputs import preflight
+
+    preflight(files, [i for i in inputs if i], force=getattr(args, "force", False), dirs=dirs, create_dirs=bool(dirs))
+
+
+def identify(args) -> int:
+    """``olti identify CAMPAIGN.csv --model volumetric``: the 21 error motions, stations, dead paths, u."""
+    from olti_drake.estimation.multilateration import load_machine_campaign
+    from olti_drake.estimation.volumetric import VolumetricOptions, identify_volumetric, volumetric_campaign
+    from olti_drake.io.budget import budget_or_default
+    from olti_drake.io.outputs import write_json
+
+    given = [o for o in _SCARA_ONLY if getattr(args, o, None)]
+    if given:
+        raise ValueError(f"--{given[0].replace('_', '-')} applies to the SCARA models (dh, errormap), not to "
+                         f"--model volumetric")
+    _preflight(args, [args.out], [args.campaign, args.budget])
+    data = volumetric_campaign(load_machine_campaign(args.campaign))
+    options = VolumetricOptions(tool_offsets_mm=args.tool_offsets_mm, knot_spacing_mm=args.knot_spacing_mm,
+                                topology=args.topology, pitch_mm=args.pitch_mm or 10.0, loss=args.loss,
+                                huber_k=args.huber_k, outlier_threshold=args.outlier_threshold,
+                                regularize=args.regularize, solver=args.solver)
+    budget = budget_or_default(args.budget, "machine")
+    options.budget = budget
+    res = identify_volumetric(data, options, budget)
+    doc = res.to_dict()
+    write_json(args.out, doc)
+    print(summary(res, doc, data))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def summary(res, doc: dict, data) -> str:
+    """A short account of a volumetric identification: sizes, what was held and why, every motion's
+    largest value and standard uncertainty, squareness, tools, stations, fit."""
+    cfg = res.model.config
+    f = res.fit
+    lines = [f"volumetric model (21 ISO 230-1 error motions): {len(data)} readings, {len(data.commands_mm)} targets, "
+             f"{data.n_stations} stations, {len(cfg.tools)} tool(s), {len(f.names)} unknowns; cubic B-splines every "
+             f"<= {cfg.knot_spacing_mm:g} mm over x {cfg.travel_mm['X']}, y {cfg.travel_mm['Y']}, "
+             f"z {cfg.travel_mm['Z']} mm",
+             f"  observability: {res.observability}"]
+    lines += [f"  note: {n} {why}" for n, why in res.held.items()]
+    unc = doc["uncertainty"]
+    for name, e in doc["error_motions"].items():
+        if not e["identified"]:
+            continue
+        v, u = np.abs(e["values"]).max(), max(unc["error_motions"][name])
+        scale, unit = (1e3, "um") if e["unit"] == "mm" else (1.0, "urad")
+        lines.append(f"  {name:6s} {e['role']:12s} max |value| {scale * v:8.3f} {unit:4s} u (k=1) <= {scale * u:.3f} {unit}")
+    lines.append("  squareness: " + ", ".join(f"{s} {v:+.2f} +- {unc['squareness_urad'][s]:.2f} urad"
+                                              for s, v in doc["squareness_urad"].items()))
+    for m, (t, u) in enumerate(zip(doc["tool_offsets_mm"], unc["tool_offsets_mm"])):
+        how = "given (origin)" if m == 0 or not res.model.tool_groups else "estimated"
+        lines.append(f"  tool {m}: ({t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}) mm {how}"
+                     + (f", u {1e3 * max(u):.2f} um" if how == "estimated" else ""))
+    for j, (P, L0) in enumerate(zip(res.stations_mm, res.dead_paths_mm)):
+        lines.append(f"  station {j}: ({P[0]:.4f}, {P[1]:.4f}, {P[2]:.4f}) mm, dead path {L0:.4f} mm")
+    lines.append(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {f.iterations} iterations, condition number "
+                 f"{f.condition_number:.3g}, {f.solver}; converged: {f.converged_by}")
+    lines.append(f"  gauge: {res.gauge}")
+    lines += [f"  warning: {w}" for w in f.warnings]
+    if f.outliers:
+        lines.append(f"  {len(f.outliers)} suspect reading(s): "
+                     + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in f.outliers[:10]))
+    return "\n".join(lines)
+
+
+def _read_points(path, names, n_tools: int):
+    """(points (M, 3) mm, tool (M,), file lines) of a CSV with the three ``names`` and an optional ``tool``."""
+    from olti_drake.io.csvio import InputError, check_finite, read_table
+
+    t = read_table(path, names, ("tool",), integer=("tool",))
+    check_finite(t, path, names)
+    tool = t["tool"].astype(int) if "tool" in t else np.zeros(len(t["_line"]), int)
+    bad = np.flatnonzero((tool < 0) | (tool >= n_tools))
+    if bad.size:
+        raise InputError(f"{os.fspath(path)}:{t['_line'][bad[0]]}: column 'tool': {tool[bad[0]]} is not a tool of "
+                         f"the result (0..{n_tools - 1})")
+    return np.column_stack([t[c] for c in names]), tool, t["_line"]
+
+
+def position_std(result, commands_mm, tool) -> np.ndarray:
+    """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm: J C Jᵀ per point (linear, JCGM 100),
+    J the model's Jacobian at the command (clamped into the travel), C the result's covariance."""
+    from olti_drake.model.volumetric3d import clamp_commands
+
+    _, J = result.model.jacobian(clamp_commands(result.model.config, commands_mm), tool, result.params)
+    return np.sqrt(np.maximum(np.einsum("mip,pq,miq->mi", J, result.covariance, J), 0.0))
+
+
+def predict(args) -> int:
+    """``olti predict R.json POINTS.csv``: the actual tool point of every command by the identified model."""
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.volumetric_io import load_volumetric_result
+    from olti_drake.model.volumetric3d import predict_positions
+
+    _preflight(args, [args.out], [args.result, args.commands])
+    res = load_volumetric_result(args.result)
+    cfg = res.model.config
+    c, tool, lines = _read_points(args.commands, ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm"), len(cfg.tools))
+    try:
+        p = predict_positions(cfg, res.motions, c, tool, args.outside, lines)
+    except ValueError as e:
+        raise ValueError(f"{args.commands}: {e} -- or run with --outside clamp") from None
+    u = position_std(res, c, tool)
+    cols = {"x_cmd_mm": c[:, 0], "y_cmd_mm": c[:, 1], "z_cmd_mm": c[:, 2], "tool": tool,
+            "x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2], "u_x_mm": u[:, 0], "u_y_mm": u[:, 1], "u_z_mm": u[:, 2]}
+    fmt = {k: ("%d" if k == "tool" else "%.6f" if "cmd" in k else "%.9f") for k in cols}
+    write_table(args.out, cols, fmt, comments=[
+        f"olti predict: {args.result} applied to {args.commands}; mm",
+        "x_mm, y_mm, z_mm: the tool point relative to the workpiece by the identified volumetric model; u_*: "
+        "standard uncertainties (k = 1)" + (", motions held at the travel ends beyond it" if args.outside == "clamp"
+                                            else "")])
+    print(f"predicted {len(c)} tool points (volumetric model); max |actual - command - offset| "
+          f"{1e3 * np.abs(p - c - cfg.tools[tool]).max():.2f} um, max u (k=1) {1e3 * u.max():.2f} um; wrote {args.out}")
+    return 0
+
+
+def table_paths(directory, config) -> list:
+    """The files ``write_tables`` writes into ``directory`` (checked before the work)."""
+    return ([os.path.join(directory, f"axis_{a}.csv") for a in "XYZ"]
+            + [os.path.join(directory, f"grid_tool{m}.csv") for m in range(len(config.tools))])
+
+
+def compensate(args) -> int:
+    """``olti compensate R.json WANTED.csv``: machine commands that put the tool on the wanted points;
+    ``--tables DIR``: the per-axis error-motion tables and the 3D grid of positioning-error vectors."""
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.volumetric_io import load_volumetric_result
+    from olti_drake.model.volumetric3d import compensate as invert, write_tables
+
+    if args.outside == "clamp":
+        raise ValueError("--outside clamp: a compensated command beyond the identified travel would rest on error "
+                         "motions never measured; volumetric compensation refuses such targets")
+    res = load_volumetric_result(args.result)   # first: the tables it writes depend on its tools
+    cfg = res.model.config
+    _preflight(args, [args.out] + (table_paths(args.tables, cfg) if args.tables else []), [args.result, args.targets],
+               dirs=[args.tables] if args.tables else [])
+    wanted, tool, lines = _read_points(args.targets, ("x_mm", "y_mm", "z_mm"), len(cfg.tools))
+    try:
+        q, err = invert(res.motions, cfg, wanted, tool, lines=lines)
+    except ValueError as e:
+        raise ValueError(f"{args.targets}: {e}") from None
+    cols = {"x_cmd_mm": q[:, 0], "y_cmd_mm": q[:, 1], "z_cmd_mm": q[:, 2], "tool": tool,
+            "x_mm": wanted[:, 0], "y_mm": wanted[:, 1], "z_mm": wanted[:, 2]}
+    write_table(args.out, cols, {k: ("%d" if k == "tool" else "%.6f") for k in cols}, comments=[
+        f"olti compensate: {args.result} inverted for the wanted points of {args.targets}; mm",
+        "x_cmd_mm, y_cmd_mm, z_cmd_mm put tool 'tool' on x_mm, y_mm, z_mm (workpiece frame) by the volumetric model"])
+    print(f"compensated {len(q)} points (volumetric model): max correction "
+          f"{1e3 * np.abs(q - (wanted - cfg.tools[tool])).max():.2f} um, max residual {err.max():.2g} mm; wrote {args.out}")
+    if args.tables:
+        from olti_drake.io.outputs import make_dir
+
+        make_dir(args.tables)
+        for path in write_tables(args.tables, res.motions, cfg, args.pitch_mm or 10.0, args.grid_pitch_mm or 50.0):
+            print(f"wrote {path}")
+    return 0

@@ -1,0 +1,418 @@
+"""Identification of the 21 ISO 230-1 error motions of a 3-axis machine from a distance campaign.
+
+Paper 001 measures a machine tool by self-calibrating multilateration (Eq. 2-6):
+readings ΔL_ij = ‖p_i − P_j‖ − L0_j (Eq. 3) from stations P_j with dead paths
+L0_j. Here the target positions p_i are not free points but the volumetric
+model of :mod:`olti_drake.model.volumetric3d` (docs/machine_3d.md) at target
+i's command and tool: p_i = p(q_i, t_m; θ). Unknowns:
+
+* θ: the B-spline coefficients of the 18 axis error motions and the 3
+  squareness errors (mm, µrad), minus the motions the campaign cannot separate
+  (held at 0 and reported by name, :func:`separable_motions`);
+* the offset errors of tools 1, 2, … (mm; tool 0's offset is the origin and is
+  taken as given, so are all offsets in a 1-tool campaign);
+* the station positions P_j (3D, mm) and dead paths L0_j (mm).
+
+Residual r_k = ‖p(q_i, t_m; θ) − P_j‖ − L0_j − ΔL_k (mm), analytic Jacobian.
+
+Gauge: distances see neither a translation nor a rotation of the whole
+(machine + stations); the representation fixes both, by the named conditions
+of :data:`GAUGE_CONDITIONS` (the fixed B-spline coefficients are no unknowns):
+the frame is the machine's own, origin at tool 0's point at the travel start,
+x along X's reference straight line, y in the plane of X's and Y's lines.
+
+Solved by :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram`
+(LM, Drake programs; or NLP), refused when not converged; standard
+uncertainties (k = 1) by linear propagation of the reading uncertainty of a
+budget (JCGM 100; default 001 Table 4) through the identification, for every
+motion value at the stated positions. Units: mm, µrad.
+"""
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from olti_drake.estimation.calibration import station_fit
+from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.io.csvio import InputError, data_digest
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, VolumetricModel,
+                                           motion_names, motion_role, motion_unit, observability)
+
+#: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns.
+GAUGE_CONDITIONS = (
+    "E_XX, E_YY, E_ZZ = 0 at the travel start (origin: tool 0's point at the travel start)",
+    "tool 0's offset as given (the origin's translation)",
+    "E_AX, E_BX, E_CX, E_AY, E_BY, E_CY, E_AZ, E_BZ, E_CZ = 0 at the travel start (orientation)",
+    "E_YX, E_ZX = 0 at both ends of the X travel (x along X's reference straight line)",
+    "E_XY, E_ZY, E_XZ, E_YZ = 0 at both ends of their travel (reference straight lines through the end points)",
+    "no squareness of X (X defines x) and none of Y about x or y (Y's line in the xy plane: E_C0Y only)",
+)
+GAUGE = ("the rigid motion of the whole (3 translations, 3 rotations) is fixed in the representation: origin at "
+         "tool 0's point at the travel start, x along X's reference straight line, y in the plane of X's and Y's "
+         "lines (the named conditions in gauge_conditions); the stations are estimated in that frame")
+TOPOLOGIES = {"serial": (("X", "Y", "Z"), ()), "table-xy": (("Z",), ("Y", "X")), "table-yx": (("Z",), ("X", "Y"))}
+#: A linear error motion beyond this (mm), or an angular one beyond this (µrad), is no machine's: wrong units.
+IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD = 1.0, 1e4
+
+
+@dataclass(frozen=True)
+class VolumetricCampaign:
+    """Valid readings of a 3D machine campaign (formats.md, *Machine tool in 3D*): reading k is station
+    ``station[k]`` reading target ``target[k]``; target i is command ``commands_mm[i]`` (x, y, z mm) with
+    tool ``tool[i]``; ``displacement_mm`` ΔL (mm); ``line`` the file line of every reading."""
+
+    station: np.ndarray
+    target: np.ndarray
+    commands_mm: np.ndarray
+    tool: np.ndarray
+    displacement_mm: np.ndarray
+    line: np.ndarray
+    source: str = "campaign"
+
+    def __len__(self) -> int:
+        return self.station.size
+
+    @property
+    def n_stations(self) -> int:
+        return int(self.station.max()) + 1
+
+    @property
+    def n_tools(self) -> int:
+        return int(self.tool.max()) + 1
+
+    def digest(self) -> dict:
+        """{"readings", "sha256"} of the readings used (station, target, x, y, z, tool, ΔL per reading)."""
+        c = self.commands_mm[self.target]
+        return data_digest(self.station, self.target, c[:, 0], c[:, 1], c[:, 2], self.tool[self.target],
+                           self.displacement_mm)
+
+
+def volumetric_campaign(data, source: str = "") -> VolumetricCampaign:
+    """A :class:`VolumetricCampaign` from a machine campaign (``multilateration.MachineCampaign`` read with
+    ``z_cmd_mm``; its ``tool`` per target, 0 when absent); one-line error when it has no z."""
+    src = source or getattr(data, "source", "") or "campaign"
+    c = np.asarray(data.commands_mm, float)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise InputError(f"{src}: the volumetric model needs 3D commands: column 'z_cmd_mm' is missing "
+                         f"(formats.md, Machine tool in 3D)")
+    tool = getattr(data, "tool", None)
+    tool = np.zeros(len(c), int) if tool is None else np.asarray(tool).astype(int)
+    if tool.shape != (len(c),):
+        raise InputError(f"{src}: one tool index per target expected, got {tool.shape}")
+    return VolumetricCampaign(np.asarray(data.station, int), np.asarray(data.target, int), c, tool,
+                              np.asarray(data.displacement_mm, float), np.asarray(data.line, int), src)
+
+
+@dataclass
+class VolumetricOptions(SolverOptions):
+    """Solver options plus the machine: ``tool_offsets_mm`` (one [x, y, z] per tool index, mm: tool 0's
+    taken as given, the others' errors estimated; None: a 1-tool campaign at the spindle reference point),
+    ``knot_spacing_mm`` (None: :func:`default_knot_spacing`), ``topology`` (a key of :data:`TOPOLOGIES`),
+    ``pitch_mm``: the stated positions of the motion values and their uncertainties."""
+
+    tool_offsets_mm: Optional[Sequence[Sequence[float]]] = None
+    knot_spacing_mm: Optional[float] = None
+    topology: str = "serial"
+    pitch_mm: float = 10.0
+
+
+def default_knot_spacing(commands_mm) -> float:
+    """Knot spacing (mm) for the campaign's travel: per axis up to 8 intervals, but no more than the distinct
+    command positions allow (a cubic spline with n intervals has n + 3 coefficients; at least 2 positions
+    more than that); the largest such interval over the axes, rounded up to 0.1 mm."""
+    c = np.asarray(commands_mm, float)
+    spacing = 0.0
+    for k in range(3):
+        distinct = len(np.unique(np.round(c[:, k], 6)))
+        n = int(np.clip(distinct - 5, 1, 8))
+        spacing = max(spacing, float(np.ptp(c[:, k])) / n)
+    return float(np.ceil(spacing * 10.0 - 1e-9) / 10.0)
+
+
+def machine_config(data: VolumetricCampaign, options: VolumetricOptions) -> MachineConfig:
+    """The machine of the campaign: travel = the commanded range per axis, the options' tools and knots."""
+    c = data.commands_mm
+    for k, a in enumerate(AXES):
+        if np.ptp(c[:, k]) <= 0:
+            raise UnidentifiableError(f"{data.source}: every command has {a.lower()} = {c[0, k]:g} mm: the motions of "
+                                      f"{a} ({', '.join(motion_names(a))}) are seen at one position only -- not "
+                                      f"identifiable", list(motion_names(a)))
+    tools = options.tool_offsets_mm
+    if tools is None:
+        if data.n_tools > 1:
+            raise InputError(f"{data.source}: the campaign uses {data.n_tools} tools (column 'tool'): give their "
+                             f"offsets with --tool-offsets-mm 'x,y,z;x,y,z;...' (mm, from the spindle reference point)")
+        tools = [[0.0, 0.0, 0.0]]
+    tools = np.asarray(tools, float)
+    if tools.ndim != 2 or tools.shape[1] != 3 or len(tools) != data.n_tools:
+        raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but the campaign uses tool indices "
+                         f"0..{data.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
+    if options.topology not in TOPOLOGIES:
+        raise InputError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {options.topology!r}")
+    spacing = options.knot_spacing_mm or default_knot_spacing(c)
+    tool_chain, work_chain = TOPOLOGIES[options.topology]
+    try:
+        config = MachineConfig(tool_chain=tool_chain, work_chain=work_chain,
+                               travel_mm={a: (float(c[:, k].min()), float(c[:, k].max())) for k, a in enumerate(AXES)},
+                               knot_spacing_mm=float(spacing), tool_offsets_mm=tuple(map(tuple, tools)))
+    except ValueError as e:
+        raise InputError(f"{data.source}: {e}") from None
+    _check_positions(data, config)
+    return config
+
+
+def _check_positions(data: VolumetricCampaign, config: MachineConfig) -> None:
+    """Refuse, naming the axis, a spline richer than the campaign's positions along it: an angular motion
+    has n_basis − 1 free coefficients (0 at the start), so the axis needs n_basis distinct positions --
+    otherwise a combination of coefficients vanishing at every position is seen by no reading (this is
+    the knot spacing's fault, not the tools', and is not held at 0 as a tool-geometry blind spot is)."""
+    for k, a in enumerate(AXES):
+        distinct = len(np.unique(np.round(data.commands_mm[:, k], 6)))
+        need = config.n_basis(a)
+        if distinct < need:
+            intervals = need - 3
+            raise UnidentifiableError(
+                f"{data.source}: {a} is commanded at {distinct} distinct positions, but the cubic B-splines of its "
+                f"motions ({', '.join(motion_names(a))}) have {need} coefficients ({intervals} knot interval(s) of "
+                f"<= {config.knot_spacing_mm:g} mm) and need at least {need}: "
+                + ("a cubic spline needs 4 -- add positions along " + a if need == 4 else
+                   f"give a larger --knot-spacing-mm or more positions along {a}"), list(motion_names(a)))
+
+
+def _priority(obs, name) -> tuple:
+    """Which inseparable angular motion to hold first: none of the readings depends on it, then a roll (the
+    rotation about the axis' own line, e.g. E_CZ about the spindle line), then ISO order."""
+    return (obs.trades_with[name] != (), motion_role(name) != "roll", ALL_MOTIONS.index(name))
+
+
+def separable_motions(model: VolumetricModel, commands_mm, tool, stations_mm) -> Tuple[Dict[str, str], object]:
+    """The motions this campaign cannot separate, to hold at 0, with the note saying why; and the final
+    :class:`~olti_drake.model.volumetric3d.MotionObservability` (all remaining separable).
+
+    A calibration engineer keeps what the campaign determines and is told what it does not: inseparable
+    *angular* motions are held at 0 one at a time (those no reading depends on all at once; then rolls
+    first, then ISO order) until the rest separates -- the motions they traded with then carry their
+    effect at the measured tool points. An inseparable linear motion, squareness or tool offset is not
+    a matter of choice: it is refused (:class:`UnidentifiableError` naming them).
+    """
+    held: Dict[str, str] = {}
+    for _ in range(len(ALL_MOTIONS)):
+        obs = observability(model, commands_mm, tool, stations_mm, held=tuple(held))
+        angular = [n for n in obs.inseparable if n in ALL_MOTIONS and motion_unit(n) == "urad"]
+        if not obs.inseparable:
+            return held, obs
+        if not angular:
+            names = list(obs.inseparable)
+            raise UnidentifiableError(
+                "not identifiable: " + "; ".join(
+                    f"{n} (trades with {', '.join(obs.trades_with[n]) or 'nothing: no reading depends on it'})"
+                    for n in names) + " -- the campaign cannot separate them; add commands along that axis, tool "
+                "offsets or stations" + (f" (already held at 0: {', '.join(held)})" if held else ""), names)
+        pick = [n for n in angular if not obs.trades_with[n]] or [min(angular, key=lambda n: _priority(obs, n))]
+        for n in pick:
+            partners = [p for p in obs.trades_with[n] if p != "gauge"]
+            held[n] = ("held at 0: no reading of this campaign depends on it" if not obs.trades_with[n] else
+                       f"held at 0: this campaign cannot separate it from {', '.join(obs.trades_with[n])}"
+                       + (f"; {', '.join(partners)} carry its effect at the measured tool points" if partners else ""))
+    raise AssertionError("unreachable: every angular motion held")
+
+
+class VolumetricIdentification(LeastSquaresProgram):
+    """The distance residuals of a 3D campaign on the volumetric model, as a Drake MathematicalProgram.
+
+    Variables: the free spline coefficients and squareness of the separable motions (names of
+    ``VolumetricModel.parameter_names()``), ``tool<m>_{x,y,z}_mm`` (m ≥ 1), ``P<j>_{x,y,z}_mm``,
+    ``L0_<j>_mm``. Observability is checked at construction (before solving).
+    """
+
+    rank_hint = "add stations, tool offsets or commands spread over the travel"
+    untouched_hint = "every station needs readings of targets spread over the travel"
+
+    def __init__(self, data: VolumetricCampaign, options: VolumetricOptions = None):
+        o = options or VolumetricOptions()
+        self.data = data
+        self.config = machine_config(data, o)
+        self.model = VolumetricModel(self.config, identify_tool_offsets=len(self.config.tools) > 1)
+        self._check_counts()
+        stations0, dead0 = self._station_start()
+        tool = data.tool
+        self.held, self.observability = separable_motions(self.model, data.commands_mm, tool, stations0)
+        held_cols = np.zeros(self.model.n_params, bool)
+        for n in self.held:
+            held_cols[self.model.slices[n]] = True
+        self.free_cols = np.flatnonzero(~held_cols)
+        model_names = [self.model.parameter_names()[i] for i in self.free_cols]
+        n_j = data.n_stations
+        self._declare(model_names + [f"P{j}_{c}_mm" for j in range(n_j) for c in "xyz"]
+                      + [f"L0_{j}_mm" for j in range(n_j)], o)
+        self.n_model = len(model_names)
+        self.x0 = np.concatenate([np.zeros(self.n_model), stations0.ravel(), dead0])
+        self.gauge = GAUGE
+        self.notes.extend(f"{n}: {why}" for n, why in self.held.items())
+
+    def _check_counts(self):
+        d = self.data
+        if d.n_stations < 4:
+            raise UnidentifiableError(f"{d.source}: {d.n_stations} station(s); 3D self-calibrating multilateration "
+                                      f"needs at least 4 (001 Eq. (4): N_j > 3)",
+                                      [f"P{j}" for j in range(d.n_stations)])
+        seen = np.zeros((len(d.commands_mm), d.n_stations), bool)
+        seen[d.target, d.station] = True
+        lonely = np.flatnonzero(~seen.any(axis=0))
+        if lonely.size:
+            raise UnidentifiableError(f"{d.source}: station {lonely[0]} has no valid reading",
+                                      [f"P{lonely[0]}_x_mm"])
+
+    def _station_start(self):
+        """Per station, the 3D closed-form multilateration on the nominal tool points, refined (station_fit)."""
+        d = self.data
+        nominal = d.commands_mm + self.config.tools[d.tool]
+        P, L0 = [], []
+        for j in range(d.n_stations):
+            rows = d.station == j
+            try:
+                s, l0 = station_fit(nominal[d.target[rows]], d.displacement_mm[rows])
+            except ValueError as e:
+                raise UnidentifiableError(f"{d.source}: station {j}: not identifiable: P{j}_x_mm, P{j}_y_mm, "
+                                          f"P{j}_z_mm ({e})", [f"P{j}_x_mm"]) from None
+            P.append(s)
+            L0.append(l0)
+        return np.array(P), np.array(L0)
+
+    # -- the model ----------------------------------------------------------------------------------
+    def theta(self, x) -> np.ndarray:
+        """The model's full parameter vector (held motions 0) from the program's x."""
+        t = self.model.zeros()
+        t[self.free_cols] = np.asarray(x)[:self.n_model]
+        return t
+
+    def split(self, x):
+        """(θ, stations (N_j, 3), dead paths (N_j,)) of x."""
+        n_j = self.data.n_stations
+        x = np.asarray(x, float)
+        return (self.theta(x), x[self.n_model:self.n_model + 3 * n_j].reshape(n_j, 3),
+                x[self.n_model + 3 * n_j:])
+
+    def residuals(self, x):
+        """r_k = ‖p(q_i, t_m; θ) − P_j‖ − L0_j − ΔL_k (mm, 001 Eq. (3) on the model) and the sparse Jacobian."""
+        d = self.data
+        theta, P, L0 = self.split(x)
+        p, J = self.model.jacobian(d.commands_mm, d.tool, theta)
+        diff = p[d.target] - P[d.station]
+        dist = np.linalg.norm(diff, axis=1)
+        u = diff / dist[:, None]
+        r = dist - L0[d.station] - d.displacement_mm
+        n_j, K = d.n_stations, len(r)
+        A = np.zeros((K, len(self.names)))
+        A[:, :self.n_model] = np.einsum("kc,kcp->kp", u, J[:, :, self.free_cols][d.target])
+        rows = np.arange(K)
+        for c in range(3):
+            A[rows, self.n_model + 3 * d.station + c] = -u[:, c]
+        A[rows, self.n_model + 3 * n_j + d.station] = -1.0
+        return r, sp.csr_matrix(A)
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """‖p_i − P_j‖ of every reading at x, mm (for the budget's cosine error)."""
+        r, _ = self.residuals(x)
+        return r + self.split(x)[2][self.data.station] + self.data.displacement_mm
+
+    def reading_label(self, k: int) -> dict:
+        d = self.data
+        return {"line": int(d.line[k]), "station": int(d.station[k]), "target": int(d.target[k])}
+
+    def layout(self, v) -> dict:
+        theta, P, L0 = self.split(v)
+        return {"model": theta.tolist(), "stations_mm": P.tolist(), "dead_paths_mm": L0.tolist()}
+
+    def default_budget(self):
+        from olti_drake.io.budget import default_budget
+
+        return getattr(self, "_solve_budget", None) or default_budget("machine")
+
+    def implausible(self, x) -> list:
+        """Stations beyond 100 travel diagonals, or motion values no machine has (> 1 mm, > 1e4 µrad)."""
+        theta, P, _ = self.split(x)
+        span = float(np.linalg.norm(np.ptp(self.data.commands_mm, axis=0)))
+        out = []
+        far = np.linalg.norm(P - self.data.commands_mm.mean(axis=0), axis=1)
+        if far.max() > 100 * span:
+            out.append(f"station {int(np.argmax(far))} lies {far.max():.6g} mm from the command centroid, over 100 x "
+                       f"the travel diagonal {span:g} mm")
+        motions = self.model.motions(theta)
+        for a in AXES:
+            v = motions.evaluate(a, np.linspace(*self.config.travel_mm[a], 101))
+            for r, name in enumerate(motion_names(a)):
+                limit = IMPLAUSIBLE_MM if r < 3 else IMPLAUSIBLE_URAD
+                if np.abs(v[:, r]).max() > limit:
+                    out.append(f"{name} reaches {np.abs(v[:, r]).max():.6g} {motion_unit(name)} (over {limit:g})")
+        return out
+
+    # -- solve ----------------------------------------------------------------------------------------
+    def solve(self, budget=None) -> "VolumetricResult":
+        """Solve, then the standard uncertainties (k = 1) by linear propagation of ``budget``'s reading
+        uncertainty (default 001 Table 4) through the identification (JCGM 100)."""
+        from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance
+        from olti_drake.io.budget import default_budget
+
+        budget = budget or default_budget("machine")
+        self._solve_budget = budget
+        f = self.fit()
+        f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
+        f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
+        E = np.zeros((self.model.n_params, len(self.names)))  # the model's parameters from x (held: 0)
+        E[self.free_cols, np.arange(self.n_model)] = 1.0
+        theta, P, L0 = self.split(f.x)
+        n_j = self.data.n_stations
+        return VolumetricResult(self.model, theta, E @ f.covariance @ E.T, P, L0,
+                                f.std[self.n_model:self.n_model + 3 * n_j].reshape(n_j, 3),
+                                f.std[self.n_model + 3 * n_j:], f, self.gauge, dict(self.held),
+                                self.observability.describe(), self.data.digest(),
+                                f"linear propagation (JCGM 100) of the budget '{budget.name}'",
+                                self.options.pitch_mm)
+
+
+@dataclass
+class VolumetricResult:
+    """The identified motions (θ, its covariance over ``model.parameter_names()``; held motions 0 with 0
+    variance), stations (N_j, 3), dead paths (N_j,) mm and their standard uncertainties (k = 1), the fit."""
+
+    model: VolumetricModel
+    params: np.ndarray
+    covariance: np.ndarray
+    stations_mm: np.ndarray
+    dead_paths_mm: np.ndarray
+    stations_std_mm: np.ndarray
+    dead_paths_std_mm: np.ndarray
+    fit: object
+    gauge: str
+    held: Dict[str, str] = field(default_factory=dict)
+    observability: str = ""
+    campaign: dict = field(default_factory=dict)
+    method: str = ""
+    pitch_mm: float = 10.0
+
+    @property
+    def residual_rms_mm(self) -> float:
+        return float(np.sqrt(np.mean(self.fit.residuals ** 2)))
+
+    def to_dict(self) -> dict:
+        """The ``olti-volumetric/1`` result (formats.md; :func:`olti_drake.io.volumetric_io.result_document`)."""
+        from olti_drake.io.volumetric_io import result_document
+
+        f = self.fit
+        return result_document(
+            self.model, self.params, self.covariance, self.pitch_mm, stations_mm=self.stations_mm,
+            dead_paths_mm=self.dead_paths_mm, stations_std_mm=self.stations_std_mm,
+            dead_paths_std_mm=self.dead_paths_std_mm, gauge=self.gauge, gauge_conditions=list(GAUGE_CONDITIONS),
+            held=self.held, observability=self.observability, method=self.method, campaign=self.campaign,
+            fit={"residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
+                 "iterations": f.iterations, "condition_number": f.condition_number, "solver": f.solver,
+                 "converged": f.converged_by, "warnings": list(f.warnings), "outliers": f.outliers,
+                 "notes": list(f.notes)})
+
+
+def identify_volumetric(data: VolumetricCampaign, options: VolumetricOptions = None, budget=None) -> VolumetricResult:
+    """Identify the 21 error motions from a 3D distance campaign (see the module docstring)."""
+    return VolumetricIdentification(data, options).solve(budget)

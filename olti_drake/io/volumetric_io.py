@@ -1,0 +1,127 @@
+"""The volumetric result ``olti-volumetric/1`` (formats.md, *Machine tool in 3D*): writer and loader.
+
+The model part (ISO 230-1 names, representation, values at stated positions,
+tool offsets, squareness) is :func:`olti_drake.model.volumetric3d.motions_document`;
+this module adds what the identification knows -- stations, dead paths, the
+gauge, the motions held at 0 and why, standard uncertainties (k = 1) of every
+motion value at the same stated positions, the parameter covariance (for the
+prediction's uncertainty), the campaign digest and the fit -- and reads it
+all back, every key checked where it is read (one line naming file and key).
+Units: mm, µrad.
+"""
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from olti_drake.io.csvio import InputError, json_numbers, read_json
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, FORMAT, SQUARENESS, VolumetricModel, model_from_document,
+                                           motions_document)
+
+
+def motion_std(model: VolumetricModel, covariance, positions: dict) -> dict:
+    """Standard uncertainty (k = 1) of every motion at ``positions[axis]`` (mm) from the parameter
+    covariance: u(v(q))² = b(q)ᵀ C b(q), b the motion's B-spline basis at q (mm or µrad)."""
+    C = np.asarray(covariance, float)
+    basis = model.motions(model.zeros())
+    out = {}
+    for name in ALL_MOTIONS:
+        s = model.slices[name]
+        B = basis.basis(name[3], np.asarray(positions[name[3]], float))[:, model.free[name]]
+        out[name] = np.sqrt(np.maximum(np.sum((B @ C[s, s]) * B, axis=1), 0.0))
+    return out
+
+
+def result_document(model: VolumetricModel, params, covariance, pitch_mm: float, *, stations_mm, dead_paths_mm,
+                    stations_std_mm, dead_paths_std_mm, gauge: str, gauge_conditions, held: dict,
+                    observability: str, method: str, campaign: dict, fit: dict) -> dict:
+    """The ``olti-volumetric/1`` object. ``covariance`` (P, P) over ``model.parameter_names()`` (k = 1; held
+    motions: rows of 0); ``held``: {motion: why it is held at 0}; ``fit``: solver facts copied as they are."""
+    doc = motions_document(model, params, pitch_mm)
+    C = np.asarray(covariance, float)
+    C = (C + C.T) / 2  # symmetric to the last bit (the propagation B Jᵀ U J B is, up to rounding)
+    positions = {name[3]: doc["error_motions"][name]["positions_mm"] for name in ALL_MOTIONS}
+    std = motion_std(model, C, positions)
+    for name, entry in doc["error_motions"].items():
+        entry["identified"] = name not in held
+        if name in held:
+            entry["note"] = held[name]
+    tool_std = np.zeros((len(model.config.tools), 3))
+    for m, g in enumerate(model.tool_groups, start=1):
+        tool_std[m] = np.sqrt(np.maximum(np.diag(C)[model.slices[g]], 0))
+    doc.update({
+        "pitch_mm": float(pitch_mm),
+        "stations_mm": np.asarray(stations_mm, float).tolist(),
+        "dead_paths_mm": np.asarray(dead_paths_mm, float).tolist(),
+        "gauge": gauge, "gauge_conditions": list(gauge_conditions),
+        "held_motions": dict(held), "observability": observability,
+        "uncertainty": {
+            "k": 1, "method": method,
+            "error_motions": {n: v.tolist() for n, v in std.items()},
+            "squareness_urad": {s: float(np.sqrt(max(C[model.slices[s], model.slices[s]][0, 0], 0.0)))
+                                for s in SQUARENESS},
+            "tool_offsets_mm": tool_std.tolist(),
+            "stations_mm": np.asarray(stations_std_mm, float).tolist(),
+            "dead_paths_mm": np.asarray(dead_paths_std_mm, float).tolist(),
+            "parameter_names": list(model.parameter_names()),
+            "covariance": C.tolist()},
+        **({"campaign": campaign} if campaign else {}),
+        **fit})
+    return doc
+
+
+@dataclass
+class VolumetricDocument:
+    """A loaded result: the model and its parameters, the covariance (P, P) over ``model.parameter_names()``
+    (k = 1), and the document itself."""
+
+    model: VolumetricModel
+    params: np.ndarray
+    covariance: np.ndarray
+    doc: dict
+    source: str
+
+    @property
+    def motions(self):
+        return self.model.motions(self.params)
+
+
+def load_volumetric_result(path) -> VolumetricDocument:
+    """Read an ``olti-volumetric/1`` result, checked: the model part (``model_from_document``), stations
+    N x 3 and dead paths N (mm), the gauge sentence, the uncertainty (standard uncertainties >= 0 of the
+    shapes of the values, a symmetric covariance over the model's parameter names). One-line errors
+    name the file and the key."""
+    name = os.fspath(path)
+    doc = read_json(path, FORMAT, "a volumetric result (olti identify --model volumetric)")
+    try:
+        model, params = model_from_document(doc, name)
+    except ValueError as e:
+        raise InputError(" ".join(str(e).split())) from None
+    S = json_numbers(doc, name, "stations_mm", (None, 3))
+    json_numbers(doc, name, "dead_paths_mm", (len(S),))
+    if not isinstance(doc.get("gauge"), str) or not doc["gauge"]:
+        raise InputError(f"{name}: key 'gauge': expected the sentence stating the gauge, got {doc.get('gauge')!r}")
+    unc = doc.get("uncertainty")
+    if not isinstance(unc, dict):
+        raise InputError(f"{name}: missing key 'uncertainty'")
+    names = list(model.parameter_names())
+    if unc.get("parameter_names") != names:
+        raise InputError(f"{name}: key 'uncertainty.parameter_names': expected the {len(names)} parameter names "
+                         f"of the model ({names[0]}, ...)")
+    C = json_numbers(unc, name, "covariance", (len(names), len(names)), label="uncertainty.covariance")
+    scale = np.sqrt(np.outer(np.abs(np.diag(C)), np.abs(np.diag(C))))
+    if np.any(np.abs(C - C.T) > 1e-9 * scale) or np.any(np.diag(C) < 0):
+        raise InputError(f"{name}: key 'uncertainty.covariance': not symmetric with a diagonal >= 0")
+    checks = [("stations_mm", S.shape), ("dead_paths_mm", (len(S),)),
+              ("tool_offsets_mm", (len(model.config.tools), 3))]
+    for key, shape in checks:
+        if np.any(json_numbers(unc, name, key, shape, label=f"uncertainty.{key}") < 0):
+            raise InputError(f"{name}: key 'uncertainty.{key}': a standard uncertainty is < 0")
+    for motion in ALL_MOTIONS:
+        n_pos = len(doc["error_motions"][motion].get("positions_mm", []))
+        v = json_numbers(unc.get("error_motions", {}), name, motion, (n_pos,),
+                         label=f"uncertainty.error_motions.{motion}")
+        if np.any(v < 0):
+            raise InputError(f"{name}: key 'uncertainty.error_motions.{motion}': a standard uncertainty is < 0")
+    return VolumetricDocument(model, params, C, doc, name)
