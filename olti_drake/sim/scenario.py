@@ -37,7 +37,7 @@ from olti_drake.model.truth import TrueRobot
 #: (``stream_seed(seed, "emulator_session", k)``); ``emulator_noise`` -- the emulator counter's noise;
 #: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter).
 SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
-                "emulator_noise": 10, "emulator_faults": 11}
+                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12}
 
 
 def stream_key(name) -> int:
