@@ -198,3 +198,51 @@ def test_module_runs_the_n_joint_emulator_as_a_program(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "olti_drake.cli.emulator", "--robot", "ur5", "--reflector", "1"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and bad.stderr.startswith("error: --robot") and bad.stderr.count("\n") == 1
+
+
+def test_hardware_station_for_n_joints_and_tracer_heads_keeps_the_port_contract():
+    """AddHardwareStation on the N-joint drivers: ports sized by the announced joints, measured_position
+    = the encoders, the head aimed from head_command, readings = the truth's distance changes."""
+    from types import SimpleNamespace
+
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    from olti_drake.hardware.drivers import OltiHead, OltiRobot, TracerHeads
+    from olti_drake.hardware.station import AddHardwareStation
+
+    with SerialEmulator("ur5", options=EXACT, seed=2) as emu:
+        robot = OltiRobot.open(emu.robot_port, 115200, 1.0, 2)
+        heads = TracerHeads([OltiHead.open(p, 115200, 1.0, 2) for p in emu.head_ports])
+        try:
+            assert robot.layout.n == 6 and [h.layout for h in heads.heads] == [P.PAN_TILT_LAYOUT] * 4
+            builder = DiagramBuilder()
+            setup = SimpleNamespace(scenario=SimpleNamespace(period_s=1.0))
+            station = AddHardwareStation(builder, setup, (robot, heads))
+            assert station.get_input_port(0).size() == 6 and station.GetOutputPort("measured_position").size() == 6
+            assert station.GetInputPort("head_command").size() == 2
+            for port in ("joint_command", "reflector", "head_command"):
+                builder.ExportInput(station.GetInputPort(port), port)
+            diagram = builder.Build()
+            sim = Simulator(diagram)
+            ctx = sim.get_mutable_context()
+            sctx = station.GetMyContextFromRoot(ctx)
+            got = []
+            for k, q in enumerate(POSES[:3]):
+                diagram.GetInputPort("joint_command").FixValue(ctx, np.radians(q))
+                diagram.GetInputPort("reflector").FixValue(ctx, [1.0])
+                diagram.GetInputPort("head_command").FixValue(ctx, np.radians(_aim(emu, 1, q)))
+                sim.AdvanceTo(k + 0.5)
+                assert station.GetOutputPort("valid").Eval(sctx)[0] == 1.0
+                got.append(station.GetOutputPort("displacement").Eval(sctx)[0] * 1e3)
+                np.testing.assert_allclose(np.degrees(station.GetOutputPort("measured_position").Eval(sctx)), q,
+                                           atol=360.0 / 2 ** 20)
+                np.testing.assert_allclose(np.degrees(station.GetOutputPort("head_position").Eval(sctx)),
+                                           _aim(emu, 1, q), atol=360.0 / 2 ** 20)
+            dirs = approach_directions(POSES[:3], last_direction=1.0)
+            d = np.linalg.norm(emu.truth.positions(POSES[:3], dirs) - emu.heads_true.centres_mm[1], axis=1)
+            np.testing.assert_allclose(got, d - d[0], rtol=0, atol=2e-9)
+            assert emu.history == [tuple(q) for q in POSES[:3]]
+        finally:
+            robot.close()
+            heads.close()

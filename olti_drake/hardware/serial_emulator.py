@@ -95,6 +95,7 @@ class SerialEmulator(Emulator):
             zero angles ~N(0, HEAD_ZERO_SIGMA_DEG) (``emulator_truth`` stream of ``truth_seed``).
         head_error_mdeg: amplitude of each head's angular positioning error
             (``harmonic_head_error``, seeded per head from ``truth_seed``); 0: none.
+        head_errors: the heads' angular error functions (one per head, None: none), instead.
         seed: noise and fault seed (``emulator_noise``, ``emulator_faults`` per line).
         catseye_axis_tool: the cat's-eye axis in the tool frame; ``options``, ``budget``: the
             interferometer's switches and uncertainty budget (None: no noise).
@@ -107,6 +108,7 @@ class SerialEmulator(Emulator):
 
     def __init__(self, robot="ur5", *, tool_frame: Optional[str] = None, truth=None, truth_seed: int = 0,
                  seed: int = 0, heads_true: Optional[PanTiltHeads] = None, head_error_mdeg: float = HEAD_ERROR_MDEG,
+                 head_errors=None,
                  catseye_axis_tool=(0.0, 0.0, 1.0), options: Optional[InterferometerOptions] = None, budget=None,
                  speed: str = "fast", faults=None, speeds=DEFAULT_JOINT_SPEED, settle_s: float = DEFAULT_SETTLE_S,
                  encoder_resolution=DEFAULT_JOINT_RESOLUTION, home=0.0, link: Optional[str] = None,
@@ -122,8 +124,9 @@ class SerialEmulator(Emulator):
             zeros = stream_rng(truth_seed, "emulator_truth", 1).normal(0.0, HEAD_ZERO_SIGMA_DEG, (k, 2))
             heads_true = PanTiltHeads(self.truth.stations_mm, zeros)
         self.heads_true = heads_true
-        self.head_errors = [harmonic_head_error(stream_seed(truth_seed, "emulator_truth", 2, h), head_error_mdeg)
-                            if head_error_mdeg else None for h in range(len(heads_true.centres_mm))]
+        self.head_errors = list(head_errors) if head_errors is not None else [
+            harmonic_head_error(stream_seed(truth_seed, "emulator_truth", 2, h), head_error_mdeg)
+            if head_error_mdeg else None for h in range(len(heads_true.centres_mm))]
         self.catseye_axis_tool = np.asarray(catseye_axis_tool, float)
         self.options = options or InterferometerOptions()
         self.budget = budget
