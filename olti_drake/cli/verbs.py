@@ -122,6 +122,11 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
+    if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
+        print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
+                                      _progress(True), args.meshcat))
+        return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))
@@ -133,6 +138,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_demo(args) -> int:
     """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
+    if args.robot == "six_axis":  # the six-axis story (olti_drake/report/six_axis_demo.py)
+        from olti_drake.report.six_axis_demo import run_six_axis_demo
+        print("\n".join(run_six_axis_demo(args.out, args.force)))
+        return 0
     from olti_drake.report.figures import CAMPAIGN_FIGURES, write_campaign_figures
     from olti_drake.io.result import write_result
     from olti_drake.report.validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
@@ -202,6 +211,12 @@ def identification_summary(ident) -> str:
 
 
 def cmd_identify(args) -> int:
+    if args.robot or args.tool_frame:
+        from olti_drake.cli.serial_verbs import identify
+
+        if not args.robot:
+            raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
+        return identify(args)
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -292,6 +307,10 @@ def cmd_predict(args) -> int:
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
 
+    from olti_drake.cli.serial_verbs import is_serial_result, predict
+
+    if is_serial_result(args.result):
+        return predict(args)
     _check_outputs(args, [args.out], [args.result, args.commands])
     from olti_drake.model.errormap import OutsideGridError
 
@@ -738,6 +757,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the identification (000 §4.3), write result_dh.json, "
                                    "result_errormap.json and figures (PNG).")
     p.add_argument("--out", default="olti_demo", help="output directory (default: olti_demo)")
+    p.add_argument("--robot", choices=("scara", "six_axis"), default="scara",
+                   help="scara: the paper-000 experiment (default); six_axis: the UR5-class campaign of "
+                        "diagrams/six_axis.yaml (floor tracers), identified and validated the same way")
     _add_force(p)
     p.set_defaults(func=cmd_demo)
     p = sub.add_parser("simulate", help="run a scenario's campaign in simulation; write campaign.csv, truth.json",
@@ -766,6 +788,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fix-reflectors", action="store_true", help="treat --reflectors-mm as known")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "
                                     "against (warning above 3 x; default: 000 Table 2)")
+    p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
+                                   "the campaign then has theta1_deg..thetaN_deg (docs/serial_robots.md)")
+    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
+                   help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=15.0,
+                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
@@ -932,7 +961,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
-_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm")
+_SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
+                         "--tool-offset-mm")
 
 
 def _join_signed_values(argv):

@@ -35,9 +35,12 @@ from olti_drake.model.truth import TrueRobot
 #: per sample ``n`` (``[stream_seed(seed, "laser"), n]``); ``reflector_estimate`` -- the Eq. (2) search
 #: or the perturbed estimate; ``emulator_session`` -- the emulator's seed in resumed session ``k``
 #: (``stream_seed(seed, "emulator_session", k)``); ``emulator_noise`` -- the emulator counter's noise;
-#: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter).
+#: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter); ``head_error`` --
+#: the angular positioning error of the pan/tilt head at station ``j`` (``stream_seed(seed, "head_error", j)``,
+#: six-axis scenarios, :mod:`olti_drake.sim.serial_scenario`); ``emulator_truth`` -- the N-joint emulator's own
+#: synthetic robot and heads (``hardware.serial_emulator``, when no scenario gives them).
 SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
-                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12}
+                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12, "head_error": 20}
 
 
 def stream_key(name) -> int:
@@ -427,7 +430,7 @@ def load_scenario(path=None, name: Optional[str] = None, text: Optional[str] = N
 
     The layers, each over the one before (as Drake's ``hardware_sim`` loads its scenarios with
     ``yaml_load_typed(..., child_name=..., defaults=...)``): ``defaults`` (the paper-000 default
-    when None); the scenario's ``base`` (``FILE``, ``FILE#NAME`` or ``#NAME``), loaded the same
+    when None; its type is the schema, e.g. a six-axis ``SerialScenario``); the scenario's ``base`` (``FILE``, ``FILE#NAME`` or ``#NAME``), loaded the same
     way; the file itself (``path``), or its top-level key ``name`` when the file holds several
     named scenarios; then ``text``, YAML overrides such as ``{seed: 3}`` (``--scenario-text``).
     Relative paths are relative to the file that gives them; ``text``'s to the file's folder
@@ -477,10 +480,10 @@ def _load_layer(name: str, child: Optional[str], defaults: Scenario, seen: set) 
             raise InputError(f"{label}: base: {file}: scenario file not found (relative to the file that names it)")
         defaults = _rebase(_load_layer(file, base_child or None, defaults, seen), folder)
     try:
-        scenario = yaml_load_typed(schema=Scenario, filename=name, child_name=child,
+        scenario = yaml_load_typed(schema=type(defaults), filename=name, child_name=child,
                                    defaults=copy.deepcopy(defaults))
     except Exception as e:  # pydrake's messages are multi-line and may not name the key
-        where = _locate_bad_field(Scenario, name, child)
+        where = _locate_bad_field(type(defaults), name, child)
         raise InputError(f"{label}: {where + ': ' if where else ''}{_first_line(e)}") from None
     scenario.base_dir, scenario.source_file, scenario.base = folder, name, ""
     return scenario
@@ -493,7 +496,7 @@ def _load_text(text: str, defaults: Scenario, where: str) -> Scenario:
     from pydrake.common.yaml import yaml_load_typed
 
     try:
-        scenario = yaml_load_typed(schema=Scenario, data=text, defaults=copy.deepcopy(defaults))
+        scenario = yaml_load_typed(schema=type(defaults), data=text, defaults=copy.deepcopy(defaults))
     except Exception as e:
         raise InputError(f"{where}: scenario text {text!r}: {_first_line(e)}") from None
     for attr in ("base_dir", "source_file"):

@@ -1,0 +1,166 @@
+"""The ``olti`` verbs for N-joint serial robots (``--robot FILE|ur5|scara``): identify, predict, compensate.
+
+Dispatched from :mod:`olti_drake.cli.verbs` when ``--robot`` is given (identify) or the result names
+a robot (predict, compensate). Parsing and printing only; the work is in
+:mod:`olti_drake.estimation.serial_identification`, :mod:`olti_drake.estimation.serial_compensation`
+and :mod:`olti_drake.io.serial_io`. Units: mm and degrees.
+"""
+
+import os
+
+#: SCARA-only options of ``olti identify`` and their meaning with --robot.
+_SCARA_ONLY = (("grid1_deg", "--grid1-deg", "--grid-step-deg"), ("grid2_deg", "--grid2-deg", "--grid-step-deg"),
+               ("nominal_mm", "--nominal-mm", "the robot file's geometry and --tool-offset-mm"),
+               ("reflectors_mm", "--reflectors-mm", "the stations fitted to the nominal tool points"),
+               ("fix_reflectors", "--fix-reflectors", "the stations fitted to the nominal tool points"))
+
+
+def _preflight(args, files, inputs, dirs=()):
+    from olti_drake.io.outputs import preflight
+
+    preflight(files, inputs, force=getattr(args, "force", False), dirs=dirs, create_dirs=bool(dirs))
+
+
+def _robot_input(spec):
+    """The robot file an argument names, as an input never to be written (None for a shipped name)."""
+    from olti_drake.io.serial_io import SHIPPED_ROBOTS
+
+    return None if spec is None or spec.lower() in SHIPPED_ROBOTS else spec
+
+
+def identify(args) -> int:
+    """``olti identify CAMPAIGN.csv --robot FILE --tool-frame NAME --model dh|errormap --out RESULT.json``."""
+    from olti_drake.estimation.serial_identification import (SerialIdentificationOptions, identify_serial,
+                                                             summary)
+    from olti_drake.io.serial_io import (load_robot, read_serial_campaign, robot_reference, serial_result_dict,
+                                         write_serial_result)
+
+    for attr, flag, instead in _SCARA_ONLY:
+        if getattr(args, attr, None):
+            raise ValueError(f"{flag} is a SCARA option; with --robot the model uses {instead}")
+    if not args.tool_frame:
+        raise ValueError(f"--robot {args.robot}: give the tool frame with --tool-frame NAME")
+    _preflight(args, [args.out], [args.campaign, args.budget, _robot_input(args.robot)])
+    chain = load_robot(args.robot, args.tool_frame)
+    campaign = read_serial_campaign(args.campaign, chain.n_joints, robot=args.robot)
+    options = SerialIdentificationOptions(
+        model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
+        grid_step_deg=args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
+        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+    if args.budget:
+        from olti_drake.io.budget import load_budget
+
+        options.budget = load_budget(args.budget)
+    ident = identify_serial(chain, campaign, options)
+    result = serial_result_dict(kind=args.model, robot_file=robot_reference(args.robot, args.out),
+                                measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
+                                campaign_digest=campaign.digest(), notes=list(chain.notes) + ident.notes)
+    write_serial_result(args.out, result)
+    for note in chain.notes:
+        print(f"note: {note}")
+    print(summary(ident))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def is_serial_result(path) -> bool:
+    """Whether a result file names a robot (a serial robot's result); False when unreadable (the
+    SCARA loader then says why)."""
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and isinstance(data.get("robot"), dict)
+
+
+def _commands(res, path, required=(), integer=(), valid_only=False):
+    """The joint table of a commands / targets / campaign file for a loaded result, with directions when
+    the result's maps need them."""
+    from olti_drake.io.serial_io import read_joint_table
+
+    model = res.model
+    jt = read_joint_table(path, model.chain.n_joints, required, integer=integer,
+                          robot=res.data["robot"]["file"], valid_only=valid_only)
+    if jt.dirs is None and model.bidirectional:
+        raise ValueError(f"{path}: no direction columns, but the error maps of {res.data['robot']['file']} in the "
+                         f"result are bidirectional: add dir1 .. dir{model.chain.n_joints} (+1/-1)")
+    return jt
+
+
+def _positions(model, jt, path, outside_hint=True):
+    """Tool points (M, 3) mm of a joint table by the model; a command outside a map grid names its line."""
+    from olti_drake.model.errormap import OutsideGridError
+
+    try:
+        return model.positions(jt.commands, jt.dirs)
+    except OutsideGridError as e:
+        raise ValueError(f"{path}:{jt.line[e.row]}: {e}" + (" -- or run with --outside clamp" if outside_hint
+                                                           else "")) from None
+
+
+def _joint_columns(jt) -> tuple:
+    """(columns, formats) repeating a table's joint and direction columns."""
+    from olti_drake.io.serial_io import dir_columns, theta_columns
+
+    n = jt.n_joints
+    cols = {c: jt.commands[:, i] for i, c in enumerate(theta_columns(n))}
+    if jt.dirs is not None:
+        cols.update({c: jt.dirs[:, i] for i, c in enumerate(dir_columns(n))})
+    return cols, {**{c: "%.12g" for c in theta_columns(n)}, **{c: "%d" for c in dir_columns(n)}}
+
+
+def predict(args) -> int:
+    """``olti predict RESULT.json FILE.csv --out PRED.csv`` for a serial robot: the tool point (x, y, z mm,
+    root frame) per row; for a distance campaign also ``predicted_displacement_mm`` (cross-validation)."""
+    import numpy as np
+
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.serial_io import header, load_serial_result, station_column
+
+    _preflight(args, [args.out], [args.commands, args.result])
+    res = load_serial_result(args.result, outside=args.outside)
+    _, cols = header(args.commands)
+    distance = "displacement_mm" in cols and ("station" in cols or "reflector" in cols)
+    scol = station_column(args.commands) if distance else None
+    jt = _commands(res, args.commands, (scol, "displacement_mm") if distance else (), (scol,) if distance else (),
+                   valid_only=distance)
+    p = _positions(res.model, jt, args.commands)
+    out, fmt = _joint_columns(jt)
+    out.update({"x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2]})
+    fmt.update({"x_mm": "%.6f", "y_mm": "%.6f", "z_mm": "%.6f", scol: "%d", "displacement_mm": "%.6f",
+                "predicted_displacement_mm": "%.6f"})
+    text = f"predicted {len(p)} tool points"
+    if distance:
+        pred = _predicted_readings(res, jt, p, scol, args.commands)
+        out = {scol: jt.table[scol], **out, "displacement_mm": jt.table["displacement_mm"],
+               "predicted_displacement_mm": pred}
+        miss = pred - jt.table["displacement_mm"]
+        text += (f" and readings of {args.commands} ({jt.table['_skipped']} rows with valid = 0 skipped): "
+                 f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, max {1e3 * np.abs(miss).max():.3f} um")
+    write_table(args.out, out, fmt, comments=[f"olti predict: {args.result} applied to {args.commands}; "
+                                              f"tool point in the robot's root frame; mm and degrees"])
+    print(text)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _predicted_readings(res, jt, p, scol, path):
+    """‖p − P_j‖ − d0_j of every row by the result's stations (000 Eq. (10) in 3D), mm."""
+    import numpy as np
+
+    if res.stations_mm is None:
+        raise ValueError(f"{path}: a distance campaign, but the result has no stations (identified from tracker "
+                         f"points): predicted_displacement_mm needs a distance result")
+    labels = res.station_labels
+    station = jt.table[scol].astype(int)
+    known = np.isin(station, labels)
+    if not known.all():
+        k = np.flatnonzero(~known)[0]
+        raise ValueError(f"{path}:{jt.line[k]}: column '{scol}': station {station[k]} is not one the result "
+                         f"identified ({', '.join(str(j) for j in labels)})")
+    idx = np.searchsorted(labels, station) if np.all(np.diff(labels) > 0) else np.array(
+        [list(labels).index(j) for j in station])
+    return np.linalg.norm(p - res.stations_mm[idx], axis=1) - res.dead_paths_mm[idx]

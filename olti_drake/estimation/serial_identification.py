@@ -1,0 +1,216 @@
+"""Identification of an N-joint serial robot (any model Drake loads) from a distance or point campaign.
+
+000 §3 in 3D: the position model of :mod:`olti_drake.model.serial` (location errors of every joint
+frame reduced to the base set, the tool-point offset, per-joint ``dh`` offsets or bidirectional
+``errormap`` maps, 000 Eq. (6)–(9)) under a :class:`~olti_drake.model.serial.DistanceMeasurement`
+(stations P_j and dead paths d0_j, 000 Eq. (10) in 3D) or a
+:class:`~olti_drake.model.serial.PointMeasurement` (a tracker in an unknown rigid frame), solved by the
+shared least-squares program (:class:`~olti_drake.estimation.calibration.Calibration`: LM steps as Drake
+programs or an NLP solver, robust loss, outliers by file line, linear covariance, refusal of a fit
+that did not converge) with the gauge of :func:`~olti_drake.model.serial.find_gauge` as named linear
+constraints.
+
+Start: the nominal chain with the given tool offset, zero maps; stations by the linearized
+multilateration of the nominal tool points refined by Gauss-Newton (``station_fit``); the tracker frame
+by the least-squares rigid fit (Kabsch) of the nominal tool points to the tracker's.
+
+Identifiability is checked before solving: parameters the readings cannot determine are refused by
+name, or with ``regularize`` given a stated weak prior: each named parameter ~ N(start,
+:data:`PRIOR_SIGMA`) (1 mm for lengths, 1 deg for angles) weighed against readings of
+:data:`PRIOR_READING_MM` (1 µm) standard uncertainty, i.e. the quadratic cost ½ (u_r/σ)² (x − x0)² next
+to the data cost ½ Σ r². Units: mm and degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from olti_drake.estimation.calibration import Calibration, station_fit
+from olti_drake.estimation.leastsquares import SolverOptions, UnidentifiableError
+from olti_drake.io.csvio import InputError
+from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
+
+#: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
+PRIOR_SIGMA = {"_mm": 1.0, "_deg": 1.0}
+#: The reading standard uncertainty the prior is weighed against (mm): the prior counts as much as a
+#: reading of this uncertainty would that measured the parameter directly with uncertainty PRIOR_SIGMA.
+PRIOR_READING_MM = 1e-3
+
+
+@dataclass
+class SerialIdentificationOptions(SolverOptions):
+    """What to identify (mm, deg), plus the solver options of :class:`SolverOptions`.
+
+    ``model``: 'dh' (geometric) or 'errormap' (+ per-joint maps every ``grid_step_deg`` over each
+    joint's commanded range); ``tool_offset_mm``: the nominal tool point in the tool frame (start).
+    """
+
+    model: str = "errormap"
+    tool_offset_mm: Sequence[float] = (0.0, 0.0, 0.0)
+    grid_step_deg: float = 15.0
+
+
+@dataclass
+class SerialIdentification:
+    """The identified problem: ``measurement`` (its model), the fit, the gauge sentence, the notes."""
+
+    measurement: object
+    fit: object
+    gauge: str
+    notes: list = field(default_factory=list)
+
+    @property
+    def model(self):
+        return self.measurement.model
+
+    @property
+    def residual_rms_mm(self) -> float:
+        r = self.fit.residuals
+        return float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
+
+
+class SerialCalibration(Calibration):
+    """:class:`Calibration` whose readings are named by file line (outliers) and whose hints speak of
+    stations, directions and ``--regularize``."""
+
+    rank_hint = "add stations, approach directions or poses, or run with --regularize"
+    untouched_hint = "add readings that move those joints, or run with --regularize"
+
+    def __init__(self, measurement, options, gauge, source, lines):
+        super().__init__(measurement, options, gauge, source)
+        self._lines = np.asarray(lines)
+        self._per_reading = 3 if measurement.kind == "point" else 1
+
+    def reading_label(self, k: int) -> dict:
+        i = int(k) // self._per_reading
+        out = {"line": int(self._lines[i])}
+        if self._per_reading == 3:
+            out["coordinate"] = "xyz"[int(k) % 3]
+        return out
+
+
+def start_stations(model, campaign) -> tuple:
+    """Stations (Nt, 3) and dead paths (Nt,) mm fitted to the nominal tool points (station_fit)."""
+    p = model.positions(campaign.commands, campaign.dirs)
+    labels = np.unique(campaign.station)
+    P, d0 = [], []
+    for j in labels:
+        sel = campaign.station == j
+        try:
+            Pj, d0j = station_fit(p[sel], campaign.displacement_mm[sel])
+        except ValueError as e:
+            raise InputError(f"{campaign.source}: station {j}: {e}") from None
+        P.append(Pj)
+        d0.append(d0j)
+    return np.array(P), np.array(d0)
+
+
+def start_frame(model, campaign) -> np.ndarray:
+    """Tracker frame (t mm, Rx·Ry·Rz angles deg) of the rigid fit m ≈ R p + t of the nominal tool
+    points p to the measured ones m (Kabsch)."""
+    p = model.positions(campaign.commands, campaign.dirs)
+    m = campaign.points_mm
+    pc, mc = p - p.mean(axis=0), m - m.mean(axis=0)
+    u, _, vt = np.linalg.svd(mc.T @ pc)
+    s = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ s @ vt
+    t = m.mean(axis=0) - rot @ p.mean(axis=0)
+    b = np.arcsin(np.clip(rot[0, 2], -1.0, 1.0))
+    a = np.arctan2(-rot[1, 2], rot[2, 2])
+    c = np.arctan2(-rot[0, 1], rot[0, 0])
+    angles = np.degrees([a, b, c])
+    return np.concatenate([t, angles])
+
+
+def build_problem(chain, campaign, options: SerialIdentificationOptions):
+    """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame)."""
+    model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
+                                 grid_step_deg=options.grid_step_deg, tool_offset_mm=options.tool_offset_mm)
+    if campaign.kind == "distance":
+        P, d0 = start_stations(model, campaign)
+        return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
+                                   campaign.displacement_mm, P, d0)
+    return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
+                            start_frame(model, campaign))
+
+
+def prior_weight(name: str) -> float:
+    """Weight (u_r/σ)² of the ``regularize`` prior on a parameter (by its unit suffix)."""
+    for suffix, sigma in PRIOR_SIGMA.items():
+        if name.endswith(suffix) or suffix + "[" in name:
+            return (PRIOR_READING_MM / sigma) ** 2
+    return (PRIOR_READING_MM / 1.0) ** 2
+
+
+def _regularize(cal: SerialCalibration, names) -> str:
+    idx = [cal.names.index(n) for n in names]
+    w = np.array([prior_weight(n) for n in names])
+    cal.prog.AddQuadraticCost(np.diag(w), -w * cal.x0[idx], cal.variables[idx], is_convex=True)
+    listing = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    return (f"regularized: the readings cannot identify {listing}; each has a weak prior N(start, sigma) "
+            f"with sigma {PRIOR_SIGMA['_mm']:g} mm or {PRIOR_SIGMA['_deg']:g} deg, weighed against readings "
+            f"of {1e3 * PRIOR_READING_MM:g} um (estimation.serial_identification.PRIOR_SIGMA)")
+
+
+def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> SerialIdentification:
+    """Identify the model ``options.model`` of ``chain`` from ``campaign`` (io.serial_io.SerialCampaign).
+
+    Raises (one line) before solving when the campaign cannot identify a parameter (named), unless
+    ``options.regularize``; refuses a fit that did not converge (leastsquares.FitRefused)."""
+    meas = build_problem(chain, campaign, options)
+    try:
+        gauge = find_gauge(meas)
+    except ValueError as e:
+        raise InputError(f"{campaign.source}: {e}") from None
+    solver = SolverOptions(loss=options.loss, huber_k=options.huber_k, outlier_threshold=options.outlier_threshold,
+                           regularize=False, solver=options.solver, max_iterations=options.max_iterations,
+                           budget=options.budget)
+    cal = SerialCalibration(meas, solver, gauge, campaign.source, campaign.line)
+    notes = [f"dropped from the model: {len(meas.model.dropped)} parameter(s) the readings cannot separate "
+             f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
+    if campaign.dirs is None and options.model == "errormap":
+        notes.append("one-directional campaign (no dir columns): single-branch maps, no backlash identified")
+    for _ in range(len(cal.names)):
+        try:
+            cal.check_identifiability()
+            break
+        except UnidentifiableError as e:
+            if not options.regularize or not e.names:
+                raise InputError(f"{campaign.source}: {e}") from None
+            notes.append(_regularize(cal, [n for n in e.names if n in cal.names]))
+    fit = cal.fit()
+    return SerialIdentification(meas, fit, cal.gauge, notes)
+
+
+def summary(ident: SerialIdentification) -> str:
+    """Short text: model, readings, parameters, residual RMS, iterations, conditioning, gauge, maps."""
+    m, fit = ident.model, ident.fit
+    u = dict(zip(fit.names, fit.std))
+    lines = [f"model {m.kind} of {m.chain.path} to '{m.chain.tool_frame}' ({m.chain.n_joints} joints): "
+             f"{len(ident.measurement.commands)} readings ({ident.measurement.kind}), {len(fit.names)} parameters "
+             f"({len(m.geometric_names)} location errors kept, {len(m.dropped)} dropped), solver {fit.solver}"]
+    t = m.n_dense - len(m.offset_joints)
+    tool = fit.x[t - 3:t]
+    ut = [u[n] for n in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]
+    lines.append("  tool offset (" + ", ".join(f"{v:.4f}" for v in tool) + ") +- ("
+                 + ", ".join(f"{v:.4f}" for v in ut) + ") mm (k = 1)")
+    for s, mp in zip(m.map_starts, m.maps):
+        vals = fit.x[s:s + mp.n_values]
+        std = fit.std[s:s + mp.n_values]
+        lines.append(f"  {mp.joint} map: {mp.emap.n_nodes} nodes {mp.emap.grid_deg[0]:g}..{mp.emap.grid_deg[-1]:g} "
+                     f"deg{'' if mp.bidirectional else ' (one branch)'}, deviation {1e3 * vals.min():.2f}.."
+                     f"{1e3 * vals.max():.2f} mdeg, u up to {1e3 * std.max():.3f} mdeg")
+    lines.append(f"  residual RMS {1e3 * ident.residual_rms_mm:.3f} um, {fit.iterations} iterations, condition "
+                 f"number {fit.condition_number:.3g} (scaled, within the gauge)")
+    lines.append(f"  gauge: {ident.gauge}")
+    for note in list(fit.notes) + list(ident.notes):
+        lines.append(f"  note: {note}")
+    for w in fit.warnings:
+        lines.append(f"  warning: {w}")
+    if fit.outliers:
+        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in fit.outliers[:10])
+        lines.append(f"  {len(fit.outliers)} suspect reading(s) beyond the outlier threshold: {shown}")
+    return "\n".join(lines)
