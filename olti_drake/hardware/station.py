@@ -327,7 +327,8 @@ class _StateLayout:
 def AddStation(builder, setup, name: str = "station", session: int = 0):
     """Add the station the scenario names (``setup.scenario.station``) to ``builder``; returns it.
 
-    The one place that decides simulated or real, as Drake's ``MakeHardwareStation``: ``Simulated``
+    The one place that decides simulated or real, as Drake's ``MakeHardwareStation`` (a six-axis setup
+    of :mod:`olti_drake.sim.serial_station` too: its simulated or emulated N-joint station): ``Simulated``
     -> :func:`olti_drake.sim.campaign.AddSimulatedStation` (a Diagram), ``Emulated`` ->
     :func:`AddEmulatedStation`, ``Hardware`` -> :func:`AddRealStation` (operator prompt on the
     console). All have the same ports (the simulated one adds ``true_position`` and
@@ -338,10 +339,17 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
     from olti_drake.sim.campaign import AddSimulatedStation
     from olti_drake.sim.scenario import Emulated, Hardware
 
+    serial = hasattr(setup, "n_joints")      # a six-axis setup (sim.serial_station.SerialSetup)
     if isinstance(setup.scenario.station, Emulated):
         return AddEmulatedStation(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):
+        if serial:
+            raise InputError("station: !Hardware: a six-axis campaign on real tracer heads needs one port per "
+                             "head, which the scenario cannot name yet; use !Emulated")
         return AddRealStation(builder, setup, console_prompt, name)
+    if serial:
+        from olti_drake.sim.serial_station import AddSimulatedSerialStation
+        return AddSimulatedSerialStation(builder, setup, name)
     return AddSimulatedStation(builder, setup, name)
 
 
