@@ -341,3 +341,21 @@ def test_six_axis_run_refuses_what_it_cannot_do_in_one_line(tmp_path):
                                str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
         assert proc.returncode == 2 and proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1, proc.stderr
         assert match in proc.stderr and not os.path.exists(tmp_path / "x")
+
+
+def test_six_axis_beam_losses_are_reread_and_rezeroed_with_the_head_aimed_as_at_its_zero(tmp_path,
+                                                                                          six_axis_reference):
+    """Injected beam losses on the head lines: the policy re-reads, then re-zeroes at the run's reference
+    pose with the head aimed as then; the readings equal the undisturbed campaign's."""
+    from olti_drake.hardware.runner import run
+
+    out = str(tmp_path / "run")
+    result = run(_six_axis(tmp_path, "!Emulated {beam_loss: 0.3, nak_crc: 0.05}"), out)
+    t, ref = _columns(out), _columns(six_axis_reference.out_dir)
+    assert result.complete and np.array_equal(t["step"], ref["step"]) and np.all(t["valid"] == 1)
+    np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
+    events = [json.loads(line) for line in open(os.path.join(out, "events.jsonl"))]
+    again = [e for e in events if e["kind"] == "zero" and e["again"]]
+    first = {e["reflector"]: e for e in events if e["kind"] == "zero" and not e["again"]}
+    assert again and all(e["aim"] == first[e["reflector"]]["aim"] for e in again)
+    assert sum(e["kind"] == "invalid_reading" for e in events) > 10
