@@ -359,3 +359,13 @@ def test_six_axis_beam_losses_are_reread_and_rezeroed_with_the_head_aimed_as_at_
     first = {e["reflector"]: e for e in events if e["kind"] == "zero" and not e["again"]}
     assert again and all(e["aim"] == first[e["reflector"]]["aim"] for e in again)
     assert sum(e["kind"] == "invalid_reading" for e in events) > 10
+
+
+def test_exact_encoders_on_robot_and_heads():
+    with SerialEmulator("ur5", options=EXACT, encoder_resolution=0.0) as emu, lines(emu) as (robot, head, *_):
+        layout = _layout(robot)
+        q = POSES[0] + 1e-4
+        _move(robot, layout, q)
+        assert P.decode_position_n(robot.request("POSJ"), layout).encoder == tuple(np.round(q, 6))
+        P.expect_ack(head.request("AIM", "12.345678", "-3.210987"))
+        assert P.decode_position_n(head.request("POSH"), P.PAN_TILT_LAYOUT, "HPOS").encoder == (12.345678, -3.210987)

@@ -10,7 +10,11 @@ Python (no pydrake, no numpy, no serial port needed):
 - ``Transport``: host side, ``request(verb, *fields) -> Frame`` over any byte stream with
   ``write(bytes)`` and ``read(n)`` (a ``serial.Serial`` opened with a short ``timeout``);
 - ``Responder``: device side, for emulators: bytes in, reply bytes out, one ``on_<VERB>`` method
-  per verb on a handler object.
+  per verb on a handler object;
+- version 2 (N-axis devices and pan/tilt heads): ``AxisLayout`` (the axes a device announces with
+  ``INFO``/``AXS``; ``SCARA_LAYOUT`` is version 1's), joint vectors of one field per axis
+  (``AxisLayout.fields``, ``decode_vector``, ``decode_position_n``) with per-axis range checks
+  (``RangeError``), and the head verbs ``AIM`` and ``POSH``/``HPOS``.
 
 Frame: ``$<SEQ>,<VERB>[,<field>...]*<CRC>\\n`` with CRC = CRC-16/CCITT-FALSE of the bytes between
 ``$`` and ``*``, as 4 uppercase hex digits.

@@ -138,6 +138,8 @@ class SerialEmulator(Emulator):
         self._init_robot(layout, limits, np.broadcast_to(speeds, n), settle_s, np.broadcast_to(encoder_resolution, n),
                          np.broadcast_to(home, n))
         self._heads = [_Head(np.zeros(2)) for _ in range(len(heads_true.centres_mm))]
+        #: The heads' encoder resolution (deg): the robot's default, 0 (exact) when the robot's is.
+        self.head_resolution = DEFAULT_JOINT_RESOLUTION if np.any(self.encoder_resolution > 0) else 0.0
 
     # ------------------------------------------------------------------ lines
 
@@ -196,8 +198,9 @@ class SerialEmulator(Emulator):
         _no_fields(frame)
         with self._lock:
             cmd = self._heads[h].command
-            res = DEFAULT_JOINT_RESOLUTION
-            return ("HPOS", *position_fields(cmd, np.round(cmd / res) * res, self.head_layout, "HPOS"))
+            res = self.head_resolution
+            enc = np.round(cmd / res) * res if res > 0 else cmd
+            return ("HPOS", *position_fields(cmd, enc, self.head_layout, "HPOS"))
 
     def head_reading(self, h: int, dead_path_mm: float, options: InterferometerOptions, rng=None):
         """What head ``h`` reads now: (reading mm, beam returned) for the given dead path and options."""
