@@ -29,7 +29,7 @@ import numpy as np
 
 from olti_drake.io.csvio import InputError, read_yaml
 from olti_drake.model.interferometer import InterferometerOptions
-from olti_drake.sim.scenario import _nonnegative, _positive  # the scenario's own field checks
+from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 #: Robot models shipped with the package, by the short name a scenario may give as ``robot.file``.
@@ -155,6 +155,9 @@ class SerialScenario:
     budget: str = ""
     seed: int = 0
     period_s: float = 1.0
+    #: The station ``olti run`` takes the campaign on: ``!Simulated`` (``olti simulate``), ``!Emulated``
+    #: (the N-joint device emulator, docs/emulator.md; floor tracers only).
+    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
     base: str = ""
 
     def at(self, base_dir) -> "SerialScenario":
