@@ -21,6 +21,12 @@ def main(argv=None) -> int:
         description="Emulate the robot controller and the interferometer counter of a scenario on two "
                     "pseudo-terminals (docs/emulator.md).")
     p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario)")
+    p.add_argument("--robot", metavar="NAME|MODEL",
+                   help="emulate an N-joint serial robot and its tracer heads instead of the SCARA: a robot name "
+                        "(ur5) or a URDF/SDFormat file (with --tool-frame); protocol version 2")
+    p.add_argument("--tool-frame", help="--robot MODEL: the tool frame of the model file")
+    p.add_argument("--truth-seed", type=cliargs.seed, default=0,
+                   help="--robot: seed of the synthetic robot and head errors (default 0)")
     p.add_argument("--speed", choices=("fast", "realistic"), default="fast",
                    help="fast: moves complete at once; realistic: distance/speed + settle time")
     p.add_argument("--seed", type=cliargs.seed, default=None, help="noise and fault seed (default: the scenario's)")
@@ -54,9 +60,7 @@ def main(argv=None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, frame: signals.append(signum))
     try:
-        emu = Emulator(a.scenario, speed=a.speed, seed=a.seed, reflector=a.reflector, faults=faults,
-                       link=a.link, latch_beam_loss=a.latch_beam_loss,
-                       encoder_resolution=(0, 0, 0, 0) if a.exact_encoder else DEFAULT_ENCODER_RESOLUTION)
+        emu = _emulator(a, faults)
         emu.start()
     except (ValueError, OSError) as e:  # InputError is a ValueError
         print(f"error: {e}", file=sys.stderr)
@@ -64,7 +68,8 @@ def main(argv=None) -> int:
     try:
         for role, line in emu._lines.items():
             print(f"{role:8s}{line.path}" + (f"  ({line.link})" if line.link else ""), flush=True)
-        print(f"speed {emu.speed}, seed {emu.seed}, reflector {emu.reflector}; Ctrl-C stops", flush=True)
+        where = f"reflector {emu.reflector}" if a.robot is None else f"truth seed {emu.truth_seed}"
+        print(f"speed {emu.speed}, seed {emu.seed}, {where}; Ctrl-C stops", flush=True)
         while not signals and not emu.disconnected.is_set():
             time.sleep(0.1)
         if emu.disconnected.is_set():
@@ -72,6 +77,23 @@ def main(argv=None) -> int:
     finally:
         emu.stop()
     return 0
+
+
+def _emulator(a, faults):
+    """The SCARA emulator of a scenario, or with ``--robot`` the N-joint one (ValueError: one line)."""
+    common = dict(speed=a.speed, faults=faults, link=a.link, latch_beam_loss=a.latch_beam_loss)
+    if a.robot is None:
+        if a.tool_frame is not None:
+            raise ValueError("--tool-frame needs --robot")
+        return Emulator(a.scenario, seed=a.seed, reflector=a.reflector,
+                        encoder_resolution=(0, 0, 0, 0) if a.exact_encoder else DEFAULT_ENCODER_RESOLUTION, **common)
+    from olti_drake.hardware.serial_emulator import DEFAULT_JOINT_RESOLUTION, SerialEmulator
+
+    if a.scenario is not None or a.reflector:
+        raise ValueError("--robot: a SCARA scenario and --reflector do not apply (the truth is the model file's "
+                         "synthetic robot, --truth-seed)")
+    return SerialEmulator(a.robot, tool_frame=a.tool_frame, truth_seed=a.truth_seed, seed=a.seed or 0,
+                          encoder_resolution=0.0 if a.exact_encoder else DEFAULT_JOINT_RESOLUTION, **common)
 
 
 if __name__ == "__main__":

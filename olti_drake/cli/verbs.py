@@ -673,12 +673,12 @@ def cmd_run(args) -> int:
             sys.stderr.write(f"\r  readings on disk {done}/{planned}")
             sys.stderr.flush()
 
-    from olti_drake.sim.scenario import load_scenario
+    from olti_drake.hardware.runner import load_run_scenario
 
     for flag, value in (("--scenario", args.scenario_name), ("--scenario-text", args.scenario_text)):
         if value:
             resume_hint += f" {flag} {shlex.quote(value)}"
-    scenario = load_scenario(args.scenario, args.scenario_name, args.scenario_text)
+    scenario = load_run_scenario(args.scenario, args.scenario_name, args.scenario_text)
     should_stop, restore = _stop_on_signals()
     try:
         extend, rate = _meshcat_view(args)

@@ -41,9 +41,9 @@ import numpy as np
 from olti_drake.model.errormap import approach_directions
 from olti_drake.sim.scenario import SEED_STREAMS, Faults, Scenario, load_scenario, stream_rng  # Faults: re-exported
 from olti_drake.model.interferometer import beam_geometry, simulate_readings
-from olti_drake.hardware.protocol import (ChecksumError, Frame, FrameParser, Joints, NakError, Responder, alm_fields,
-                       decode_alrm, decode_movj, decode_wait, dis_fields, encode, fmt_deg, fmt_mm,
-                       nak_fields, pong_fields, pos_fields)
+from olti_drake.hardware.protocol import (PROTOCOL_VERSION, SCARA_LAYOUT, Axis, AxisLayout, ChecksumError, Frame,
+                       FrameParser, NakError, Responder, alm_fields, decode_alrm, decode_movj, decode_wait,
+                       dis_fields, encode, nak_fields, pong_fields, position_fields)
 
 _log = logging.getLogger(__name__)
 
@@ -98,19 +98,22 @@ def _truth_parts(scenario):
 
 
 class _Device:
-    """One serial line's view of the emulator: its role's verbs, its PING, its own Responder."""
+    """One serial line's view of the emulator: its role's verbs, its PING, its own Responder.
+
+    What a line answers comes from the emulator (``_line_spec(role)``: verbs, PING role, model,
+    protocol version; ``_verb(role, verb)``: the handler), so one class serves the SCARA's two
+    lines and the N-joint emulator's robot and head lines."""
 
     def __init__(self, emulator: "Emulator", role: str):
         self._emu, self.role = emulator, role
-        self.verbs = ROBOT_VERBS if role == "robot" else COUNTER_VERBS
-        self.model = emulator.models[ROLES.index(role)]
+        self.verbs, self.pong_role, self.model, self.version = emulator._line_spec(role)
 
     def on_PING(self, frame: Frame):
-        return ("PONG", *pong_fields(self.role.upper(), self.model))
+        return ("PONG", *pong_fields(self.pong_role, self.model, self.version))
 
     def __getattr__(self, name: str):
-        if name.startswith("on_") and name[3:] in self.verbs:
-            return getattr(self._emu, name)
+        if name.startswith("on_") and name[3:] in self.__dict__.get("verbs", ()):
+            return self._emu._verb(self.role, name[3:])
         raise AttributeError(name)
 
 
@@ -122,7 +125,7 @@ class _Line:
         self.device = _Device(emulator, role)
         self.responder = Responder(self.device)
         self.parser = FrameParser()
-        self.rng = stream_rng(seed, "emulator_faults", ROLES.index(role))
+        self.rng = stream_rng(seed, "emulator_faults", emulator.roles.index(role))
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)  # no echo, no line editing, no CR/LF translation, whoever opens it
         self.path = os.ttyname(self.slave)
@@ -165,48 +168,20 @@ class Emulator:
     ``dead_path_mm``, ``alarms``, ``requests``) can be read at any time.
     """
 
+    #: The serial lines, in the order of their fault streams (``emulator_faults``, line index).
+    roles = ROLES
+
     def __init__(self, scenario=None, *, speed: str = "fast", seed: Optional[int] = None,
                  reflector: int = 0, faults: Optional[Faults] = None, limits=DEFAULT_LIMITS,
                  speeds=DEFAULT_SPEEDS, settle_s: float = DEFAULT_SETTLE_S,
                  encoder_resolution=DEFAULT_ENCODER_RESOLUTION, home=(0.0, 0.0, 0.0, 0.0),
                  link: Optional[str] = None, latch_beam_loss: bool = False,
                  models=("SCARA-EMU", "LC-EMU"), clock=time.monotonic, **fault_switches):
-        if speed not in ("fast", "realistic"):
-            raise ValueError(f"speed must be 'fast' or 'realistic', got {speed!r}")
-        unknown = set(fault_switches) - {f.name for f in dataclasses.fields(Faults)}
-        if unknown:
-            raise TypeError(f"Emulator: unknown argument(s) {', '.join(sorted(unknown))}")
-        self.faults = dataclasses.replace(faults or Faults(), **fault_switches).validate()
+        self._init_lines(speed, faults, fault_switches, link, latch_beam_loss, models, clock)
         self.robot, self.reflectors_mm, self.options, self.budget, scenario_seed = _truth_parts(scenario)
         self.seed = int(scenario_seed if seed is None else seed)
-        self.speed = speed
-        self.limits = np.asarray(limits, dtype=float).reshape(4, 2)
-        self.speeds = np.asarray(speeds, dtype=float).reshape(4)
-        if np.any(self.speeds <= 0):
-            raise ValueError("speeds must be > 0")
-        self.settle_s = float(settle_s)
-        self.encoder_resolution = np.asarray(encoder_resolution, dtype=float).reshape(4)
-        self.models = tuple(models)
-        self.link = link
-        self.latch_beam_loss = bool(latch_beam_loss)
-        self.clock = clock
         self._noise = stream_rng(self.seed, "emulator_noise")
-        self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self.disconnected = threading.Event()
-        self._lines: dict[str, _Line] = {}
-
-        # Robot state. Like ErrorMapJoint, the controller starts without a last command: the first
-        # MOVJ keeps the initial direction +1 of every axis (approach_directions with no start).
-        self._start = np.asarray(home, dtype=float).reshape(4)   # segment start (deg/mm)
-        self._target = self._start.copy()                         # commanded (deg/mm)
-        self._t0 = self._t_end = self._t_settled = -np.inf        # segment timing (clock)
-        self._last_command = np.full(4, np.nan)                   # the rule's "previous command"
-        self._direction = np.ones(4)
-        self.history: list[tuple[float, float, float, float]] = []  # every executed MOVJ
-        self.direction_history: list[tuple[float, float, float, float]] = []
-        self._moves = 0
-        self._alarms: list[str] = []
+        self._init_robot(SCARA_LAYOUT, limits, speeds, settle_s, encoder_resolution, home)
 
         # Counter state.
         self._check_reflector(reflector)
@@ -215,8 +190,62 @@ class Emulator:
         self._count_lost = False
         self._dead_path = np.nan
         self._last_value = 0.0
+
+    def _init_lines(self, speed, faults, fault_switches, link, latch_beam_loss, models, clock) -> None:
+        """What every emulator has: speed, fault switches, the lines (not yet open), the lock."""
+        if speed not in ("fast", "realistic"):
+            raise ValueError(f"speed must be 'fast' or 'realistic', got {speed!r}")
+        unknown = set(fault_switches) - {f.name for f in dataclasses.fields(Faults)}
+        if unknown:
+            raise TypeError(f"{type(self).__name__}: unknown argument(s) {', '.join(sorted(unknown))}")
+        self.faults = dataclasses.replace(faults or Faults(), **fault_switches).validate()
+        self.speed = speed
+        self.models = tuple(models)
+        self.link = link
+        self.latch_beam_loss = bool(latch_beam_loss)
+        self.clock = clock
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self.disconnected = threading.Event()
+        self._lines: dict[str, _Line] = {}
         self._tls = threading.local()  # per line thread: the fault draw for the READ being answered
         self._requests = 0
+
+    def _init_robot(self, layout: AxisLayout, limits, speeds, settle_s, encoder_resolution, home) -> None:
+        """The controller of the robot's n = ``layout.n`` axes: ``limits`` (n, 2), ``speeds`` (n,),
+        ``encoder_resolution`` (n,), ``home`` (n,) in deg or mm per axis."""
+        n = layout.n
+        self.limits = np.asarray(limits, dtype=float).reshape(n, 2)
+        self.layout = AxisLayout(tuple(Axis(a.name, a.unit, lo, hi) for a, (lo, hi) in zip(layout.axes, self.limits)))
+        self.speeds = np.asarray(speeds, dtype=float).reshape(n)
+        if np.any(self.speeds <= 0):
+            raise ValueError("speeds must be > 0")
+        self.settle_s = float(settle_s)
+        self.encoder_resolution = np.asarray(encoder_resolution, dtype=float).reshape(n)
+        # Like ErrorMapJoint, the controller starts without a last command: the first
+        # MOVJ keeps the initial direction +1 of every axis (approach_directions with no start).
+        self._start = np.asarray(home, dtype=float).reshape(n)   # segment start (deg/mm)
+        self._target = self._start.copy()                         # commanded (deg/mm)
+        self._t0 = self._t_end = self._t_settled = -np.inf        # segment timing (clock)
+        self._last_command = np.full(n, np.nan)                   # the rule's "previous command"
+        self._direction = np.ones(n)
+        self.history: list[tuple] = []            # every executed MOVJ
+        self.direction_history: list[tuple] = []
+        self._moves = 0
+        self._alarms: list[str] = []
+
+    def _line_spec(self, role: str):
+        """(verbs, PING role, model, protocol version) of the line ``role``."""
+        k = ROLES.index(role)
+        return (ROBOT_VERBS, COUNTER_VERBS)[k], role.upper(), self.models[k], PROTOCOL_VERSION
+
+    def _verb(self, role: str, verb: str):
+        """The handler of ``verb`` on the line ``role``: ``handler(frame) -> reply``."""
+        return getattr(self, "on_" + verb)
+
+    def _command(self, frame: Frame) -> np.ndarray:
+        """The MOVJ request's joint vector (deg/mm); a malformed one is NAK,SYN (FieldError)."""
+        return np.array(tuple(decode_movj(frame)))
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -224,7 +253,7 @@ class Emulator:
         if self._lines:
             raise RuntimeError("emulator already started")
         try:
-            for role in ROLES:
+            for role in self.roles:
                 self._lines[role] = _Line(self, role, self.seed)
             if self.link:
                 for role, line in self._lines.items():
@@ -236,7 +265,7 @@ class Emulator:
             line.thread = threading.Thread(target=self._serve, args=(line,), daemon=True,
                                            name=f"olti-emulator-{line.role}")
             line.thread.start()
-        _log.info("robot on %s, counter on %s", self.robot_port, self.counter_port)
+        _log.info("%s", ", ".join(f"{role} on {line.path}" for role, line in self._lines.items()))
         return self
 
     def stop(self) -> None:
@@ -278,7 +307,7 @@ class Emulator:
 
     @property
     def directions(self) -> tuple:
-        """Approach direction (±1) of θ1, θ2, z, θ4 after the last executed MOVJ."""
+        """Approach direction (±1) of each axis (θ1, θ2, z, θ4) after the last executed MOVJ."""
         with self._lock:
             return tuple(map(float, self._direction))
 
@@ -332,8 +361,7 @@ class Emulator:
     # ------------------------------------------------------------------ robot verbs
 
     def on_MOVJ(self, frame: Frame):
-        j = decode_movj(frame)
-        cmd = np.array([j.theta1_deg, j.theta2_deg, j.z_mm, j.theta4_deg])
+        cmd = self._command(frame)
         with self._lock:
             now = self.clock()
             self._moves += 1
@@ -341,10 +369,9 @@ class Emulator:
                 self._raise_alarm(ALARM_CODE, now)
             if self._alarms:
                 raise NakError("ALARM", f"alarm active: {' '.join(self._alarms)}; ALRM,CLR clears")
-            for k, (lo, hi) in enumerate(self.limits):
-                if not lo <= cmd[k] <= hi:
-                    fmt = fmt_mm if k == 2 else fmt_deg
-                    raise NakError("RANGE", f"{AXES[k]} {fmt(cmd[k])} outside {lo:g}..{hi:g}")
+            why = self.layout.outside(cmd)
+            if why:
+                raise NakError("RANGE", why)
             if now < self._t_settled:
                 raise NakError("BUSY", "previous move not in position; WAIT first")
             self._direction = approach_directions(cmd[None], self._last_command, self._direction)[0]
@@ -372,7 +399,7 @@ class Emulator:
                 slowest = int(np.argmax(np.abs(self._target - self._start) / self.speeds))
                 remaining = self._t_settled - now
             if now >= deadline:
-                raise NakError("TMO", f"{AXIS_NAMES[slowest]} not in position after {round(max_s * 1000)} ms")
+                raise NakError("TMO", f"J{slowest + 1} not in position after {round(max_s * 1000)} ms")
             if self._stop.wait(min(remaining, deadline - now, 0.05)):
                 raise NakError("HW", "emulator stopping")
 
@@ -383,7 +410,7 @@ class Emulator:
             q = self._position(self.clock())
             res = self.encoder_resolution
             enc = np.where(res > 0, np.round(q / np.where(res > 0, res, 1.0)) * res, q)
-            return ("POS", *pos_fields(Joints(*self._target), Joints(*enc)))
+            return ("POS", *position_fields(self._target, enc, self.layout))
 
     def on_ALRM(self, frame: Frame):
         clear = decode_alrm(frame)
@@ -426,22 +453,7 @@ class Emulator:
             d0 = self._dead_path if self._zeroed else self.optical_length_mm()
             reading, valid, miss = simulate_readings(origin[None], [angle], self.reflectors_mm[j][None], [d0],
                                                      self.options, self.budget, self._noise)
-            status = 0
-            if not valid[0]:
-                status |= STATUS_BEAM
-            if forced:
-                status |= STATUS_BEAM | STATUS_INJECTED
-            if not self._zeroed:
-                status |= STATUS_NOT_ZEROED
-            elif self.latch_beam_loss and (status & STATUS_BEAM or self._count_lost):
-                self._count_lost = True
-                status |= STATUS_COUNT_LOST
-            ok = status == 0
-            if ok:
-                self._last_value = float(reading[0])
-            else:
-                status |= STATUS_INVALID
-            return ("DIS", *dis_fields(self._last_value, ok, f"{status:04X}"))
+            return counter_reply(self, float(reading[0]), bool(valid[0]), forced, self.latch_beam_loss)
 
     def on_ZERO(self, frame: Frame):
         if frame.fields:
@@ -592,6 +604,31 @@ class Emulator:
                 pass
         except KeyboardInterrupt:
             pass
+
+
+def counter_reply(counter, reading_mm: float, beam_ok: bool, forced: bool, latch: bool) -> tuple:
+    """The ``DIS`` reply of a counter (the SCARA's, or a tracer head's) and its state update.
+
+    ``counter`` holds ``_zeroed``, ``_count_lost`` and ``_last_value`` (mm); ``reading_mm`` is the
+    displacement the optics give now, ``beam_ok`` whether the beam returned, ``forced`` an injected
+    beam loss, ``latch`` the real counter's behaviour (lost count until the next ZERO). An invalid
+    reading repeats the last valid value with the status bits saying why (docs/emulator.md)."""
+    status = 0
+    if not beam_ok:
+        status |= STATUS_BEAM
+    if forced:
+        status |= STATUS_BEAM | STATUS_INJECTED
+    if not counter._zeroed:
+        status |= STATUS_NOT_ZEROED
+    elif latch and (status & STATUS_BEAM or counter._count_lost):
+        counter._count_lost = True
+        status |= STATUS_COUNT_LOST
+    ok = status == 0
+    if ok:
+        counter._last_value = float(reading_mm)
+    else:
+        status |= STATUS_INVALID
+    return ("DIS", *dis_fields(counter._last_value, ok, f"{status:04X}"))
 
 
 def _make_link(path: str, target: str) -> str:

@@ -10,7 +10,11 @@ Python (no pydrake, no numpy, no serial port needed):
 - ``Transport``: host side, ``request(verb, *fields) -> Frame`` over any byte stream with
   ``write(bytes)`` and ``read(n)`` (a ``serial.Serial`` opened with a short ``timeout``);
 - ``Responder``: device side, for emulators: bytes in, reply bytes out, one ``on_<VERB>`` method
-  per verb on a handler object.
+  per verb on a handler object;
+- version 2 (N-axis devices and pan/tilt heads): ``AxisLayout`` (the axes a device announces with
+  ``INFO``/``AXS``; ``SCARA_LAYOUT`` is version 1's), joint vectors of one field per axis
+  (``AxisLayout.fields``, ``decode_vector``, ``decode_position_n``) with per-axis range checks
+  (``RangeError``), and the head verbs ``AIM`` and ``POSH``/``HPOS``.
 
 Frame: ``$<SEQ>,<VERB>[,<field>...]*<CRC>\\n`` with CRC = CRC-16/CCITT-FALSE of the bytes between
 ``$`` and ``*``, as 4 uppercase hex digits.
@@ -32,8 +36,10 @@ MAX_LINE = 256  # bytes from '$' to the last CRC digit; the '\n' or '\r\n' termi
 SEQ_MODULO = 65536
 MAX_WAIT_MS = 600_000
 
-REQUEST_VERBS = ("PING", "MOVJ", "WAIT", "POSJ", "ALRM", "READ", "ZERO")
-REPLY_VERBS = ("ACK", "NAK", "PONG", "POS", "ALM", "DIS")
+REQUEST_VERBS = ("PING", "MOVJ", "WAIT", "POSJ", "ALRM", "READ", "ZERO", "INFO", "AIM", "POSH")
+REPLY_VERBS = ("ACK", "NAK", "PONG", "POS", "ALM", "DIS", "INF", "AXS", "HPOS")
+#: PING roles: a robot controller, an interferometer counter, a pan/tilt head with its counter (a tracer).
+ROLES = ("ROBOT", "COUNTER", "HEAD")
 NAK_CODES = {
     "CRC": "the request's checksum did not match; the host resends it with the same SEQ",
     "SYN": "the request's fields are wrong: count, number format, or a value outside the grammar",
@@ -273,6 +279,10 @@ class Joints:
     z_mm: float
     theta4_deg: float
 
+    def __iter__(self):
+        """The four values in wire order (so a SCARA position is a joint vector like an N-axis one)."""
+        return iter((self.theta1_deg, self.theta2_deg, self.z_mm, self.theta4_deg))
+
 
 @dataclass(frozen=True)
 class Position:
@@ -367,10 +377,11 @@ def nak_fields(code: str, text: str = "") -> tuple[str, ...]:
     return (code, safe_text(text))
 
 
-def pong_fields(role: str, model: str) -> tuple[str, ...]:
-    if role not in ("ROBOT", "COUNTER"):
-        raise ValueError(f"PONG role: ROBOT or COUNTER, got {role!r}")
-    return (str(PROTOCOL_VERSION), role, safe_text(model, 32))
+def pong_fields(role: str, model: str, version: int = PROTOCOL_VERSION) -> tuple[str, ...]:
+    """PONG fields; ``version`` 2 announces an N-axis device (``INFO``; docs/protocol.md)."""
+    if role not in ROLES:
+        raise ValueError(f"PONG role: {' or '.join(ROLES)}, got {role!r}")
+    return (str(int(version)), role, safe_text(model, 32))
 
 
 # ----------------------------------------------------------------------------- decoders
@@ -484,9 +495,187 @@ def decode_pong(frame: Frame) -> Pong:
     v, role, model = frame.fields
     if not _UINT.fullmatch(v):
         raise _fail(frame, f"field 0 (version) {v!r} is not an integer")
-    if role not in ("ROBOT", "COUNTER"):
-        raise _fail(frame, f"field 1 (role) {role!r} must be ROBOT or COUNTER")
+    if role not in ROLES:
+        raise _fail(frame, f"field 1 (role) {role!r} must be {' or '.join(ROLES)}")
     return Pong(int(v), role, model)
+
+
+# ----------------------------------------------------------------------------- N-axis devices (version 2)
+#
+# A device whose PONG says version 2 announces its axes with INFO (docs/protocol.md, "N-axis devices"):
+# ``INFO`` -> ``INF,<n>``; ``INFO,<k>`` -> ``AXS,<k>,<name>,<unit>,<lower>,<upper>``. Its joint vectors
+# (MOVJ, POS; a head's AIM, HPOS) carry one 6-decimal field per axis in that order, so the SCARA frames of
+# version 1 are the 4-axis case byte for byte. A version-1 robot implies SCARA_LAYOUT (no limits announced).
+
+NJ_PROTOCOL_VERSION = 2
+#: Most axes a device may announce: a POS reply of 2 x 9 fields of the widest value still fits MAX_LINE.
+MAX_AXES = 9
+UNITS = ("deg", "mm")
+#: How far (deg or mm) a reported encoder value may lie outside its axis' limits (quantization, settling).
+ENCODER_SLACK = 0.01
+_AXIS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,23}")
+
+
+class RangeError(FieldError):
+    """A joint-vector field outside its axis' limits (a device answers it ``NAK,RANGE``, not ``SYN``)."""
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One axis of a device: ``name`` (1-24 of A-Z a-z 0-9 _), ``unit`` ``deg`` or ``mm``, limits in that unit."""
+    name: str
+    unit: str
+    lower: float = -math.inf
+    upper: float = math.inf
+
+    @property
+    def label(self) -> str:
+        """The field name in errors: ``<name>_<unit>`` (``theta1_deg``, ``elbow_joint_deg``)."""
+        return f"{self.name}_{self.unit}"
+
+    def outside(self, value: float, slack: float = 0.0) -> str | None:
+        """None if ``value`` is within the limits (± ``slack``), else the one-line reason."""
+        if self.lower - slack <= value <= self.upper + slack:
+            return None
+        return f"{self.label} {fmt_number(value, 6, self.label)} outside {self.lower:g}..{self.upper:g}"
+
+
+@dataclass(frozen=True)
+class AxisLayout:
+    """The axes of a device in wire order (a robot's joints, a head's pan and tilt)."""
+    axes: tuple[Axis, ...]
+
+    def __post_init__(self):
+        object.__setattr__(self, "axes", tuple(self.axes))
+        if not 1 <= len(self.axes) <= MAX_AXES:
+            raise ValueError(f"axis layout: 1..{MAX_AXES} axes, got {len(self.axes)}")
+
+    @property
+    def n(self) -> int:
+        return len(self.axes)
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(a.label for a in self.axes)
+
+    @property
+    def revolute(self) -> tuple[bool, ...]:
+        """Per axis: True for an angle (deg), False for a length (mm)."""
+        return tuple(a.unit == "deg" for a in self.axes)
+
+    def outside(self, values, slack: float = 0.0) -> str | None:
+        """The first axis whose value is outside its limits, as one line; None if all are inside."""
+        for axis, v in zip(self.axes, values):
+            why = axis.outside(float(v), slack)
+            if why:
+                return why
+        return None
+
+    def fields(self, values, verb: str = "MOVJ", check_range: bool = True) -> tuple[str, ...]:
+        """One 6-decimal field per axis; ValueError (naming the verb and axis) for a wrong count, a
+        non-finite value or (``check_range``) one outside the limits."""
+        values = tuple(values)
+        if len(values) != self.n:
+            raise ValueError(f"{verb}: {self.n} values ({' '.join(self.labels)}), got {len(values)}")
+        out = tuple(fmt_number(v, 6, f"{verb} {a.label}") for a, v in zip(self.axes, values))
+        why = self.outside(values) if check_range else None
+        if why:
+            raise ValueError(f"{verb}: {why}")
+        return out
+
+
+#: The SCARA of version 1 (MOVJ/POS without INFO): J1, J2 deg, J3 = z mm, J4 deg; limits not announced.
+SCARA_LAYOUT = AxisLayout((Axis("theta1", "deg"), Axis("theta2", "deg"), Axis("z", "mm"), Axis("theta4", "deg")))
+#: The default axes of a pan/tilt head (what the emulator announces): pan about the world z axis, tilt up.
+PAN_TILT_LAYOUT = AxisLayout((Axis("pan", "deg", -360.0, 360.0), Axis("tilt", "deg", -100.0, 100.0)))
+
+
+@dataclass(frozen=True)
+class JointPosition:
+    """POS (N axes) or HPOS reply: commanded and encoder values, one per axis (deg or mm)."""
+    commanded: tuple[float, ...]
+    encoder: tuple[float, ...]
+
+
+def info_fields(n: int) -> tuple[str, ...]:
+    """``INF`` reply: the number of axes."""
+    if type(n) is not int or not 1 <= n <= MAX_AXES:
+        raise ValueError(f"INF: axis count 1..{MAX_AXES}, got {n!r}")
+    return (str(n),)
+
+
+def axis_fields(k: int, axis: Axis) -> tuple[str, ...]:
+    """``AXS`` reply: index, name, unit, lower and upper limit (6 decimals, finite)."""
+    if not _AXIS_NAME.fullmatch(axis.name) or axis.unit not in UNITS or not axis.lower < axis.upper:
+        raise ValueError(f"AXS: axis {axis!r}: name 1-24 of A-Z a-z 0-9 _, unit deg or mm, lower < upper")
+    return (str(k), axis.name, axis.unit, fmt_number(axis.lower, 6, "lower"), fmt_number(axis.upper, 6, "upper"))
+
+
+def position_fields(commanded, encoder, layout: AxisLayout, verb: str = "POS") -> tuple[str, ...]:
+    """``POS``/``HPOS`` reply fields: the commanded, then the encoder values (not range-checked)."""
+    return layout.fields(commanded, verb, False) + layout.fields(encoder, verb, False)
+
+
+def decode_info_request(frame: Frame) -> int | None:
+    """The INFO request: None (how many axes?) or the axis index asked for."""
+    _expect(frame, "INFO", None)
+    if not frame.fields:
+        return None
+    if len(frame.fields) != 1 or not _UINT.fullmatch(frame.fields[0]):
+        raise _fail(frame, f"fields {list(frame.fields)}: no field, or one axis index")
+    return int(frame.fields[0])
+
+
+def decode_info(frame: Frame) -> int:
+    """An INF reply -> the number of axes (1..MAX_AXES)."""
+    _expect(frame, "INF", names=("n_axes",))
+    s = frame.fields[0]
+    if not _UINT.fullmatch(s) or not 1 <= int(s) <= MAX_AXES:
+        raise _fail(frame, f"field 0 (n_axes) {s!r} is not an integer 1..{MAX_AXES}")
+    return int(s)
+
+
+def decode_axis(frame: Frame, k: int | None = None) -> Axis:
+    """An AXS reply -> Axis; ``k``: the index asked for (checked)."""
+    _expect(frame, "AXS", names=("index", "name", "unit", "lower", "upper"))
+    index, name, unit = frame.fields[:3]
+    if not _UINT.fullmatch(index) or (k is not None and int(index) != k):
+        raise _fail(frame, f"field 0 (index) {index!r} is not the axis asked for ({k})")
+    if not _AXIS_NAME.fullmatch(name):
+        raise _fail(frame, f"field 1 (name) {name!r} is not 1-24 of A-Z a-z 0-9 _ starting with a letter")
+    if unit not in UNITS:
+        raise _fail(frame, f"field 2 (unit) {unit!r} must be deg or mm")
+    lo, hi = _number(frame, 3, "lower"), _number(frame, 4, "upper")
+    if not lo < hi:
+        raise _fail(frame, f"fields 3, 4 (lower, upper) {lo:g}, {hi:g}: lower must be < upper")
+    return Axis(name, unit, lo, hi)
+
+
+def decode_vector(frame: Frame, layout: AxisLayout, verb: str = "MOVJ", *, start: int = 0, prefix: str = "",
+                  count: int | None = None, slack: float = 0.0) -> tuple[float, ...]:
+    """A joint vector of ``layout`` in ``frame`` (a ``verb`` frame of ``count`` fields, default one per axis)
+    from field ``start``: FieldError naming the frame and field for a wrong count or number, RangeError for
+    a value outside its axis' limits (± ``slack``)."""
+    names = tuple(prefix + label for label in layout.labels)
+    _expect(frame, verb, names=None)
+    want = layout.n if count is None else count
+    if len(frame.fields) != want:
+        listed = " ".join(names) if count is None else f"{count // layout.n} x ({' '.join(layout.labels)})"
+        raise _fail(frame, f"expects {want} fields ({listed}); got {len(frame.fields)}")
+    values = tuple(_number(frame, start + k, name) for k, name in enumerate(names))
+    for k, (axis, v) in enumerate(zip(layout.axes, values)):
+        why = axis.outside(v, slack)
+        if why:
+            raise RangeError(frame, f"field {start + k} ({prefix}{why})")
+    return values
+
+
+def decode_position_n(frame: Frame, layout: AxisLayout, verb: str = "POS") -> JointPosition:
+    """A POS (N axes) or HPOS reply -> JointPosition; commanded values within the limits, encoder values
+    within them ± ENCODER_SLACK."""
+    kw = dict(count=2 * layout.n)
+    return JointPosition(decode_vector(frame, layout, verb, prefix="cmd_", **kw),
+                         decode_vector(frame, layout, verb, start=layout.n, prefix="enc_", slack=ENCODER_SLACK, **kw))
 
 
 # ----------------------------------------------------------------------------- host side

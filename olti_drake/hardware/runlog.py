@@ -41,6 +41,27 @@ _FORMATS = ("%d", "%.12g", "%.12g", "%d", "%d", "%.9f", "%.9f", "%d", "%d", "%d"
             "%.3f")
 
 
+#: The run-log columns after a campaign's own (both kinds): where and when each reading was taken.
+_LOG_COLUMNS = ("plan_row", "step", "session", "status", "reads", "rezeros", "time_utc", "elapsed_s")
+_LOG_FORMATS = ("%d", "%d", "%d", "%s", "%d", "%d", "%s", "%.3f")
+
+
+def serial_columns(n_joints: int) -> tuple:
+    """The columns of a six-axis run log: the N-joint distance campaign (station, theta<i>_deg, dir<i>,
+    displacement_mm, valid: formats.md, serial robots) and the run-log columns."""
+    return (("station",) + tuple(f"theta{i + 1}_deg" for i in range(n_joints)) +
+            tuple(f"dir{i + 1}" for i in range(n_joints)) + ("displacement_mm", "valid") + _LOG_COLUMNS)
+
+
+def _formats_of(columns) -> tuple:
+    """The value formats of a log's columns (the SCARA's as they always were)."""
+    if tuple(columns) == COLUMNS:
+        return _FORMATS
+    head = tuple("%.12g" if c.startswith("theta") else "%.9f" if c == "displacement_mm" else "%d"
+                 for c in columns[:-len(_LOG_COLUMNS)])
+    return head + _LOG_FORMATS
+
+
 def utc_now() -> str:
     """The wall clock as ISO 8601 UTC with milliseconds (``2026-11-24T14:05:09.123Z``)."""
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
@@ -63,6 +84,7 @@ class CampaignLog:
     def __init__(self, out_dir: str, manifest: dict, recorded: set, fsync: bool = True):
         self.out_dir = out_dir
         self.manifest = manifest
+        self.formats = _formats_of(manifest.get("columns", COLUMNS))
         self.recorded = set(recorded)
         self.fsync = fsync
         self.session = len(manifest["sessions"])
@@ -76,18 +98,23 @@ class CampaignLog:
     # ------------------------------------------------------------------ opening
 
     @classmethod
-    def create(cls, out_dir: str, manifest: dict, comments=(), fsync: bool = True) -> "CampaignLog":
-        """Start a new campaign in ``out_dir``; refuses a directory that already holds one."""
+    def create(cls, out_dir: str, manifest: dict, comments=(), fsync: bool = True, columns=None) -> "CampaignLog":
+        """Start a new campaign in ``out_dir``; refuses a directory that already holds one.
+
+        ``columns``: the log's columns (default the SCARA's, ``COLUMNS``; a six-axis run's are
+        :func:`serial_columns`, then kept in ``run.json`` for the resume)."""
         from olti_drake.io.outputs import make_dir, writing
 
         csv_path = cls.check_new(out_dir)
         make_dir(out_dir)
         # Measurements: created only where no file is (outputs.writing never replaces one).
         with writing(csv_path, measurement=True, fsync=fsync, newline="") as f:
-            f.write("".join(f"# {c}\n" for c in comments) + ",".join(COLUMNS) + "\n")
+            f.write("".join(f"# {c}\n" for c in comments) + ",".join(columns or COLUMNS) + "\n")
         with writing(os.path.join(out_dir, "events.jsonl"), measurement=True, fsync=fsync):
             pass
         manifest = dict(manifest, format=FORMAT, sessions=[], complete=False)
+        if columns is not None and tuple(columns) != COLUMNS:
+            manifest["columns"] = list(columns)
         _write_json(os.path.join(out_dir, "run.json"), manifest)
         return cls(out_dir, manifest, set(), fsync)
 
@@ -144,7 +171,7 @@ class CampaignLog:
         """Write one reading (a ``CampaignRecorder`` row and its ReadStatus) and flush it to disk."""
         values = (*record, step, self.session, status.raw or "-", status.reads, status.rezeros, utc_now(),
                   time.monotonic() - self._t0)
-        line = ",".join(_fmt(f, v) for f, v in zip(_FORMATS, values)) + "\n"
+        line = ",".join(_fmt(f, v) for f, v in zip(self.formats, values)) + "\n"
         _append(self._csv, line, self.fsync)
         self.recorded.add(int(step))
 
@@ -161,12 +188,14 @@ class CampaignLog:
     # ------------------------------------------------------------------ reading
 
     def zero_pose(self, reflector: int) -> Optional[tuple]:
-        """The command (4, deg/mm) and directions (4) where reflector's run was first zeroed, if logged."""
+        """The command (N, deg/mm) and directions (N) where reflector's run was first zeroed, if logged
+        (and, for a tracer head, the head's aim (2, deg) then)."""
         with open(self.path("events.jsonl"), encoding="utf-8") as f:
             for line in f:
                 e = json.loads(line)
                 if e.get("kind") == "zero" and e.get("reflector") == reflector and not e.get("again"):
-                    return np.array(e["command"], dtype=float), np.array(e["directions"], dtype=float)
+                    pose = (np.array(e["command"], dtype=float), np.array(e["directions"], dtype=float))
+                    return pose + ((np.array(e["aim"], dtype=float),) if "aim" in e else ())
         return None
 
 

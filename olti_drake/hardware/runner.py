@@ -4,6 +4,11 @@ The diagram is the campaign diagram of :mod:`olti_drake.sim.campaign` whatever
 the station (simulated, emulated or hardware); the recorder's sink writes
 every reading to :class:`~olti_drake.hardware.runlog.CampaignLog` as it arrives.
 
+A six-axis floor-tracer scenario (:mod:`olti_drake.sim.serial_scenario`, on an ``!Emulated``
+station) runs the same way on the N-joint diagram of :mod:`olti_drake.sim.serial_station`, its
+station the N-joint emulator behind the same hardware station (``_Serial``: the log's columns, where
+a record goes, the resumed state).
+
 Resuming (``--resume``) after Ctrl-C, ``kill -9`` or a lost line starts the
 command sequence at the first planned reading not on disk and records only
 readings not on disk, so none is lost and none is duplicated. The robot is
@@ -91,19 +96,144 @@ def _plan(setup):
     return c, setup.plan.measure[c["plan_row"]]
 
 
-def _open_log(scenario_path, setup, out_dir, resume, fsync, fingerprint, planned_steps):
+class _Scara:
+    """What ``run`` needs of a SCARA campaign (sim.campaign): the command sequence and its readings,
+    the log's columns, the diagram, where a record goes, the resumed state, the truth."""
+
+    columns = None          # runlog.COLUMNS
+    comment = ("olti_drake SCARA campaign (shared/spec/formats.md): mm and degrees; dir = approach direction; "
+               "valid 0 = no trustworthy reading (kept); step/session/status/reads/rezeros/time: the run log "
+               "(docs/runner.md)")
+
+    def __init__(self, scenario):
+        from olti_drake.sim.campaign import prepare
+
+        self.scenario = scenario
+        self.setup = prepare(scenario)
+        self.commands, self.measured = _plan(self.setup)
+        self.n_rows = len(self.setup.plan)
+
+    def fingerprint(self) -> str:
+        return _fingerprint(self.setup, self.commands, self.measured)
+
+    def build(self, station_factory, extend, sink):
+        from olti_drake.sim.campaign import build_campaign_diagram
+
+        return build_campaign_diagram(self.setup, station_factory, extend=extend, sink=sink)
+
+    def step_of(self, record) -> int:
+        return int(record[0]) * self.n_rows + int(record[8])
+
+    @staticmethod
+    def invalid(record) -> bool:
+        return record[7] == 0
+
+    def reflector_at(self, step: int) -> int:
+        return int(self.commands["reflector"][min(step, len(self.commands["reflector"]) - 1)])
+
+    def previous(self, step: int):
+        """The plan's row before ``step``: (command (4), directions (4)), or (None, None) at step 0."""
+        if step == 0:
+            return None, None
+        c, k = self.commands, step - 1
+        return (np.array([c["theta1"][k], c["theta2"][k], 0.0, c["theta4"][k]]),
+                np.array([c["dir1"][k], c["dir2"][k], 1.0, c["dir4"][k]]))
+
+    def resume_simulated(self, station, context, step: int, prev_cmd, prev_dir) -> None:
+        # The simulated station: the joints' last command and directions, the laser's sample count
+        # (its noise is a function of it, so a resumed simulation equals an uninterrupted one).
+        if prev_cmd is not None:
+            joints = station.GetSubsystemByName("error_map_joint")
+            joints.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetFromVector(
+                np.concatenate([prev_cmd, prev_dir]))
+        laser = station.GetSubsystemByName("laser_interferometer")
+        laser.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetAtIndex(0, step)
+
+    def write_truth(self, out_dir) -> None:
+        _write_truth(self.setup, out_dir)
+
+
+class _Serial(_Scara):
+    """The same for a six-axis floor-tracer campaign (sim.serial_station): N joints, the station index
+    as the reflector, a reading's step found from its (station, plan row)."""
+
+    comment = ("olti_drake six-axis distance campaign (olti run): mm and degrees; station = tracer head; "
+               "dir = approach direction; valid 0 = no trustworthy reading (kept); step/session/status/reads/"
+               "rezeros/time: the run log (docs/runner.md)")
+
+    def __init__(self, scenario):
+        from olti_drake.hardware.runlog import serial_columns
+        from olti_drake.sim.scenario import Emulated
+        from olti_drake.sim.serial_station import prepare_serial
+
+        if not isinstance(scenario.station, Emulated):
+            where = getattr(scenario, "source_file", None) or "scenario"
+            raise InputError(f"{where}: station: olti run takes a six-axis campaign on an !Emulated station "
+                             f"(simulated: olti simulate; real tracer heads: not yet), got "
+                             f"!{type(scenario.station).__name__}")
+        self.scenario = scenario
+        self.setup = s = prepare_serial(scenario)
+        self.measured = np.asarray(s.measure, bool)
+        self.columns = serial_columns(s.n_joints)
+        steps = np.flatnonzero(self.measured)
+        self._step = {(int(s.reflector[k]), int(s.row[k])): int(k) for k in steps}
+        if len(self._step) != len(steps):
+            raise InputError("six-axis plan: a (station, pose) pair is measured twice; the run log cannot tell "
+                             "its readings apart")
+
+    def fingerprint(self) -> str:
+        s = self.setup
+        table = np.column_stack([np.round(s.commands_deg, 9), s.dirs, s.reflector, s.measure, s.row])
+        return hashlib.sha256(np.ascontiguousarray(table, dtype=float).tobytes()).hexdigest()
+
+    def build(self, station_factory, extend, sink):
+        from olti_drake.sim.serial_station import build_serial_diagram
+
+        if extend is not None:
+            raise InputError("olti run: the live view (--meshcat) is not available for six-axis campaigns yet")
+        diagram, rec, seq = build_serial_diagram(self.setup, station_factory=station_factory)
+        status = rec.GetInputPort("status")
+        rec.on_record = lambda context, record: sink(record, status.Eval(context))
+        return diagram, rec, seq
+
+    def step_of(self, record) -> int:
+        n = self.setup.n_joints
+        return self._step[(int(record[0]), int(record[2 * n + 3]))]
+
+    def invalid(self, record) -> bool:
+        return record[2 * self.setup.n_joints + 2] == 0
+
+    def reflector_at(self, step: int) -> int:
+        return int(self.setup.reflector[min(step, len(self.setup.reflector) - 1)])
+
+    def previous(self, step: int):
+        if step == 0:
+            return None, None
+        return self.setup.commands_deg[step - 1].copy(), self.setup.dirs[step - 1].copy()
+
+    def write_truth(self, out_dir) -> None:
+        from olti_drake.io.csvio import read_table
+        from olti_drake.io.outputs import write_json
+        from olti_drake.sim.serial_station import serial_truth_result
+
+        if os.path.exists(os.path.join(out_dir, "truth.json")):
+            return
+        names = [f"theta{i + 1}_deg" for i in range(self.setup.n_joints)] + ["valid"]
+        t = read_table(os.path.join(out_dir, "campaign.csv"), tuple(names))
+        write_json(os.path.join(out_dir, "truth.json"), serial_truth_result(self.setup, t), measurement=True)
+
+
+def _open_log(scenario_path, kind, out_dir, resume, fsync, planned_steps):
     from olti_drake.hardware.runlog import CampaignLog
 
-    kind = _station_kind(setup.scenario)
+    fingerprint = kind.fingerprint()
+    station = _station_kind(kind.scenario)
     if not resume:
         manifest = {"scenario": os.path.abspath(scenario_path) if scenario_path else None,
-                    "station": kind, "seed": setup.scenario.seed, "commands_sha256": fingerprint,
+                    "station": station, "seed": kind.scenario.seed, "commands_sha256": fingerprint,
                     "n_steps": int(len(planned_steps.mask)), "readings_planned": int(planned_steps.count)}
-        return CampaignLog.create(out_dir, manifest, fsync=fsync, comments=[
-            f"olti run: scenario {scenario_path or 'embedded default (paper 000)'}; station {kind}",
-            "olti_drake SCARA campaign (shared/spec/formats.md): mm and degrees; dir = approach direction; "
-            "valid 0 = no trustworthy reading (kept); step/session/status/reads/rezeros/time: the run log "
-            "(docs/runner.md)"])
+        return CampaignLog.create(out_dir, manifest, fsync=fsync, columns=kind.columns, comments=[
+            f"olti run: scenario {scenario_path or 'embedded default (paper 000)'}; station {station}", kind.comment])
     log = CampaignLog.reopen(out_dir, fsync=fsync)
     m = log.manifest
     where = os.path.join(out_dir, "run.json")
@@ -111,10 +241,10 @@ def _open_log(scenario_path, setup, out_dir, resume, fsync, fingerprint, planned
         log.close()
         raise InputError(f"{where}: the scenario's command sequence differs from the interrupted campaign's "
                          f"(plan, reflectors, steering or seed changed); resume with the same scenario")
-    if m.get("station") != kind:
+    if m.get("station") != station:
         log.close()
         raise InputError(f"{where}: the campaign ran on a {m.get('station')} station, the scenario now has "
-                         f"a {kind} one; resume on the same kind of station")
+                         f"a {station} one; resume on the same kind of station")
     extra = log.recorded - set(np.flatnonzero(planned_steps.mask).tolist())
     if extra:
         log.close()
@@ -131,18 +261,13 @@ class _Steps:
         return int(self.mask.sum())
 
 
-def _resume_state(diagram, context, setup, commands, step: int, log) -> None:
+def _resume_state(diagram, context, kind, step: int, log) -> None:
     """Put the diagram where the uninterrupted campaign was at ``step`` (sequencer, station)."""
     seq = diagram.GetSubsystemByName("plan_sequencer")
     seq.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetAtIndex(0, step)
     station = diagram.station
-    j = int(commands["reflector"][min(step, len(commands["reflector"]) - 1)])
-    if step == 0:
-        prev_cmd = prev_dir = None
-    else:
-        k = step - 1
-        prev_cmd = np.array([commands["theta1"][k], commands["theta2"][k], 0.0, commands["theta4"][k]])
-        prev_dir = np.array([commands["dir1"][k], commands["dir2"][k], 1.0, commands["dir4"][k]])
+    j = kind.reflector_at(step)
+    prev_cmd, prev_dir = kind.previous(step)
     if hasattr(station, "resume_at"):          # a device station (emulated or hardware)
         pose = log.zero_pose(j)
         if pose is not None:
@@ -150,25 +275,37 @@ def _resume_state(diagram, context, setup, commands, step: int, log) -> None:
         if prev_cmd is not None:
             station.resume_at(station.GetMyMutableContextFromRoot(context), prev_cmd, prev_dir)
         return
-    # The simulated station: the joints' last command and directions, the laser's sample count
-    # (its noise is a function of it, so a resumed simulation equals an uninterrupted one).
-    if prev_cmd is not None:
-        joints = station.GetSubsystemByName("error_map_joint")
-        joints.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetFromVector(
-            np.concatenate([prev_cmd, prev_dir]))
-    laser = station.GetSubsystemByName("laser_interferometer")
-    laser.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetAtIndex(0, step)
+    kind.resume_simulated(station, context, step, prev_cmd, prev_dir)
 
 
 def _load(scenario, base_dir=None):
-    """(Scenario, its file or None) of a Scenario object, a YAML path or None (the paper default)."""
+    """(Scenario, its file or None) of a Scenario or SerialScenario object, a YAML path or None (the
+    paper default); a six-axis file (``scheme``: sim.serial_scenario.scenario_kind) loads as one."""
     from olti_drake.sim.scenario import Scenario, load_scenario
+    from olti_drake.sim.serial_scenario import SerialScenario
 
-    if isinstance(scenario, Scenario):
+    if isinstance(scenario, (Scenario, SerialScenario)):
         return scenario, getattr(scenario, "source_file", None)
     if scenario is None:
         return load_scenario(None), None
-    return load_scenario(scenario), os.fspath(scenario)
+    return load_run_scenario(scenario), os.fspath(scenario)
+
+
+def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = None):
+    """The scenario ``olti run`` takes: a six-axis one (``SerialScenario``) when the file (or its named
+    scenario, or a base) has a ``scheme``, else the SCARA's (``load_scenario``)."""
+    from olti_drake.sim.scenario import load_scenario
+    from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
+
+    if path is not None and scenario_kind(path, name) == "serial":
+        return load_serial_scenario(path, name, text)
+    return load_scenario(path, name, text)
+
+
+def _campaign_kind(scenario):
+    from olti_drake.sim.serial_scenario import SerialScenario
+
+    return _Serial(scenario) if isinstance(scenario, SerialScenario) else _Scara(scenario)
 
 
 def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[Callable[[], object]] = None,
@@ -176,8 +313,10 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
         realtime_rate: float = 0.0) -> RunResult:
     """Run (or resume) the scenario's campaign on its station, logging every reading to ``out_dir``.
 
-    ``scenario``: a :class:`~olti_drake.sim.scenario.Scenario`, a scenario YAML path, or None
-    (the paper-000 default). ``should_stop()`` is polled between simulator steps (from this
+    ``scenario``: a :class:`~olti_drake.sim.scenario.Scenario`, a six-axis
+    :class:`~olti_drake.sim.serial_scenario.SerialScenario` (floor tracers, on an ``!Emulated``
+    station), a scenario YAML path, or None (the paper-000 default). ``should_stop()`` is polled
+    between simulator steps (from this
     thread; it may read a flag another thread or a signal handler sets): a truthy value ends the
     session after the reading in progress is on disk, and the result says ``stopped`` (a string
     value is the reason recorded in ``run.json``, e.g. ``"SIGINT"``); ``resume=True`` continues.
@@ -190,23 +329,21 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import EventStatus
 
-    from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.hardware.runlog import CampaignLog
     from olti_drake.hardware.station import AddStation
     from olti_drake.sim.scenario import Hardware
 
     scenario, scenario_path = _load(scenario)
-    setup = prepare(scenario)
-    commands, measured = _plan(setup)
+    kind = _campaign_kind(scenario)
+    measured = kind.measured
     steps = _Steps(measured)
     if not resume:
         CampaignLog.check_new(out_dir)   # before the station opens
     log = None
     if resume:
-        log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured), steps)
+        log = _open_log(scenario_path, kind, out_dir, resume, fsync, steps)
     recorded = log.recorded if log else set()
     todo = np.flatnonzero(measured & ~np.isin(np.arange(len(measured)), sorted(recorded)))
-    n_rows = len(setup.plan)
     t0 = time.monotonic()
     if todo.size == 0:
         session = log.session - 1
@@ -216,7 +353,7 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
             session = log.session
             log.begin_session(len(measured), station=_station_kind(scenario), resumed=True)
             if not isinstance(scenario.station, Hardware):
-                _write_truth(setup, out_dir)
+                kind.write_truth(out_dir)
             log.end_session("complete", complete=True, taken=0)
         log.close()
         return RunResult(out_dir, steps.count, len(log.recorded), 0, 0, len(measured), session, 0.0, True)
@@ -227,12 +364,12 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
 
     def sink(record, status):
         nonlocal taken, invalid
-        step = int(record[0]) * n_rows + int(record[8])
+        step = kind.step_of(record)
         if step in log.recorded:
             return                      # on disk from an earlier session: never twice
         log.append(step, record, status)
         taken += 1
-        invalid += int(record[7] == 0)
+        invalid += int(kind.invalid(record))
         if progress:
             progress(len(log.recorded), steps.count)
 
@@ -245,12 +382,10 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
 
     # The station (ports, emulator) opens here; a fresh run's directory is made only once it did.
     session = log.session if log else 0
-    diagram, rec, seq = build_campaign_diagram(setup, lambda b, s: AddStation(b, s, session=session),
-                                               extend=extend, sink=sink)
+    diagram, rec, seq = kind.build(lambda b, s: AddStation(b, s, session=session), extend, sink)
     if log is None:
         try:
-            log = _open_log(scenario_path, setup, out_dir, resume, fsync, _fingerprint(setup, commands, measured),
-                            steps)
+            log = _open_log(scenario_path, kind, out_dir, resume, fsync, steps)
         except BaseException:
             getattr(diagram.station, "close", lambda: None)()
             raise
@@ -262,7 +397,7 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
         log.begin_session(start, station=_station_kind(scenario), resumed=bool(resume))
         simulator = Simulator(diagram)
         simulator.set_target_realtime_rate(realtime_rate)
-        _resume_state(diagram, simulator.get_mutable_context(), setup, commands, start, log)
+        _resume_state(diagram, simulator.get_mutable_context(), kind, start, log)
         simulator.set_monitor(monitor)
         simulator.Initialize()
         simulator.AdvanceTo((len(measured) - start) * scenario.period_s)
@@ -272,7 +407,7 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
         else:
             outcome = "complete" if complete else "incomplete"
         if complete and not isinstance(scenario.station, Hardware):
-            _write_truth(setup, out_dir)
+            kind.write_truth(out_dir)
     except BaseException as e:
         if outcome == "error":
             outcome = "interrupted (KeyboardInterrupt)" if isinstance(e, KeyboardInterrupt) else \

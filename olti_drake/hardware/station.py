@@ -21,6 +21,14 @@ counter -- with the policy's re-reads and re-zeroings at the reference pose
 (:class:`~olti_drake.sim.scenario.RunPolicy`) -- and the encoders. A lost beam is
 ``valid`` 0 and ``displacement`` NaN, never a made-up value. A device failure
 raises :class:`StationError` naming the operation.
+
+N joints: the station takes its joint count and joint kinds from the robot driver's ``layout``
+(:class:`~olti_drake.hardware.protocol.AxisLayout`, announced by a version-2 controller; a driver
+without one is the SCARA's): ``joint_command``, ``direction`` and ``measured_position`` then have N
+entries. Floor tracers: when the counter driver can aim (``aim``: the pan/tilt heads of
+:class:`~olti_drake.hardware.drivers.TracerHeads`), the ``reflector`` input selects the head, the
+input ``head_command`` (2: pan, tilt rad) aims it before it is zeroed or read, and the output
+``head_position`` (2, rad) gives its encoders; a re-zeroing also re-aims the head where it was zeroed.
 """
 
 from __future__ import annotations
@@ -35,12 +43,12 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 from olti_drake.io.csvio import InputError
 from olti_drake.model.errormap import approach_directions
 from olti_drake.hardware.drivers import AlarmActive, DriverError
-from olti_drake.hardware.protocol import ProtocolError, expect_ack, movj_fields
+from olti_drake.hardware.protocol import SCARA_LAYOUT, ProtocolError, expect_ack
 from olti_drake.sim.scenario import SEED_STREAMS, stream_seed
 from olti_drake.sim.systems import ReadStatus, set_default_name
 
 M_TO_MM = 1e3
-REVOLUTE = np.array([True, True, False, True])
+REVOLUTE = np.array(SCARA_LAYOUT.revolute)   # the SCARA's joints (θ1, θ2, z, θ4)
 #: Longest in-position wait of one move (ms) sent with WAIT.
 WAIT_MS = 60000
 
@@ -90,17 +98,26 @@ class HardwareStation(LeafSystem):
         self.zero_poses: dict = {}
         self.closers: list = []
         self._alarms_cleared = 0
-        self.DeclareVectorInputPort("joint_command", 4)
+        self.layout = getattr(robot, "layout", None) or SCARA_LAYOUT
+        n = self.layout.n
+        self.revolute = np.array(self.layout.revolute)
+        self.heads = callable(getattr(counter, "aim", None))
+        self.s = _StateLayout(n)
+        self.DeclareVectorInputPort("joint_command", n)
         self.DeclareVectorInputPort("reflector", 1)
-        self.DeclareDiscreteState(_initial_state())
+        if self.heads:
+            self.DeclareVectorInputPort("head_command", 2)
+        self.DeclareDiscreteState(self.s.initial())
         self.DeclareAbstractState(AbstractValue.Make(ReadStatus()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, 0.25 * period_s, self._update)
-        self.DeclareVectorOutputPort("displacement", 1, lambda c, o: self._out(c, o, _DISP))
-        self.DeclareVectorOutputPort("valid", 1, lambda c, o: self._out(c, o, _VALID))
+        self.DeclareVectorOutputPort("displacement", 1, lambda c, o: self._out(c, o, self.s.disp))
+        self.DeclareVectorOutputPort("valid", 1, lambda c, o: self._out(c, o, self.s.valid))
         self.DeclareVectorOutputPort("miss", 1, lambda c, o: o.SetAtIndex(0, np.nan))
         self.DeclareStateOutputPort("status", AbstractStateIndex(0))
-        self.DeclareVectorOutputPort("direction", 4, lambda c, o: self._out(c, o, _DIRS))
-        self.DeclareVectorOutputPort("measured_position", 4, lambda c, o: self._out(c, o, _ENCODER))
+        self.DeclareVectorOutputPort("direction", n, lambda c, o: self._out(c, o, self.s.dirs))
+        self.DeclareVectorOutputPort("measured_position", n, lambda c, o: self._out(c, o, self.s.encoder))
+        if self.heads:
+            self.DeclareVectorOutputPort("head_position", 2, lambda c, o: self._out(c, o, self.s.head_encoder))
 
     def _out(self, context, output: BasicVector, part: slice):
         output.SetFromVector(context.get_discrete_state_vector().value()[part])
@@ -108,13 +125,13 @@ class HardwareStation(LeafSystem):
     def resume_at(self, context, last_command, last_directions) -> None:
         """Continue an interrupted campaign: the robot is somewhere unknown.
 
-        ``last_command`` (4, deg/mm) and ``last_directions`` (4, ±1) are the
+        ``last_command`` (N, deg/mm) and ``last_directions`` (N, ±1) are the
         plan's previous row, so the next command gets the plan's approach
         directions; the first move is a re-approach that makes the robot
         arrive from those sides (``policy.approach_overrun_deg``).
         """
-        x = _initial_state()
-        x[_LAST], x[_DIRS], x[_REAPPROACH] = last_command, last_directions, 1.0
+        x = self.s.initial()
+        x[self.s.last], x[self.s.dirs], x[self.s.reapproach] = last_command, last_directions, 1.0
         context.get_mutable_discrete_state_vector().SetFromVector(x)
 
     def _do(self, what: str, call, *args):
@@ -154,7 +171,7 @@ class HardwareStation(LeafSystem):
         while True:
             try:
                 if approach:
-                    before = cmd - np.where(REVOLUTE, directions * self.policy.approach_overrun_deg, 0.0)
+                    before = cmd - np.where(self.revolute, directions * self.policy.approach_overrun_deg, 0.0)
                     self._movj_wait(before)
                 self._movj_wait(cmd)
                 return
@@ -168,23 +185,39 @@ class HardwareStation(LeafSystem):
         """Zero the counter at the current pose; False while it has no beam."""
         if not self._do("counter zero", self.counter.zero):
             return False
-        x[_ZEROED] = 1.0
+        x[self.s.zeroed] = 1.0
         return True
 
+    def _aim(self, aim_deg) -> None:
+        """Aim the selected tracer head (pan, tilt deg) and wait until it is there."""
+        what = f"head aim at ({aim_deg[0]:.6f}, {aim_deg[1]:.6f}) deg"
+        self._do(what, self.counter.aim, aim_deg)
+        self._do(what + " (wait in position)", self.counter.wait, self.wait_ms)
+
+    def _zero_event(self, x, j: int, again: bool) -> None:
+        aim = {"aim": list(x[self.s.zero_aim])} if self.heads else {}
+        self.on_event("zero", reflector=j, command=list(x[self.s.zero_cmd]), directions=list(x[self.s.zero_dirs]),
+                      again=again, **aim)
+
     def _rezero(self, x, j: int) -> None:
-        """Zero again at the run's reference pose, approached as when it was first zeroed, then return."""
-        ref_cmd, ref_dirs = x[_ZERO_CMD], x[_ZERO_DIRS]
-        self._move(ref_cmd, ref_dirs, approach=True)
+        """Zero again at the run's reference pose, approached as when it was first zeroed (a tracer
+        head aimed as then), then return."""
+        s = self.s
+        self._move(x[s.zero_cmd], x[s.zero_dirs], approach=True)
+        if self.heads:
+            self._aim(x[s.zero_aim])
         if not self._zero(x):
             raise StationError(f"station: the counter has no beam at the reference pose of reflector {j} "
                                f"(where the run was zeroed): check the reflector, then resume")
-        self.on_event("zero", reflector=j, command=list(ref_cmd), directions=list(ref_dirs), again=True)
-        self._move(x[_LAST], x[_DIRS], approach=True)
+        self._zero_event(x, j, again=True)
+        self._move(x[s.last], x[s.dirs], approach=True)
+        if self.heads:
+            self._aim(x[s.aim])
 
     def _read(self, x, j: int):
         """READ with the policy's re-reads and re-zeroings; returns (reading, ReadStatus)."""
         reads = rezeros = 0
-        if x[_ZEROED] < 0.5:   # no zero yet (no beam at this run's poses so far): nothing to retry
+        if x[self.s.zeroed] < 0.5:   # no zero yet (no beam at this run's poses so far): nothing to retry
             reading = self._do("counter read", self.counter.read)
             return reading, ReadStatus(reading.status, 1, 0)
         while True:
@@ -196,7 +229,7 @@ class HardwareStation(LeafSystem):
                 if reading.valid:
                     return reading, ReadStatus(reading.status, reads, rezeros)
                 self.on_event("invalid_reading", reflector=j, status=reading.status, reads=reads)
-            if rezeros >= self.policy.rezeros or np.isnan(x[_ZERO_CMD][0]):
+            if rezeros >= self.policy.rezeros or np.isnan(x[self.s.zero_cmd][0]):
                 return reading, ReadStatus(reading.status, reads, rezeros)
             self._rezero(x, j)
             rezeros += 1
@@ -204,45 +237,55 @@ class HardwareStation(LeafSystem):
     # ---------------------------------------------------------------- the period
 
     def _update(self, context, state):
+        s = self.s
         x = context.get_discrete_state_vector().value().copy()
         u = self.get_input_port(0).Eval(context)
-        cmd = np.where(REVOLUTE, np.degrees(u), np.asarray(u) * M_TO_MM)
+        cmd = np.where(self.revolute, np.degrees(u), np.asarray(u) * M_TO_MM)
         j = int(self.get_input_port(1).Eval(context)[0])
-        last = x[_LAST].copy()
+        last = x[s.last].copy()
         # The approach directions of the commands sent, by the spec's rule (as ErrorMapJoint).
-        x[_DIRS] = approach_directions(cmd[None], last, x[_DIRS])[0]
-        x[_LAST] = cmd
-        if x[_REAPPROACH] > 0.5:
-            self.on_event("reapproach", command=list(cmd), directions=list(x[_DIRS]))
-            self._move(cmd, x[_DIRS], approach=True)
-            x[_REAPPROACH] = 0.0
-        elif np.any(np.isnan(last)) or movj_fields(*cmd) != movj_fields(*last):
-            self._move(cmd, x[_DIRS], approach=False)
-        if j != int(x[_REFLECTOR]):
+        x[s.dirs] = approach_directions(cmd[None], last, x[s.dirs])[0]
+        x[s.last] = cmd
+        if x[s.reapproach] > 0.5:
+            self.on_event("reapproach", command=list(cmd), directions=list(x[s.dirs]))
+            self._move(cmd, x[s.dirs], approach=True)
+            x[s.reapproach] = 0.0
+        elif np.any(np.isnan(last)) or self._wire(cmd) != self._wire(last):
+            self._move(cmd, x[s.dirs], approach=False)
+        if j != int(x[s.reflector]):
             try:
                 self.set_reflector(j)
             except (ProtocolError, DriverError) as e:
                 raise StationError(f"station: setting up reflector {j} failed: {type(e).__name__}: {e}") from None
-            x[_REFLECTOR], x[_ZEROED] = j, 0.0
+            x[s.reflector], x[s.zeroed] = j, 0.0
             known = self.zero_poses.get(j)
-            x[_ZERO_CMD], x[_ZERO_DIRS] = known if known is not None else (np.nan, np.nan)
-        if x[_ZEROED] < 0.5:
-            if not np.isnan(x[_ZERO_CMD][0]):
+            x[s.zero_cmd], x[s.zero_dirs] = known[:2] if known is not None else (np.nan, np.nan)
+            x[s.zero_aim] = known[2] if known is not None and len(known) > 2 else np.nan
+        if self.heads:
+            x[s.aim] = np.degrees(self.get_input_port(2).Eval(context))
+            self._aim(x[s.aim])
+        if x[s.zeroed] < 0.5:
+            if not np.isnan(x[s.zero_cmd][0]):
                 self._rezero(x, j)     # resuming: zero where the interrupted run did
             elif self._zero(x):
                 # Zero at the first pose of the run where the beam reaches the counter: until then
                 # (NAK BEAM) the readings are invalid, as the counter says. This pose is the run's
                 # reference: a re-zeroing returns here.
-                x[_ZERO_CMD], x[_ZERO_DIRS] = cmd, x[_DIRS]
-                self.on_event("zero", reflector=j, command=list(cmd), directions=list(x[_DIRS]), again=False)
+                x[s.zero_cmd], x[s.zero_dirs], x[s.zero_aim] = cmd, x[s.dirs], x[s.aim]
+                self._zero_event(x, j, again=False)
         reading, status = self._read(x, j)
-        x[_DISP] = reading.displacement_mm / M_TO_MM if reading.valid else np.nan
-        x[_VALID] = 1.0 if reading.valid else 0.0
-        enc = self._do("robot position", self.robot.position).encoder
-        q = np.array([enc.theta1_deg, enc.theta2_deg, enc.z_mm, enc.theta4_deg])
-        x[_ENCODER] = np.where(REVOLUTE, np.radians(q), q / M_TO_MM)
+        x[s.disp] = reading.displacement_mm / M_TO_MM if reading.valid else np.nan
+        x[s.valid] = 1.0 if reading.valid else 0.0
+        q = np.array(tuple(self._do("robot position", self.robot.position).encoder), dtype=float)
+        x[s.encoder] = np.where(self.revolute, np.radians(q), q / M_TO_MM)
+        if self.heads:
+            x[s.head_encoder] = np.radians(tuple(self._do("head position", self.counter.position).encoder))
         state.get_mutable_discrete_state().set_value(x)
         state.get_mutable_abstract_state(0).set_value(status)
+
+    def _wire(self, cmd) -> tuple:
+        """The command as sent (6 decimals per joint): a move is needed only if this changes."""
+        return self.layout.fields(cmd, check_range=False)
 
     def close(self) -> None:
         """Close what the station opened (serial ports, an emulator), last opened first."""
@@ -257,23 +300,35 @@ def _joints_text(cmd) -> str:
     return "(" + ", ".join(f"{v:.6f}" for v in cmd) + ") deg/mm"
 
 
-# The station's discrete state: last command sent (4, deg/mm; NaN = none), directions (4), reflector
-# set up (-1 = none), displacement (m), valid, encoder position (4, rad/m), counter zeroed since the
-# reflector was set up, the run's reference (zero) pose: command (4) and directions (4), and
-# "re-approach the next command" (after a resume).
-_LAST, _DIRS, _REFLECTOR, _DISP, _VALID = slice(0, 4), slice(4, 8), 8, slice(9, 10), slice(10, 11)
-_ENCODER, _ZEROED, _ZERO_CMD, _ZERO_DIRS, _REAPPROACH = slice(11, 15), 15, slice(16, 20), slice(20, 24), 24
+class _StateLayout:
+    """The station's discrete state for n joints: last command sent (n, deg/mm; NaN = none),
+    directions (n), reflector set up (-1 = none), displacement (m), valid, encoder position (n,
+    rad/m), counter zeroed since the reflector was set up, the run's reference (zero) pose: command
+    (n) and directions (n), "re-approach the next command" (after a resume); tracer heads: the aim
+    sent (2, deg), the aim at the zero (2, deg), the head encoders (2, rad)."""
 
+    def __init__(self, n: int):
+        sizes = (("last", n), ("dirs", n), ("reflector", None), ("disp", 1), ("valid", 1), ("encoder", n),
+                 ("zeroed", None), ("zero_cmd", n), ("zero_dirs", n), ("reapproach", None), ("aim", 2),
+                 ("zero_aim", 2), ("head_encoder", 2))
+        k = 0
+        for name, size in sizes:
+            setattr(self, name, k if size is None else slice(k, k + size))
+            k += 1 if size is None else size
+        self.n, self.size = n, k
 
-def _initial_state() -> np.ndarray:
-    return np.concatenate([np.full(4, np.nan), np.ones(4), [-1.0, np.nan, 0.0], np.full(4, np.nan), [0.0],
-                           np.full(8, np.nan), [0.0]])
+    def initial(self) -> np.ndarray:
+        x = np.full(self.size, np.nan)
+        x[self.dirs] = 1.0
+        x[self.reflector], x[self.valid], x[self.zeroed], x[self.reapproach] = -1.0, 0.0, 0.0, 0.0
+        return x
 
 
 def AddStation(builder, setup, name: str = "station", session: int = 0):
     """Add the station the scenario names (``setup.scenario.station``) to ``builder``; returns it.
 
-    The one place that decides simulated or real, as Drake's ``MakeHardwareStation``: ``Simulated``
+    The one place that decides simulated or real, as Drake's ``MakeHardwareStation`` (a six-axis setup
+    of :mod:`olti_drake.sim.serial_station` too: its simulated or emulated N-joint station): ``Simulated``
     -> :func:`olti_drake.sim.campaign.AddSimulatedStation` (a Diagram), ``Emulated`` ->
     :func:`AddEmulatedStation`, ``Hardware`` -> :func:`AddRealStation` (operator prompt on the
     console). All have the same ports (the simulated one adds ``true_position`` and
@@ -284,16 +339,27 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
     from olti_drake.sim.campaign import AddSimulatedStation
     from olti_drake.sim.scenario import Emulated, Hardware
 
+    serial = hasattr(setup, "n_joints")      # a six-axis setup (sim.serial_station.SerialSetup)
     if isinstance(setup.scenario.station, Emulated):
         return AddEmulatedStation(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):
+        if serial:
+            raise InputError("station: !Hardware: a six-axis campaign on real tracer heads needs one port per "
+                             "head, which the scenario cannot name yet; use !Emulated")
         return AddRealStation(builder, setup, console_prompt, name)
+    if serial:
+        from olti_drake.sim.serial_station import AddSimulatedSerialStation
+        return AddSimulatedSerialStation(builder, setup, name)
     return AddSimulatedStation(builder, setup, name)
 
 
 def AddHardwareStation(builder, setup, devices, set_reflector=None, name: str = "station", policy=None):
-    """Add a :class:`HardwareStation` on ``devices`` = (robot, counter) drivers to ``builder``; returns it."""
+    """Add a :class:`HardwareStation` on ``devices`` = (robot, counter) drivers to ``builder``; returns it.
+
+    Without ``set_reflector``, a counter driver that sets up the reflector itself (a test bench's
+    ``set_up_reflector``, the tracer heads' selection) does it."""
     robot, counter = devices
+    set_reflector = set_reflector or getattr(counter, "set_up_reflector", None)
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
                                                            set_reflector, policy=policy))
     return station
@@ -304,24 +370,48 @@ STREAM_EMULATOR = SEED_STREAMS["emulator_session"]
 
 
 def AddEmulatedStation(builder, setup, name: str = "station", session: int = 0):
-    """Start an in-process Emulator on the setup and add a station driving it through its ptys.
+    """Start an in-process emulator on the setup and add a station driving it through its ptys.
 
+    The SCARA emulator for a SCARA setup; for a six-axis floor-tracer setup (``sim.serial_station``'s,
+    with ``heads_true``) the N-joint one (:func:`serial_emulator_for`), whose robot line announces
+    its joints and whose head lines are the counter (:class:`~olti_drake.hardware.drivers.TracerHeads`).
     ``session`` > 0 (a resumed campaign) seeds the emulator's noise and faults afresh.
     """
     from olti_drake.hardware.emulator import Emulator
 
     cfg = setup.scenario.station
     seed = None if session == 0 else stream_seed(setup.scenario.seed, STREAM_EMULATOR, session)
-    emu = Emulator(setup, speed=cfg.speed, seed=seed, faults=cfg.faults(),
-                   latch_beam_loss=cfg.latch_beam_loss).start()
-    closers = [emu.stop]
+    closers = []
+    if hasattr(setup, "n_joints"):           # a six-axis setup: N joints, the heads as counters
+        emu = serial_emulator_for(setup, seed, cfg).start()
+        closers.append(emu.stop)
+        station = _open_station(builder, setup, cfg, emu.robot_port, emu.head_ports, 115200, closers, None, name)
+    else:
+        emu = Emulator(setup, speed=cfg.speed, seed=seed, faults=cfg.faults(),
+                       latch_beam_loss=cfg.latch_beam_loss).start()
+        closers.append(emu.stop)
 
-    def refl(counter, j):
-        expect_ack(counter.transport.request("REFL", str(int(j))))
+        def refl(counter, j):
+            expect_ack(counter.transport.request("REFL", str(int(j))))
 
-    station = _open_station(builder, setup, cfg, emu.robot_port, emu.counter_port, 115200, closers, refl, name)
+        station = _open_station(builder, setup, cfg, emu.robot_port, emu.counter_port, 115200, closers, refl, name)
     station.emulator = emu
     return station
+
+
+def serial_emulator_for(setup, seed, cfg):
+    """The N-joint emulator of a six-axis floor-tracer setup: its truth, heads (true centres, zeros and
+    angular errors), cat's eye, interferometer and budget; ``seed`` None = the scenario's."""
+    from olti_drake.hardware.serial_emulator import SerialEmulator
+
+    if getattr(setup, "heads_true", None) is None:
+        raise InputError("station: !Emulated: only floor-tracer six-axis scenarios are emulated "
+                         "(the robot-mounted scheme has no emulator yet)")
+    s = setup.scenario
+    return SerialEmulator(truth=setup.truth, heads_true=setup.heads_true, head_errors=setup.head_errors,
+                          catseye_axis_tool=s.scheme.catseye_axis_tool, options=s.interferometer,
+                          budget=setup.budget, seed=s.seed if seed is None else seed, speed=cfg.speed,
+                          faults=cfg.faults(), latch_beam_loss=cfg.latch_beam_loss)
 
 
 def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
@@ -334,24 +424,29 @@ def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
 def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name):
     """Open both devices with the scenario's drivers, add the station; close everything on failure.
 
+    ``counter_port``: the counter's port, or a list of tracer heads' ports (one per station: the
+    counter is then their :class:`~olti_drake.hardware.drivers.TracerHeads`).
     ``set_reflector(counter, j)`` readies reflector j (None: the station refuses a change).
     """
-    from olti_drake.hardware.drivers import driver_class
+    from olti_drake.hardware.drivers import TracerHeads, driver_class
 
     names = (getattr(cfg, "robot_driver", "olti"), getattr(cfg, "counter_driver", "olti"))
+    heads = not isinstance(counter_port, str)
+    lines = [(robot_port, "robot", 0)] + ([(p, f"head {k}", 2) for k, p in enumerate(counter_port)] if heads
+                                          else [(counter_port, "counter", 1)])
     try:
         devices = []
-        for kind, (port, what) in enumerate(((robot_port, "robot"), (counter_port, "counter"))):
+        for port, what, kind in lines:
             try:
-                cls = driver_class(names[kind], kind)
+                cls = driver_class(names[min(kind, 1)], kind)
             except ValueError as e:
-                raise InputError(f"station: {what}_driver: {e}") from None
+                raise InputError(f"station: {what.split()[0]}_driver: {e}") from None
             try:
                 devices.append(cls.open(port, baud, cfg.timeout_s, cfg.retries))
             except DriverError as e:
                 raise StationError(f"station: {e}") from None
             closers.append(devices[-1].close)
-        robot, counter = devices
+        robot, counter = devices[0], (TracerHeads(devices[1:]) if heads else devices[1])
         # A counter driver that knows the reflector set-up (a test bench) does it; else the hook (operator).
         hook = getattr(counter, "set_up_reflector", None) or (
             None if set_reflector is None else (lambda j: set_reflector(counter, j)))

@@ -239,7 +239,19 @@ def pan_tilt_readings(robot_true, commands, dirs, station, commanded_mm, heads_t
     true robot's tool point at ``commands`` (M, N)/``dirs``; its axis ``catseye_axis_tool`` is a
     direction in the tool frame (the true tool orientation)."""
     st = np.asarray(station, int)
-    origin, u = pan_tilt_beam(heads_true, st, pan_tilt_commands(heads_est, st, commanded_mm), head_error)
+    return head_readings(robot_true, commands, dirs, st, pan_tilt_commands(heads_est, st, commanded_mm), heads_true,
+                         dead_paths_mm, catseye_axis_tool=catseye_axis_tool, head_error=head_error,
+                         options=options, budget=budget, rng=rng)
+
+
+def head_readings(robot_true, commands, dirs, station, head_commands_deg, heads_true: PanTiltHeads, dead_paths_mm, *,
+                  catseye_axis_tool=(0.0, 0.0, 1.0), head_error=None, options: Optional[InterferometerOptions] = None,
+                  budget: Optional[Budget] = None, rng=None) -> BeamReadings:
+    """Floor-tracer readings for given pan/tilt commands (M, 2) deg (as a head's controller receives
+    them): the true beam of head ``station`` (``pan_tilt_beam``) at the true cat's eye on the tool of
+    ``robot_true`` at ``commands`` (M, N) / ``dirs``; ``dead_paths_mm`` indexed by station."""
+    st = np.asarray(station, int)
+    origin, u = pan_tilt_beam(heads_true, st, head_commands_deg, head_error)
     return _read_catseye_on_tool(robot_true, commands, dirs, origin, u, catseye_axis_tool,
                                  np.asarray(dead_paths_mm, float)[st], options, budget, rng)
 

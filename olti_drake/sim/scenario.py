@@ -37,9 +37,10 @@ from olti_drake.model.truth import TrueRobot
 #: (``stream_seed(seed, "emulator_session", k)``); ``emulator_noise`` -- the emulator counter's noise;
 #: ``emulator_faults`` -- the emulator's fault draws on line ``k`` (0 robot, 1 counter); ``head_error`` --
 #: the angular positioning error of the pan/tilt head at station ``j`` (``stream_seed(seed, "head_error", j)``,
-#: six-axis scenarios, :mod:`olti_drake.sim.serial_scenario`).
+#: six-axis scenarios, :mod:`olti_drake.sim.serial_scenario`); ``emulator_truth`` -- the N-joint emulator's own
+#: synthetic robot and heads (``hardware.serial_emulator``, when no scenario gives them).
 SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
-                "emulator_noise": 10, "emulator_faults": 11, "head_error": 20}
+                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12, "head_error": 20}
 
 
 def stream_key(name) -> int:

@@ -29,6 +29,7 @@ import numpy as np
 
 from olti_drake.io.csvio import InputError, read_yaml
 from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 #: Robot models shipped with the package, by the short name a scenario may give as ``robot.file``.
@@ -154,6 +155,9 @@ class SerialScenario:
     budget: str = ""
     seed: int = 0
     period_s: float = 1.0
+    #: The station ``olti run`` takes the campaign on: ``!Simulated`` (``olti simulate``), ``!Emulated``
+    #: (the N-joint device emulator, docs/emulator.md; floor tracers only).
+    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
     base: str = ""
 
     def at(self, base_dir) -> "SerialScenario":
@@ -252,16 +256,6 @@ def _vector(name, v, size, nonzero=False):
     a = np.asarray(v, float)
     if a.shape != (size,) or not np.all(np.isfinite(a)) or (nonzero and not np.any(a)):
         raise InputError(f"{name} must be {size} finite numbers" + (", not all zero" if nonzero else ""))
-
-
-def _positive(name, v):
-    if not (np.isfinite(v) and v > 0):
-        raise InputError(f"{name} must be finite and > 0, got {v!r}")
-
-
-def _nonnegative(name, v):
-    if not (np.isfinite(v) and v >= 0):
-        raise InputError(f"{name} must be finite and >= 0, got {v!r}")
 
 
 def scenario_kind(path, name: Optional[str] = None) -> str:

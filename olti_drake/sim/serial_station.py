@@ -468,8 +468,11 @@ def AddSimulatedSerialStation(builder, setup: SerialSetup, name: str = "station"
     return builder.AddNamedSystem(name, inner.Build())
 
 
-def build_serial_diagram(setup: SerialSetup):
-    """The whole six-axis campaign as a Diagram; returns (diagram, recorder, sequencer)."""
+def build_serial_diagram(setup: SerialSetup, station_factory=None):
+    """The whole six-axis campaign as a Diagram; returns (diagram, recorder, sequencer).
+
+    ``station_factory(builder, setup)`` adds the station (default :func:`AddSimulatedSerialStation`;
+    ``olti run`` passes :func:`olti_drake.hardware.station.AddStation`: the scenario's station)."""
     from pydrake.systems.framework import DiagramBuilder
 
     from olti_drake.sim.systems import RowSequencer
@@ -477,7 +480,7 @@ def build_serial_diagram(setup: SerialSetup):
     Steering, _, Recorder = _systems()
     s = setup.scenario
     builder = DiagramBuilder()
-    station = AddSimulatedSerialStation(builder, setup)
+    station = (station_factory or AddSimulatedSerialStation)(builder, setup)
     seq = builder.AddNamedSystem("plan_sequencer", RowSequencer({
         "joint_command": np.radians(setup.commands_deg), "reflector": setup.reflector.astype(float),
         "measure": setup.measure.astype(float), "row": setup.row.astype(float)}, s.period_s))
