@@ -36,8 +36,10 @@ import scipy.sparse as sp
 
 from olti_drake.estimation.calibration import station_fit
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
-from olti_drake.io.csvio import InputError, data_digest
-from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, VolumetricModel,
+from olti_drake.estimation.multilateration import MachineCampaign
+from olti_drake.io.campaign_io import campaign_digest
+from olti_drake.io.csvio import InputError
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, MachineConfig, VolumetricModel,
                                            motion_names, motion_role, motion_unit, observability)
 
 #: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns.
@@ -57,52 +59,18 @@ TOPOLOGIES = {"serial": (("X", "Y", "Z"), ()), "table-xy": (("Z",), ("Y", "X")),
 IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD = 1.0, 1e4
 
 
-@dataclass(frozen=True)
-class VolumetricCampaign:
-    """Valid readings of a 3D machine campaign (formats.md, *Machine tool in 3D*): reading k is station
-    ``station[k]`` reading target ``target[k]``; target i is command ``commands_mm[i]`` (x, y, z mm) with
-    tool ``tool[i]``; ``displacement_mm`` ΔL (mm); ``line`` the file line of every reading."""
-
-    station: np.ndarray
-    target: np.ndarray
-    commands_mm: np.ndarray
-    tool: np.ndarray
-    displacement_mm: np.ndarray
-    line: np.ndarray
-    source: str = "campaign"
-
-    def __len__(self) -> int:
-        return self.station.size
-
-    @property
-    def n_stations(self) -> int:
-        return int(self.station.max()) + 1
-
-    @property
-    def n_tools(self) -> int:
-        return int(self.tool.max()) + 1
-
-    def digest(self) -> dict:
-        """{"readings", "sha256"} of the readings used (station, target, x, y, z, tool, ΔL per reading)."""
-        c = self.commands_mm[self.target]
-        return data_digest(self.station, self.target, c[:, 0], c[:, 1], c[:, 2], self.tool[self.target],
-                           self.displacement_mm)
-
-
-def volumetric_campaign(data, source: str = "") -> VolumetricCampaign:
-    """A :class:`VolumetricCampaign` from a machine campaign (``multilateration.MachineCampaign`` read with
-    ``z_cmd_mm``; its ``tool`` per target, 0 when absent); one-line error when it has no z."""
+def volumetric_campaign(data, source: str = ""):
+    """The 3D machine campaign (``multilateration.MachineCampaign`` read with ``z_cmd_mm``: reading k is
+    station ``station[k]`` reading target ``target[k]``; target i is command ``commands_mm[i]`` (x, y, z mm)
+    with tool ``tool[i]``), checked for the volumetric model; one-line error when it has no z."""
     src = source or getattr(data, "source", "") or "campaign"
     c = np.asarray(data.commands_mm, float)
     if c.ndim != 2 or c.shape[1] != 3:
         raise InputError(f"{src}: the volumetric model needs 3D commands: column 'z_cmd_mm' is missing "
                          f"(formats.md, Machine tool in 3D)")
-    tool = getattr(data, "tool", None)
-    tool = np.zeros(len(c), int) if tool is None else np.asarray(tool).astype(int)
-    if tool.shape != (len(c),):
-        raise InputError(f"{src}: one tool index per target expected, got {tool.shape}")
-    return VolumetricCampaign(np.asarray(data.station, int), np.asarray(data.target, int), c, tool,
-                              np.asarray(data.displacement_mm, float), np.asarray(data.line, int), src)
+    if np.shape(data.tool) != (len(c),):
+        raise InputError(f"{src}: one tool index per target expected, got {np.shape(data.tool)}")
+    return data
 
 
 @dataclass
@@ -131,7 +99,7 @@ def default_knot_spacing(commands_mm) -> float:
     return float(np.ceil(spacing * 10.0 - 1e-9) / 10.0)
 
 
-def machine_config(data: VolumetricCampaign, options: VolumetricOptions) -> MachineConfig:
+def machine_config(data: MachineCampaign, options: VolumetricOptions) -> MachineConfig:
     """The machine of the campaign: travel = the commanded range per axis, the options' tools and knots."""
     c = data.commands_mm
     for k, a in enumerate(AXES):
@@ -163,7 +131,7 @@ def machine_config(data: VolumetricCampaign, options: VolumetricOptions) -> Mach
     return config
 
 
-def _check_positions(data: VolumetricCampaign, config: MachineConfig) -> None:
+def _check_positions(data: MachineCampaign, config: MachineConfig) -> None:
     """Refuse, naming the axis, a spline richer than the campaign's positions along it: an angular motion
     has n_basis − 1 free coefficients (0 at the start), so the axis needs n_basis distinct positions --
     otherwise a combination of coefficients vanishing at every position is seen by no reading (this is
@@ -230,7 +198,7 @@ class VolumetricIdentification(LeastSquaresProgram):
     rank_hint = "add stations, tool offsets or commands spread over the travel"
     untouched_hint = "every station needs readings of targets spread over the travel"
 
-    def __init__(self, data: VolumetricCampaign, options: VolumetricOptions = None):
+    def __init__(self, data: MachineCampaign, options: VolumetricOptions = None):
         o = options or VolumetricOptions()
         self.data = data
         self.config = machine_config(data, o)
@@ -368,7 +336,7 @@ class VolumetricIdentification(LeastSquaresProgram):
         return VolumetricResult(self.model, theta, E @ f.covariance @ E.T, P, L0,
                                 f.std[self.n_model:self.n_model + 3 * n_j].reshape(n_j, 3),
                                 f.std[self.n_model + 3 * n_j:], f, self.gauge, dict(self.held),
-                                self.observability.describe(), self.data.digest(),
+                                self.observability.describe(), campaign_digest(self.data),
                                 f"linear propagation (JCGM 100) of the budget '{budget.name}'",
                                 self.options.pitch_mm)
 
@@ -413,6 +381,6 @@ class VolumetricResult:
                  "notes": list(f.notes)})
 
 
-def identify_volumetric(data: VolumetricCampaign, options: VolumetricOptions = None, budget=None) -> VolumetricResult:
+def identify_volumetric(data: MachineCampaign, options: VolumetricOptions = None, budget=None) -> VolumetricResult:
     """Identify the 21 error motions from a 3D distance campaign (see the module docstring)."""
     return VolumetricIdentification(data, options).solve(budget)
