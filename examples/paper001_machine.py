@@ -34,7 +34,8 @@ from olti_drake.estimation.multilateration import Multilateration, Multilaterati
 from olti_drake.sim.references import DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset
 from olti_drake.estimation.station_estimation import (CentreOptions, RotaryStation, ZeroAngleOptions, estimate_rotation_centre,
                                            estimate_zero_angle, positioning_accuracy_um)
-from olti_drake.estimation.uncertainty import ReadingErrors, monte_carlo
+from olti_drake.estimation.uncertainty import monte_carlo
+from olti_drake.io.budget import ReadingErrors
 
 #: 001 §3.2: where the linear interferometer measured (Y for the X line, X for the Y line), mm.
 LASER_LINES = {"x": 52.3, "y": 71.3}

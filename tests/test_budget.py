@@ -61,7 +61,7 @@ def test_paper001_file_matches_table_4():
     assert b.combined("beam_direction") == pytest.approx(
         1e-6 * np.sqrt(2.8**2 + 22.0**2 + 35.2**2 + 60.6**2) / 2, rel=1e-12)
     # Table 4: u4 < 0.01 µm on the reading -- the cosine error D ψ²/2 (std D u_ψ²/√2) even at D = 1 m.
-    from olti_drake.estimation.uncertainty import ReadingErrors
+    from olti_drake.io.budget import ReadingErrors
     with_beam = ReadingErrors(b).std([1000.0])[0]
     without = np.hypot(b.combined("reading"), b.combined("pose"))
     assert um * np.sqrt(with_beam**2 - without**2) < 0.01
@@ -108,7 +108,7 @@ def test_typo_in_top_level_key_and_missing_file(tmp_path):
 
 # -- a budget that cannot be right is refused (issue 11, item 4) ------------------------------------------
 def test_budget_without_a_nonzero_contributor_is_refused_where_built_and_where_propagated():
-    from olti_drake.estimation.uncertainty import ReadingErrors
+    from olti_drake.io.budget import ReadingErrors
 
     with pytest.raises(InputError, match="no contributors"):
         Budget("empty").validate()

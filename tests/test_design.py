@@ -105,7 +105,8 @@ def test_cached_evaluator_equals_a_fresh_identification(paper):
     np.testing.assert_allclose(reused, fresh, rtol=1e-12)
     # Through the public Identifier path by hand: synthetic campaign, truth as x.
     from olti_drake.estimation.identification import IdentificationOptions, Identifier
-    from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance, prediction_std
+    from olti_drake.estimation.uncertainty import linear_covariance, prediction_std
+    from olti_drake.io.budget import ReadingErrors
 
     data, d0 = D.synthetic_campaign(model, D.measured_commands(plan), other)
     assert np.allclose(data.displacement_mm[data.reflector == 0][0], 0.0)

@@ -98,22 +98,45 @@ def test_identify_errormap_recovers_the_backlash_of_a_truth_outside_the_model(er
     assert "rigid motion of the robot together with the stations" in res["gauge"]
 
 
-def test_seven_joint_floating_root_with_fingers(tmp_path):
-    """The 7-joint arm (floating root welded, finger joints ignored, a continuous joint): a dh campaign of
-    its own truth is identified; the result names the 7 chain joints only."""
+@pytest.fixture(scope="module")
+def arm7(tmp_path_factory):
+    """The 7-joint arm (floating root welded, finger joints ignored, a continuous joint): its own truth, a dh
+    result from 80 one-directional poses x 4 stations."""
+    d = tmp_path_factory.mktemp("arm7")
     chain = load_robot(DATA / "arm7_floating.urdf", "tcp")
     truth = synthetic_truth(chain, seed=7, tool_offset_mm=(20.0, 10.0, 30.0))
     camp = synthetic_campaign(truth, 80, seed=8, noise_mm=NOISE_MM, directions=False)
-    write_distance(tmp_path / "c.csv", camp, dirs=False)
-    olti("identify", tmp_path / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
-         "--tool-offset-mm=20,10,30", "--model", "dh", "--out", tmp_path / "r.json")
-    res = json.loads((tmp_path / "r.json").read_text())
+    write_distance(d / "c.csv", camp, dirs=False)
+    olti("identify", d / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
+         "--tool-offset-mm=20,10,30", "--model", "dh", "--out", d / "r.json")
+    return d, chain
+
+
+def test_seven_joint_floating_root_with_fingers(arm7):
+    """The result names the 7 chain joints only (no finger), the model file relative to itself, a tool offset
+    near the truth's, and fits the harmonic truth as a dh model can (< 0.2 mm RMS)."""
+    d, _ = arm7
+    res = json.loads((d / "r.json").read_text())
     assert res["robot"]["joints"] == ["j1", "j2", "j3", "j4", "j5", "j6", "j7"]
-    assert res["robot"]["file"] == os.path.relpath(DATA / "arm7_floating.urdf", tmp_path)
+    assert res["robot"]["file"] == os.path.relpath(DATA / "arm7_floating.urdf", d)
     assert np.abs(np.array(res["tool_offset_mm"]) - (20.0, 10.0, 30.0)).max() < 1.0
     assert {k.split("_")[0] for k in res if k.endswith(("_dx_mm", "_drx_deg", "_offset_deg"))} <= set(
         res["robot"]["joints"])
     assert res["residual_rms_mm"] < 0.2
+
+
+def test_missing_meshes_are_noted_once_and_identified(tmp_path):
+    """A model whose meshes cannot be found identifies (kinematics only) and says so once, in the output and
+    the result's notes."""
+    chain = load_robot(DATA / "missing_mesh.urdf", "tool")
+    truth = synthetic_truth(chain, seed=2, tool_offset_mm=(10.0, 5.0, 0.0))
+    camp = synthetic_campaign(truth, 40, seed=3, noise_mm=NOISE_MM, directions=False)
+    write_distance(tmp_path / "c.csv", camp, dirs=False)
+    out = olti("identify", tmp_path / "c.csv", "--robot", DATA / "missing_mesh.urdf", "--tool-frame", "tool",
+               "--tool-offset-mm=10,5,0", "--model", "dh", "--out", tmp_path / "r.json").stdout
+    assert out.count("mesh file(s) cannot be found") == 1
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert sum("cannot be found" in n for n in res["notes"]) == 1 and res["robot"]["joints"] == ["j1", "j2"]
 
 
 def test_point_campaign_identifies_the_tracker_frame(tmp_path, truth):
@@ -170,9 +193,12 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, files):
          f"nan.csv:{k + 3}: column 'displacement_mm': nan is not finite"),
         (["identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--grid1-deg", "0:10:5"],
          "--grid1-deg is a SCARA option"),
+        (["identify", d / "campaign.csv", "--grid-step-deg", "5"], "--grid-step-deg needs --robot FILE"),
+        (["uncertainty", d / "truth.json", d / "campaign.csv", "--method", "linear"],
+         "a simulation truth, not an identified result"),
     ]
     for args, expect in cases:
-        err = olti(*args, *base, expect=2).stderr
+        err = olti(*args, *(base if args[0] == "identify" else base[2:]), expect=2).stderr
         assert expect in err, (args, err)
         assert not out.exists()
 
@@ -223,3 +249,78 @@ def test_predict_cross_validates_on_held_out_readings(errormap_result, files, ur
     err = olti("predict", result, d / "outside.csv", "--out", d / "p2.csv", expect=2).stderr
     assert f"outside.csv:{k + 1}:" in err and "--outside clamp" in err and not (d / "p2.csv").exists()
     olti("predict", result, d / "outside.csv", "--out", d / "p2.csv", "--outside", "clamp")
+
+
+def _targets(path, chain, commands, dirs=None, tool=TOOL, shift=None):
+    """targets.csv: the nominal chain's tool points at the nominal poses (what the program means), the poses
+    and their directions."""
+    from olti_drake.io.csvio import write_table
+
+    t = chain.positions(commands, chain.nominal_parameters(tool)) + (0.0 if shift is None else shift)
+    cols = {"x_mm": t[:, 0], "y_mm": t[:, 1], "z_mm": t[:, 2]}
+    cols.update({f"theta{i + 1}_deg": commands[:, i] for i in range(commands.shape[1])})
+    if dirs is not None:
+        cols.update({f"dir{i + 1}": dirs[:, i] for i in range(commands.shape[1])})
+    write_table(path, cols, {f"dir{i + 1}": "%d" for i in range(commands.shape[1])})
+    return t
+
+
+def test_compensate_puts_the_true_tool_point_on_the_targets(errormap_result, files, truth, ur5):
+    """Targets = the nominal chain's tool points at 30 nominal poses (elbow kept 15 deg off the stretched
+    singularity and inside the identified grids). Executed on the truth with their directions, the
+    compensated commands hit the targets within 0.05 mm once the base placement (a rigid motion: the gauge,
+    which distances cannot see) is registered, 10 x better than the uncompensated commands; by the model the
+    residual is below 1e-6 mm and the tool orientation stays the nominal pose's; directions are unchanged;
+    a target out of reach is refused naming its line, nothing written. --urdf-out: Drake's FK of the written
+    URDF at the commands equals the identified model's geometric part to 1e-6 mm."""
+    d, _, _ = files
+    result, _ = errormap_result
+    ranges = RANGES.copy()
+    ranges[2] = (30.0, 120.0)
+    camp = synthetic_campaign(truth, 30, seed=11, ranges_deg=ranges - np.array([-15.0, 15.0]))
+    targets = _targets(d / "targets.csv", ur5, camp.commands, camp.dirs)
+    olti("compensate", result, d / "targets.csv", "--out", d / "commands.csv", "--tables", d / "tables",
+         "--urdf-out", d / "identified.urdf")
+    c = _read_csv(d / "commands.csv")
+    cmd = np.column_stack([c[f"theta{i}_deg"] for i in range(1, 7)])
+    dirs = np.column_stack([c[f"dir{i}"] for i in range(1, 7)])
+    assert np.array_equal(dirs, camp.dirs) and c["residual_mm"].max() < 1e-6
+    assert c["orientation_change_deg"].max() < 1e-4
+    hit = np.linalg.norm(_rigid_residual(truth.positions(cmd, dirs), targets), axis=1)
+    plain = np.linalg.norm(_rigid_residual(truth.positions(camp.commands, camp.dirs), targets), axis=1)
+    assert hit.max() < 0.05 and plain.max() > 10 * hit.max(), (hit.max(), plain.max())
+    table = _read_csv(d / "tables" / "elbow_joint_compensation.csv")
+    assert set(table) >= {"angle_deg", "forward_command_deg", "reverse_command_deg"}
+    # the identified URDF, loaded by Drake
+    from olti_drake.io.serial_io import load_serial_result
+    from olti_drake.model.chain import drake_kinematics
+
+    model = load_serial_result(result).model
+    written = load_robot(d / "identified.urdf", "tool0_tool_point")
+    p_drake, _ = drake_kinematics(written, cmd, jacobian=False)
+    assert np.abs(p_drake - model.chain.positions(cmd, model.chain_parameters(model.start_vector()))).max() < 1e-6
+    # out of reach: refused, naming the line
+    _targets(d / "far.csv", ur5, camp.commands[:3], camp.dirs[:3], shift=np.array([0.0, 0.0, 5000.0]))
+    err = olti("compensate", result, d / "far.csv", "--out", d / "far_cmd.csv", expect=2).stderr
+    assert "far.csv:2: target" in err and "cannot be reached" in err and not (d / "far_cmd.csv").exists()
+
+
+def test_compensate_seven_joints_keeps_the_nominal_null_space_choice(arm7):
+    """A dh result of the 7-joint arm: compensated commands stay near the nominal poses (median largest joint
+    change < 0.3 deg, all < 2 deg: the redundant joint is not wandered off), hit the targets by the model, and
+    the URDF round trip holds with the dh offsets folded into the joint origins."""
+    from olti_drake.io.serial_io import load_serial_result
+    from olti_drake.model.chain import drake_kinematics
+
+    tmp_path, chain = arm7
+    poses = chain.random_angles(10, seed=21) * 0.5
+    _targets(tmp_path / "t.csv", chain, poses, tool=(20.0, 10.0, 30.0))
+    olti("compensate", tmp_path / "r.json", tmp_path / "t.csv", "--out", tmp_path / "cmd.csv", "--urdf-out",
+         tmp_path / "arm7_identified.urdf")
+    c = _read_csv(tmp_path / "cmd.csv")
+    cmd = np.column_stack([c[f"theta{i}_deg"] for i in range(1, 8)])
+    moved = np.abs(cmd - poses).max(axis=1)
+    assert np.median(moved) < 0.3 and moved.max() < 2.0 and c["residual_mm"].max() < 1e-6
+    model = load_serial_result(tmp_path / "r.json").model
+    p_drake, _ = drake_kinematics(load_robot(tmp_path / "arm7_identified.urdf", "tcp_tool_point"), cmd, jacobian=False)
+    assert np.abs(p_drake - model.positions(cmd)).max() < 1e-6

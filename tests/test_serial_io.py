@@ -139,3 +139,22 @@ def test_truth_with_fine_maps_loads_as_a_model(tmp_path, chain, truth, camp):
     assert err.max() < 1e-3  # 0.05 deg nodes: interpolation of the harmonics well below a micrometre
     with pytest.raises(InputError, match="a simulation truth"):
         load_serial_result(tmp_path / "truth.json", identified=True)
+
+
+def test_compensation_refuses_a_command_beyond_the_joint_limits():
+    """The model's joint limits are respected where the tool proposes commands: a target whose command lies
+    beyond j1's limit (3 rad = 171.9 deg) is refused naming the line, the joint and the limit."""
+    from pathlib import Path
+
+    from olti_drake.estimation.serial_compensation import compensate_serial
+
+    chain = load_robot(Path(__file__).parent / "data" / "missing_mesh.urdf", "tool")
+    model = build_position_model(chain, np.array([[0.0, 0.0], [10.0, 20.0], [-30.0, 5.0]]), kind="dh",
+                                 tool_offset_mm=(10.0, 5.0, 0.0))
+    nominal = np.array([[160.0, 10.0], [168.0, 10.0]])
+    inside = compensate_serial(model, model.positions(nominal), nominal, source="t.csv")
+    assert inside.residual_mm.max() < 1e-6 and np.abs(inside.correction_deg).max() < 1e-6
+    target = model.positions(np.array([[160.0, 10.0], [175.0, 10.0]]))
+    with pytest.raises(InputError, match=r"t.csv:3: the compensated command of j1 is 175 deg, beyond its limit "
+                                         r"171.887 deg"):
+        compensate_serial(model, target, nominal, lines=[2, 3], source="t.csv")

@@ -21,7 +21,8 @@ from olti_drake.io.budget import Budget, load_budget
 from olti_drake.sim.campaign import prepare, simulate_vectorized, write_campaign
 from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
 from olti_drake.sim.scenario import Scenario
-from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, ReadingErrors, linear_covariance,
+from olti_drake.io.budget import ReadingErrors
+from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.report.validation import campaign_data, random_commands
 
@@ -245,7 +246,7 @@ def _values_layout(result: dict) -> dict:
 def test_cli_writes_uncertainty_json(files, method, capsys):
     from olti_drake.cli import main
     from olti_drake.io.campaign_io import load_campaign
-    from olti_drake.estimation.uncertainty import identifier_at_result
+    from olti_drake.estimation.identification import identifier_at_result
 
     d, csv, result = files
     out = d / f"unc_{method}.json"
@@ -308,7 +309,7 @@ def test_cli_map_figures(files, capsys):
         assert not any(lab.startswith("truth") for lab in legend_labels(ax))
     # The named budget is the one propagated, not only the one reported (001 Table 4 differs from 000 Table 2).
     from olti_drake.io.campaign_io import load_campaign
-    from olti_drake.estimation.uncertainty import identifier_at_result
+    from olti_drake.estimation.identification import identifier_at_result
 
     ident, x = identifier_at_result(result, load_campaign(csv))
     for name, expect in (("paper001", True), ("paper000", False)):

@@ -40,13 +40,18 @@ def identify(args) -> int:
             raise ValueError(f"{flag} is a SCARA option; with --robot the model uses {instead}")
     if not args.tool_frame:
         raise ValueError(f"--robot {args.robot}: give the tool frame with --tool-frame NAME")
+    if args.tool_offset_mm and len(args.tool_offset_mm) != 1:
+        raise ValueError(f"--tool-offset-mm: one point x,y,z (mm), got {len(args.tool_offset_mm)}")
     _preflight(args, [args.out], [args.campaign, args.budget, _robot_input(args.robot)])
     chain = load_robot(args.robot, args.tool_frame)
+    for note in chain.notes:  # said once, before the work (and kept in the result's notes)
+        print(f"note: {note}", flush=True)
     campaign = read_serial_campaign(args.campaign, chain.n_joints, robot=args.robot)
     options = SerialIdentificationOptions(
         model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
-        grid_step_deg=args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
-        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+        grid_step_deg=15.0 if args.grid_step_deg is None else args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
+        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver,
+        compliance=args.compliance, drift=args.drift)
     if args.budget:
         from olti_drake.io.budget import load_budget
 
@@ -56,8 +61,6 @@ def identify(args) -> int:
                                 measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
                                 campaign_digest=campaign.digest(), notes=list(chain.notes) + ident.notes)
     write_serial_result(args.out, result)
-    for note in chain.notes:
-        print(f"note: {note}")
     print(summary(ident))
     print(f"wrote {args.out}")
     return 0
@@ -82,7 +85,7 @@ def _commands(res, path, required=(), integer=(), valid_only=False):
     from olti_drake.io.serial_io import read_joint_table
 
     model = res.model
-    jt = read_joint_table(path, model.chain.n_joints, required, integer=integer,
+    jt = read_joint_table(path, model.chain.n_joints, required, ("time_s",), integer=integer,
                           robot=res.data["robot"]["file"], valid_only=valid_only)
     if jt.dirs is None and model.bidirectional:
         raise ValueError(f"{path}: no direction columns, but the error maps of {res.data['robot']['file']} in the "
@@ -139,7 +142,8 @@ def predict(args) -> int:
                "predicted_displacement_mm": pred}
         miss = pred - jt.table["displacement_mm"]
         text += (f" and readings of {args.commands} ({jt.table['_skipped']} rows with valid = 0 skipped): "
-                 f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, max {1e3 * np.abs(miss).max():.3f} um")
+                 f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, "
+                 f"max {1e3 * np.abs(miss).max():.3f} um")
     write_table(args.out, out, fmt, comments=[f"olti predict: {args.result} applied to {args.commands}; "
                                               f"tool point in the robot's root frame; mm and degrees"])
     print(text)
@@ -163,4 +167,75 @@ def _predicted_readings(res, jt, p, scol, path):
                          f"identified ({', '.join(str(j) for j in labels)})")
     idx = np.searchsorted(labels, station) if np.all(np.diff(labels) > 0) else np.array(
         [list(labels).index(j) for j in station])
-    return np.linalg.norm(p - res.stations_mm[idx], axis=1) - res.dead_paths_mm[idx]
+    d0 = res.dead_paths_mm[idx]
+    if "drift_mm_per_h" in res.data:  # --drift: d0_j(t) = d0_j + v_j (t - t_ref_j); without times, at t_ref_j
+        if "time_s" not in jt.table:
+            raise ValueError(f"{path}: the result has a dead-path drift (--drift): predicted_displacement_mm needs "
+                             f"the 'time_s' column of every reading")
+        v = np.asarray(res.data["drift_mm_per_h"], float)[idx]
+        ref = np.asarray(res.data["drift_reference_h"], float)[idx]
+        d0 = d0 + v * (jt.table["time_s"] / 3600.0 - ref)
+    return np.linalg.norm(p - res.stations_mm[idx], axis=1) - d0
+
+
+def compensate(args) -> int:
+    """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]`` for a
+    serial robot: targets x_mm, y_mm, z_mm with their nominal pose theta1_deg .. thetaN_deg (and dirs)."""
+    import numpy as np
+
+    from olti_drake.estimation.compensation import compensation_table
+    from olti_drake.estimation.serial_compensation import compensate_serial
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.serial_io import load_serial_result
+
+    res = load_serial_result(args.result, outside=args.outside)
+    model = res.model
+    tables = [os.path.join(args.tables, f"{m.joint}_compensation.csv") for m in model.maps] if args.tables else []
+    _preflight(args, [args.out, args.urdf_out] + tables,
+               [args.result, args.targets, res.robot_path], dirs=[args.tables] if args.tables else [])
+    if args.tables and not model.maps:
+        raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is "
+                         f"'{model.kind}'")
+    jt = _commands(res, args.targets, ("x_mm", "y_mm", "z_mm"))
+    targets = np.column_stack([jt.table[c] for c in ("x_mm", "y_mm", "z_mm")])
+    comp = compensate_serial(model, targets, jt.commands, jt.dirs, jt.line, args.targets)
+    from olti_drake.io.serial_io import JointTable
+
+    out, fmt = _joint_columns(JointTable(comp.commands, jt.dirs, jt.table, jt.source))
+    out.update({"x_mm": targets[:, 0], "y_mm": targets[:, 1], "z_mm": targets[:, 2],
+                "residual_mm": comp.residual_mm, "orientation_change_deg": comp.orientation_change_deg})
+    fmt.update({"x_mm": "%.6f", "y_mm": "%.6f", "z_mm": "%.6f", "residual_mm": "%.3g",
+                "orientation_change_deg": "%.3g"})
+    write_table(args.out, out, fmt, comments=[
+        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
+        "executed with these directions the commands put the tool point on x_mm, y_mm, z_mm by the model; "
+        "residual_mm: how far by the model; orientation_change_deg: tool orientation off the nominal pose's"])
+    corr = np.abs(comp.correction_deg)
+    print(f"compensated {len(targets)} targets ({model.kind} model of {res.data['robot']['file']}): "
+          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm, corrections up to "
+          f"{1e3 * corr.max():.2f} mdeg, tool orientation kept within {comp.orientation_change_deg.max():.2g} deg")
+    print(f"wrote {args.out}")
+    if tables:
+        from olti_drake.io.outputs import make_dir
+
+        make_dir(args.tables)
+    for m, path in zip(model.maps, tables):
+        write_table(path, compensation_table(m.emap), {}, comments=[
+            f"olti compensate: bidirectional compensation table of {m.joint} from {args.result}; degrees",
+            "angle_deg: wanted actual angle (map node); forward/reverse_command_deg: the command to send when "
+            "approaching in +1/-1 (000 Eq. 7 inverted)"])
+        print(f"wrote {path}")
+    if args.urdf_out:
+        from olti_drake.io.identified_urdf import write_identified_urdf
+
+        point = write_identified_urdf(model, res.robot_path, args.urdf_out, f"Result: {args.result}.")
+        print(f"wrote {args.urdf_out} (identified joint origins; tool point = link '{point}')")
+    return 0
+
+
+def refuse_serial_result(path, verb: str) -> None:
+    """One line for a verb that does not take a serial robot's result (yet), instead of a SCARA key error."""
+    if is_serial_result(path):
+        raise ValueError(f"{path}: a serial robot's result (olti identify --robot); olti {verb} takes SCARA and "
+                         f"machine-tool results only so far -- its 'uncertainty' object holds the linear standard "
+                         f"uncertainties (k = 1) of every parameter")

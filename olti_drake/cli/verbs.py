@@ -217,6 +217,11 @@ def cmd_identify(args) -> int:
         if not args.robot:
             raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
         return identify(args)
+    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg),
+                        ("--compliance", args.compliance or None), ("--drift", args.drift or None)):
+        if value is not None:
+            raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
+                             f"--nominal-mm and --grid1-deg/--grid2-deg")
     from olti_drake.io.campaign_io import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
@@ -385,7 +390,8 @@ def _uncertainty_multilateration(args, t0) -> int:
     from olti_drake.io.campaign_io import check_campaign_matches
     from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
     from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import ReadingErrors, uncertainty_dict
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
 
     if args.maps:
         raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
@@ -445,7 +451,9 @@ def cmd_uncertainty(args) -> int:
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
     from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, uncertainty_dict
+    from olti_drake.estimation.identification import identifier_at_result
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors
 
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
     from olti_drake.estimation.uncertainty import round_trials
@@ -453,6 +461,12 @@ def cmd_uncertainty(args) -> int:
     if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
         raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
+    from olti_drake.cli.serial_verbs import is_serial_result
+
+    if is_serial_result(args.result):
+        from olti_drake.cli.serial_uncertainty import uncertainty
+
+        return uncertainty(args, _propagate)
     if _result_format(args.result) == "olti-multilateration/1":
         return _uncertainty_multilateration(args, time.perf_counter())
     budget = budget_or_default(args.budget, "scara")
@@ -531,6 +545,13 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
+    from olti_drake.io.csvio import read_json
+
+    if isinstance(read_json(args.result, ("olti-result/1",), "a result").get("robot"), dict):
+        from olti_drake.cli.serial_design import design
+
+        _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
+        return design(args)
     from olti_drake.io.budget import budget_or_default
     from olti_drake.estimation.design import (DesignReport, LayoutEvaluator, candidate_grid, design_layout,
                                               evaluate_layout, load_regions, measured_commands, workspace_commands)
@@ -641,6 +662,12 @@ def cmd_report(args) -> int:
 
 def cmd_compensate(args) -> int:
     """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
+    from olti_drake.cli.serial_verbs import compensate, is_serial_result
+
+    if is_serial_result(args.result):
+        return compensate(args)
+    if args.urdf_out:
+        raise ValueError("--urdf-out needs the result of a robot model file (olti identify --robot)")
     from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
     from olti_drake.io.result import load_result
 
@@ -770,9 +797,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA campaign",
+    p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA or serial-robot campaign",
                        description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "
-                                   "from a campaign CSV; print a summary; write RESULT.json.")
+                                   "from a campaign CSV; print a summary; write RESULT.json. With --robot FILE "
+                                   "--tool-frame NAME: any serial robot Drake loads (URDF/SDFormat; ur5 and scara "
+                                   "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
+                                   "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
     p.add_argument("--model", choices=("dh", "errormap"), required=True)
     p.add_argument("--out", required=True, help="result JSON to write")
@@ -790,15 +820,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
-    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=15.0,
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
                    help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
+    p.add_argument("--compliance", action="store_true",
+                   help="with --robot: joint compliance under gravity, c_i deg/(N m) times the gravity torque from the "
+                        "model file's masses (joints with too little torque variation are dropped by name)")
+    p.add_argument("--drift", action="store_true",
+                   help="with --robot: linear drift of each station's dead path in time, mm/h (distance campaigns "
+                        "with a time_s column)")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
                        description="Apply an identified model to commands (formats.md commands.csv); write "
-                                   "the commands with the predicted x_mm, y_mm.")
+                                   "the commands with the predicted x_mm, y_mm. A serial robot's result: "
+                                   "theta1_deg .. thetaN_deg [, dir1 .. dirN] in, x_mm, y_mm, z_mm out; a distance "
+                                   "campaign given as FILE also gets predicted_displacement_mm (cross-validation).")
     p.add_argument("result", help="result JSON from olti identify")
     p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
     p.add_argument("--out", required=True, help="prediction CSV to write")
@@ -851,6 +889,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
                         "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
+    p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=400,
+                   help="robots from a model file: seeded workspace poses where the predicted tool point's u is "
+                        "evaluated (default 400)")
     p.add_argument("--maps", help="PNG: identified maps with these error bars (000 Fig. 6 style)")
     p.add_argument("--out", required=True, help="uncertainty JSON to write")
     _add_force(p)
@@ -877,7 +918,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
                    help="candidate grid step in the regions (default 50)")
     p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
-                   help="step of the workspace XY grid the cost is evaluated on (default 50)")
+                   help="step of the workspace XY grid the cost is evaluated on (default 50; SCARA)")
+    p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=300,
+                   help="seeded workspace poses the cost is evaluated at (default 300; robots from a model file)")
     p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the random starts (default 0)")
     p.add_argument("--starts", type=cliargs.count, default=3, help="random starts (default 3)")
     p.add_argument("--max-sweeps", type=cliargs.count, default=5, help="exchange sweeps per start at most (default 5)")
@@ -924,7 +967,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "theta2_deg and approach directions that put the end effector on it. Without "
                                    "dir columns the directions follow the compensated sequence itself "
                                    "(formats.md rule). Targets beyond the reach or the map grid are refused "
-                                   "with their line. mm and degrees.")
+                                   "with their line. A serial robot's result: TARGETS.csv has x_mm, y_mm, z_mm "
+                                   "and the nominal pose theta1_deg .. thetaN_deg [, dir1 .. dirN]; the commands "
+                                   "keep the nominal pose's tool orientation and directions. mm and degrees.")
     p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
     p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
     p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
@@ -932,6 +977,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tables", help="also write J1_compensation.csv and J2_compensation.csv (bidirectional "
                                     "compensation tables at the map nodes) into this directory")
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
+    p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
+                                      "identified joint origins and the tool point as a link")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)

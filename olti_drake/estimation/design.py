@@ -277,7 +277,8 @@ class LayoutEvaluator:
 
         Raises UnidentifiableError when the campaign cannot determine the parameters.
         """
-        from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance, prediction_std
+        from olti_drake.estimation.uncertainty import linear_covariance, prediction_std
+        from olti_drake.io.budget import ReadingErrors
 
         errors = budget if isinstance(budget, ReadingErrors) else ReadingErrors(budget)
         ident, x = self.identifier(reflectors_mm)

@@ -318,7 +318,8 @@ class Multilateration(LeastSquaresProgram):
         self._solve_budget = budget
         f = self.fit()
         if budget is not None:
-            from olti_drake.estimation.uncertainty import ReadingErrors, linear_covariance  # builds on this layer
+            from olti_drake.estimation.uncertainty import linear_covariance  # builds on this layer
+            from olti_drake.io.budget import ReadingErrors
 
             f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
             f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))

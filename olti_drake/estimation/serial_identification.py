@@ -24,7 +24,7 @@ to the data cost ½ Σ r². Units: mm and degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -51,6 +51,10 @@ class SerialIdentificationOptions(SolverOptions):
     model: str = "errormap"
     tool_offset_mm: Sequence[float] = (0.0, 0.0, 0.0)
     grid_step_deg: float = 15.0
+    #: Joint compliance under gravity (``--compliance``, :func:`~olti_drake.model.serial.build_position_model`).
+    compliance: bool = False
+    #: Dead-path drift of every station in time (``--drift``; distance campaigns with ``time_s``).
+    drift: bool = False
 
 
 @dataclass
@@ -128,11 +132,16 @@ def start_frame(model, campaign) -> np.ndarray:
 def build_problem(chain, campaign, options: SerialIdentificationOptions):
     """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame)."""
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
-                                 grid_step_deg=options.grid_step_deg, tool_offset_mm=options.tool_offset_mm)
+                                 grid_step_deg=options.grid_step_deg, tool_offset_mm=options.tool_offset_mm,
+                                 compliance=options.compliance)
+    if options.drift and (campaign.kind != "distance" or campaign.time_s is None):
+        raise InputError(f"{campaign.source}: --drift needs a distance campaign with a 'time_s' column (the time of "
+                         f"every reading, s)")
     if campaign.kind == "distance":
         P, d0 = start_stations(model, campaign)
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
-                                   campaign.displacement_mm, P, d0)
+                                   campaign.displacement_mm, P, d0,
+                                   time_h=campaign.time_s / 3600.0 if options.drift else None)
     return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
                             start_frame(model, campaign))
 

@@ -27,8 +27,7 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.sparse as sp
 
-from olti_drake.io.budget import Budget, ReadingErrors  # noqa: F401 (ReadingErrors re-exported)
-from olti_drake.estimation.identification import identifier_at_result  # noqa: F401 (re-exported)
+from olti_drake.io.budget import Budget, ReadingErrors
 from olti_drake.estimation.leastsquares import FitRefused
 from olti_drake.io.csvio import InputError
 from olti_drake.threads import single_thread_blas

@@ -34,7 +34,7 @@ from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSyste
 
 from olti_drake.io.csvio import InputError
 from olti_drake.model.errormap import approach_directions
-from olti_drake.hardware.drivers import AlarmActive, DriverError, open_serial  # noqa: F401 (open_serial re-exported)
+from olti_drake.hardware.drivers import AlarmActive, DriverError
 from olti_drake.hardware.protocol import ProtocolError, expect_ack, movj_fields
 from olti_drake.sim.scenario import SEED_STREAMS, stream_seed
 from olti_drake.sim.systems import ReadStatus, set_default_name

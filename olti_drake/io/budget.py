@@ -14,7 +14,7 @@ k with which that value is stated (the papers use k = 1 and k = 2), its type
 Standard uncertainties come out in mm (lengths) or rad (angles).
 
 A budget that cannot be right is refused where it is loaded (:func:`load_budget`) and before it is
-propagated (:class:`~olti_drake.estimation.uncertainty.ReadingErrors`), by :meth:`Budget.validate`: it needs at
+propagated (:class:`ReadingErrors`), by :meth:`Budget.validate`: it needs at
 least one contributor and one that is not zero (else every uncertainty would be 0 and a design would
 divide by it); every value must be finite, >= 0 and physically plausible -- a standard uncertainty
 (value/k) of at most :data:`MAX_LENGTH_MM` = 1000 mm (1 m) for a length and :data:`MAX_ANGLE_RAD` =

@@ -68,7 +68,10 @@ def load_campaign(path) -> CampaignData:
 
 
 def campaign_digest(data) -> dict:
-    """{"readings", "sha256"} of the valid readings a result was identified from (SCARA or machine campaign)."""
+    """{"readings", "sha256"} of the valid readings a result was identified from (SCARA, machine or N-joint
+    campaign: the last digests itself, ``SerialCampaign.digest``)."""
+    if hasattr(data, "digest"):
+        return data.digest()
     if hasattr(data, "commands_mm"):  # MachineCampaign
         return data_digest(data.station, data.target, data.commands_mm[data.target, 0],
                            data.commands_mm[data.target, 1], data.displacement_mm)

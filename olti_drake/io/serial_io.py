@@ -191,6 +191,8 @@ class SerialCampaign:
     displacement_mm: Optional[np.ndarray] = None
     points_mm: Optional[np.ndarray] = None
     n_skipped: int = 0
+    #: ``time_s`` (optional column): seconds since any origin, for the dead-path drift (``--drift``).
+    time_s: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return len(self.commands)
@@ -202,7 +204,8 @@ class SerialCampaign:
     def subset(self, rows) -> "SerialCampaign":
         pick = (lambda a: None if a is None else a[rows])
         return SerialCampaign(self.kind, self.commands[rows], pick(self.dirs), self.line[rows], self.source,
-                              pick(self.station), pick(self.displacement_mm), pick(self.points_mm), self.n_skipped)
+                              pick(self.station), pick(self.displacement_mm), pick(self.points_mm), self.n_skipped,
+                              pick(self.time_s))
 
     def digest(self) -> dict:
         """{"readings", "sha256"} of the valid readings (csvio.data_digest), as the SCARA results'."""
@@ -247,7 +250,8 @@ def read_serial_campaign(path, n_joints: Optional[int] = None, robot: str = "") 
         return SerialCampaign("point", jt.commands, jt.dirs, jt.line, name,
                               points_mm=np.column_stack([t[c] for c in POINT_COLUMNS]), n_skipped=t["_skipped"])
     col = station_column(path)
-    jt = read_joint_table(path, n_joints, (col, "displacement_mm"), integer=(col,), robot=robot, valid_only=True)
+    jt = read_joint_table(path, n_joints, (col, "displacement_mm"), ("time_s",), integer=(col,), robot=robot,
+                          valid_only=True)
     t = jt.table
     station = t[col]
     bad = np.flatnonzero(station < 0)
@@ -263,7 +267,7 @@ def read_serial_campaign(path, n_joints: Optional[int] = None, robot: str = "") 
                          f"{MIN_STATION_READINGS}: its position (x, y, z) and dead path take 4 before one says "
                          f"anything about the robot")
     return SerialCampaign("distance", jt.commands, jt.dirs, jt.line, name, station=station,
-                          displacement_mm=t["displacement_mm"], n_skipped=t["_skipped"])
+                          displacement_mm=t["displacement_mm"], n_skipped=t["_skipped"], time_s=t.get("time_s"))
 
 
 def write_serial_campaign(path, commands, dirs=None, *, station=None, displacement_mm=None, points_mm=None,
@@ -326,6 +330,8 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     out.update(measurement.layout(x))
     if hasattr(measurement, "labels"):  # the campaign's station index of each row of stations_mm
         out["station_labels"] = [int(j) for j in measurement.labels]
+    if getattr(measurement, "time_h", None) is not None:  # the drift's time origin per station (not a parameter)
+        out["drift_reference_h"] = measurement.drift_reference_h.tolist()
     held = {name: float(v) for name, v in zip(chain.parameter_names(), model.chain_params)
             if name not in model.names and name not in ("tool_x_mm", "tool_y_mm", "tool_z_mm") and v != 0.0}
     if held:
@@ -469,7 +475,8 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
         params[loc_names.index(k)] = float(json_numbers(data, name, k))
     for k, v in (data.get("held") or {}).items():
         if k not in loc_names:
-            raise InputError(f"{name}: key 'held.{k}' is not a location error of the chain ({', '.join(GEOMETRIC_SUFFIXES)})")
+            raise InputError(f"{name}: key 'held.{k}' is not a location error of the chain "
+                             f"(<joint>_{', '.join(GEOMETRIC_SUFFIXES)})")
         params[loc_names.index(k)] = float(json_numbers(data["held"], name, k, label=f"held.{k}"))
     params[6 * n:] = json_numbers(data, name, "tool_offset_mm", (3,))
     offsets = [j for j in chain.joint_names if f"{j}_offset_deg" in data]
@@ -482,8 +489,11 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
                              f"absorbs the offset)")
         offset_values, maps = None, _load_maps(data, name, chain, outside, JointMap, ErrorMap)
     dropped = [(d.get("parameter", "?"), d.get("reason", "")) for d in data.get("dropped", []) if isinstance(d, dict)]
+    compliant = [j for j in chain.joint_names if f"{j}_compliance_deg_per_Nm" in data]
+    compliance = [float(json_numbers(data, name, f"{j}_compliance_deg_per_Nm")) for j in compliant]
     try:
-        model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values)
+        model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values,
+                                    compliant, compliance)
     except ValueError as e:
         raise InputError(f"{name}: {e}") from None
     P = json_numbers(data, name, "stations_mm", (None, 3)) if "stations_mm" in data else None

@@ -390,6 +390,38 @@ def drake_kinematics(chain: SerialChain, theta_deg, tool_offset_mm=(0.0, 0.0, 0.
     return positions, jac
 
 
+def gravity_torques(chain: SerialChain, theta_deg, payload_kg: float = 0.0, tool_offset_mm=(0.0, 0.0, 0.0)):
+    """Torque gravity applies about each chain joint, (M, N) N·m, at joint angles (M, N) deg.
+
+    From the model file's masses and centres of mass by Drake's ``CalcGravityGeneralizedForces``
+    (the nominal plant; joints off the chain at their default positions), plus an optional point
+    ``payload_kg`` at the tool point. The sign is Drake's: the generalized force gravity exerts, so a
+    compliant joint deflects by +c·τ (the joint compliance model of ``--compliance``). A model
+    without inertial data gives zeros (and the compliance is then not identifiable, said by name).
+    """
+    from pydrake.multibody.tree import JacobianWrtVariable
+
+    plant = chain.plant
+    context = plant.CreateDefaultContext()
+    joints = [plant.GetJointByName(name) for name in chain.joint_names]
+    vstarts = [j.velocity_start() for j in joints]
+    frame = plant.get_frame(chain.tool_frame_index)
+    world = plant.world_frame()
+    point = np.asarray(tool_offset_mm, float).reshape(3, 1) / 1000.0
+    weight = np.array([0.0, 0.0, -9.81 * payload_kg])
+    th = np.atleast_2d(np.asarray(theta_deg, dtype=float)) * DEG
+    out = np.empty(th.shape)
+    for k, row in enumerate(th):
+        for joint, angle in zip(joints, row):
+            joint.set_angle(context, angle)
+        tau = plant.CalcGravityGeneralizedForces(context)
+        out[k] = tau[vstarts]
+        if payload_kg:
+            jv = plant.CalcJacobianTranslationalVelocity(context, JacobianWrtVariable.kV, frame, point, world, world)
+            out[k] += (jv[:, vstarts].T @ weight)
+    return out
+
+
 # ------------------------------------------------------------------- base set
 @dataclass(frozen=True)
 class BaseSet:

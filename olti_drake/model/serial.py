@@ -198,18 +198,24 @@ class SerialPositionModel:
        ``chain_params``);
     2. the tool-point offset ``tool_x_mm, tool_y_mm, tool_z_mm`` (tool frame);
     3. ``dh``: a constant angle offset ``<joint>_offset_deg`` per joint that has
-       one; ``errormap``: the map values ``<joint>_forward_deg[i]`` (and
+       one; then, with compliance, ``<joint>_compliance_deg_per_Nm`` per joint
+       with a gravity torque;
+    4. ``errormap``: the map values ``<joint>_forward_deg[i]`` (and
        ``<joint>_reverse_deg[i]``) per joint with a map, chain order. The map
        level absorbs the joint's zero offset, so ``errormap`` has no offsets.
 
     The actual joint angle is θ_i = θ*_i + offset_i (``dh``) or θ*_i +
-    Δθ_i(θ*_i, dir_i) (``errormap``, 000 Eq. (7)); p = chain FK at θ.
+    Δθ_i(θ*_i, dir_i) (``errormap``, 000 Eq. (7)), plus c_i·τ_i(θ*) for a
+    compliant joint (τ_i the torque gravity applies about it at the commanded
+    pose, N·m, :func:`~olti_drake.model.chain.gravity_torques`; c_i deg/(N·m));
+    p = chain FK at θ.
     ``dropped`` pairs each parameter left out with the reason.
     """
 
     def __init__(self, chain: SerialChain, kind: str, geometric: Sequence[str],
                  chain_params=None, offsets: Sequence[str] = (), maps: Sequence[JointMap] = (),
-                 dropped: Sequence[Tuple[str, str]] = (), offset_values=None):
+                 dropped: Sequence[Tuple[str, str]] = (), offset_values=None,
+                 compliance: Sequence[str] = (), compliance_values=None):
         if kind not in MODEL_KINDS:
             raise ValueError(f"model: 'dh' or 'errormap', not {kind!r}")
         self.chain, self.kind = chain, kind
@@ -226,12 +232,17 @@ class SerialPositionModel:
         self.offset_joints = np.array(sorted(joints.index(j) for j in offsets), dtype=int)
         self.offset_values = (np.zeros(len(self.offset_joints)) if offset_values is None
                               else np.asarray(offset_values, float).reshape(len(self.offset_joints)))
+        self.compliance_joints = np.array(sorted(joints.index(j) for j in compliance), dtype=int)
+        self.compliance_values = (np.zeros(len(self.compliance_joints)) if compliance_values is None
+                                  else np.asarray(compliance_values, float).reshape(len(self.compliance_joints)))
+        self._torques = {}  # gravity torques per commands array (by content): Drake is called once per campaign
         self.maps = tuple(sorted(maps, key=lambda m: joints.index(m.joint)))
         if kind == "dh" and self.maps or kind == "errormap" and len(self.offset_joints):
             raise ValueError(f"model {kind}: offsets belong to 'dh', maps to 'errormap'")
         self.map_joints = np.array([joints.index(m.joint) for m in self.maps], dtype=int)
         names = [all_names[c] for c in self._chain_cols]
         names += [f"{joints[j]}_offset_deg" for j in self.offset_joints]
+        names += [f"{joints[j]}_compliance_deg_per_Nm" for j in self.compliance_joints]
         self.n_dense = len(names)
         self.map_starts = []
         for m in self.maps:
@@ -259,7 +270,7 @@ class SerialPositionModel:
         x = np.zeros(self.n_params)
         k = len(self._chain_cols)
         x[:k] = self.chain_params[self._chain_cols]
-        x[k:self.n_dense] = self.offset_values
+        x[k:self.n_dense] = np.concatenate([self.offset_values, self.compliance_values])
         for start, m in zip(self.map_starts, self.maps):
             x[start:start + m.n_values] = m.values
         return x
@@ -277,7 +288,8 @@ class SerialPositionModel:
         joints = self.chain.joint_names
         return SerialPositionModel(self.chain, self.kind, self.geometric_names,
                                    self.chain_parameters(x), [joints[j] for j in self.offset_joints],
-                                   maps, self.dropped, x[len(self._chain_cols):self.n_dense])
+                                   maps, self.dropped, x[len(self._chain_cols):self._compliance_start],
+                                   [joints[j] for j in self.compliance_joints], x[self._compliance_start:self.n_dense])
 
     def _check(self, x):
         x = np.asarray(x, float)
@@ -318,10 +330,30 @@ class SerialPositionModel:
     def _x(self, x):
         return self.start_vector() if x is None else self._check(x)
 
+    @property
+    def _compliance_start(self) -> int:
+        return len(self._chain_cols) + len(self.offset_joints)
+
+    def gravity_torques(self, th) -> np.ndarray:
+        """(M, C) N·m about the compliant joints at commands ``th`` (M, N) deg (cached by content)."""
+        if not len(self.compliance_joints):
+            return np.zeros((len(th), 0))
+        key = (th.shape, hash(th.tobytes()))
+        if key not in self._torques:
+            from olti_drake.model.chain import gravity_torques
+
+            if len(self._torques) > 8:
+                self._torques.clear()
+            self._torques[key] = gravity_torques(self.chain, th)[:, self.compliance_joints]
+        return self._torques[key]
+
     def _actual(self, th, interps, x):
         out = th.copy()
         k = len(self._chain_cols)
         out[:, self.offset_joints] += x[k:k + len(self.offset_joints)]
+        s = self._compliance_start
+        if len(self.compliance_joints):
+            out[:, self.compliance_joints] += self.gravity_torques(th) * x[s:self.n_dense]
         for (cols, w), j, s in zip(interps, self.map_joints, self.map_starts):
             out[:, j] += np.sum(w * x[s + cols], axis=1)
         return out
@@ -344,7 +376,8 @@ class SerialPositionModel:
         interps = self._interpolations(th, dirs)
         n = self.chain.n_joints
         p, jac = self.chain.jacobian(self._actual(th, interps, x), self.chain_parameters(x))
-        dense = np.concatenate([jac[:, :, n + self._chain_cols], jac[:, :, self.offset_joints]], axis=2)
+        dense = np.concatenate([jac[:, :, n + self._chain_cols], jac[:, :, self.offset_joints],
+                                jac[:, :, self.compliance_joints] * self.gravity_torques(th)[:, None, :]], axis=2)
         maps = tuple((s, j, cols, w) for s, j, (cols, w) in zip(self.map_starts, self.map_joints, interps))
         return p, PositionJacobian(dense, jac[:, :, :n], maps, self.n_params)
 
@@ -386,7 +419,7 @@ class SerialPositionModel:
 def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str = "errormap",
                          grid_step_deg: float = 15.0, grids: Optional[Dict[str, Sequence[float]]] = None,
                          tool_offset_mm=(0.0, 0.0, 0.0), chain_params=None,
-                         n_poses: int = 60, seed: int = 0) -> SerialPositionModel:
+                         n_poses: int = 60, seed: int = 0, compliance: bool = False) -> SerialPositionModel:
     """The model of ``kind`` for a campaign's commands (M, N) deg.
 
     Free geometric parameters: the base set of :func:`base_parameter_set`
@@ -395,8 +428,10 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
     base set's joint offsets; ``errormap`` puts a map on every joint whose
     angle any reading depends on, nodes ``grids[joint]`` or every
     ``grid_step_deg`` over the joint's commanded range (:func:`grid_every`),
-    bidirectional when ``dirs`` is given. ``model.dropped`` names what was left
-    out and why (the base set's reasons).
+    bidirectional when ``dirs`` is given. ``compliance``: a joint compliance
+    c_i under gravity for every joint whose gravity torque varies over the
+    campaign by at least :data:`MIN_TORQUE_SPAN_NM` (``--compliance``).
+    ``model.dropped`` names what was left out and why (the base set's reasons).
     """
     if kind not in MODEL_KINDS:
         raise ValueError(f"model: 'dh' or 'errormap', not {kind!r}")
@@ -409,9 +444,11 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
     geometric = [k for k in base.kept if k in chain.parameter_names()[:6 * chain.n_joints]]
     kept_offsets = [offset_names[k] for k in base.kept if k in offset_names]
     dropped = [(k, why) for k, why in base.dropped if k not in offset_names]
+    compliant = _compliant_joints(chain, th, dropped) if compliance else []
     if kind == "dh":
         dropped += [(k, why) for k, why in base.dropped if k in offset_names]
-        return SerialPositionModel(chain, kind, geometric, params, offsets=kept_offsets, dropped=dropped)
+        return SerialPositionModel(chain, kind, geometric, params, offsets=kept_offsets, dropped=dropped,
+                                   compliance=compliant)
     grids = dict(grids or {})
     bad = [g for g in grids if g not in chain.joint_names]
     if bad:
@@ -426,7 +463,33 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
         if grid is None:
             grid = grid_every(grid_step_deg, th[:, i].min(), th[:, i].max())
         maps.append(JointMap.zeros(joint, grid, bidirectional=dirs is not None))
-    return SerialPositionModel(chain, kind, geometric, params, maps=maps, dropped=dropped)
+    return SerialPositionModel(chain, kind, geometric, params, maps=maps, dropped=dropped, compliance=compliant)
+
+
+#: A joint whose gravity torque spans less than this over the campaign (N·m), or less than
+#: :data:`MIN_TORQUE_SHARE` of the largest span of the chain, gets no compliance parameter: its deflection
+#: would be a constant the offset or map level already holds, or too small to tell from the map's shape
+#: (wrist joints carry little mass).
+MIN_TORQUE_SPAN_NM = 0.5
+MIN_TORQUE_SHARE = 0.1
+
+
+def _compliant_joints(chain: SerialChain, th, dropped: list) -> list:
+    """Joints whose gravity torque varies over the commands ``th``; the others appended to ``dropped``."""
+    from olti_drake.model.chain import gravity_torques
+
+    span = np.ptp(gravity_torques(chain, th), axis=0)
+    need = max(MIN_TORQUE_SPAN_NM, MIN_TORQUE_SHARE * float(span.max()))
+    out = []
+    for joint, s in zip(chain.joint_names, span):
+        if s >= need:
+            out.append(joint)
+        else:
+            dropped.append((f"{joint}_compliance_deg_per_Nm",
+                            f"its gravity torque spans {s:.2g} N·m over the campaign, below {need:.2g} N·m "
+                            f"(max({MIN_TORQUE_SPAN_NM:g}, {MIN_TORQUE_SHARE:g} x the largest joint's)): a vertical "
+                            f"axis, a light link, or no inertial data in the model file"))
+    return out
 
 
 # --------------------------------------------------------------- measurements
@@ -478,12 +541,18 @@ class DistanceMeasurement(_Measurement):
     r_k = ‖p_k − P_j‖ − d0_j − d_k for reading k taken from station j. Own
     parameters: ``P<j>_x_mm, P<j>_y_mm, P<j>_z_mm`` per station, then
     ``d0_<j>_mm`` per station (j = the station labels of the file, ascending).
+
+    With ``time_h`` (the time of every reading, hours) the dead path drifts
+    linearly during the campaign (air, thermal growth of the beam path):
+    d0_j(t) = d0_j + v_j·(t − t̄_j), own parameters ``drift_<j>_mm_per_h`` after
+    the dead paths; t̄_j (``drift_reference_h``) is the mean time of station j's
+    readings, so d0_j stays the dead path at mid-campaign.
     """
 
     kind = "distance"
 
     def __init__(self, model, commands, dirs, station, displacement_mm,
-                 stations_mm=None, dead_paths_mm=None):
+                 stations_mm=None, dead_paths_mm=None, time_h=None, drift_mm_per_h=None, drift_reference_h=None):
         super().__init__(model, commands, dirs)
         station = np.asarray(station).ravel()
         self.labels = np.unique(station)
@@ -497,15 +566,35 @@ class DistanceMeasurement(_Measurement):
         P = np.zeros((nt, 3)) if stations_mm is None else np.asarray(stations_mm, float).reshape(nt, 3)
         d0 = np.zeros(nt) if dead_paths_mm is None else np.asarray(dead_paths_mm, float).reshape(nt)
         self._own_start = np.concatenate([P.ravel(), d0])
+        self.time_h = self.drift_reference_h = None
+        if time_h is not None:
+            self.time_h = np.asarray(time_h, float).ravel()
+            if self.time_h.shape != self.displacement.shape or not np.all(np.isfinite(self.time_h)):
+                raise ValueError("distance campaign: times must be finite, one per reading")
+            self.drift_reference_h = (np.array([self.time_h[self.station == j].mean() for j in range(nt)])
+                                      if drift_reference_h is None else np.asarray(drift_reference_h, float))
+            v = np.zeros(nt) if drift_mm_per_h is None else np.asarray(drift_mm_per_h, float).reshape(nt)
+            self.own_names += tuple(f"drift_{j}_mm_per_h" for j in self.labels)
+            self._own_start = np.concatenate([self._own_start, v])
 
     def _parts(self, x):
+        """Model part, stations (Nt, 3), and the dead path of every reading (drift included)."""
         xm, own = self._split(x)
         nt = len(self.labels)
-        return xm, own[:3 * nt].reshape(nt, 3), own[3 * nt:]
+        d0 = own[3 * nt:4 * nt][self.station]
+        if self.time_h is not None:
+            d0 = d0 + own[4 * nt:][self.station] * self._dt()
+        return xm, own[:3 * nt].reshape(nt, 3), d0
+
+    def _dt(self) -> np.ndarray:
+        return self.time_h - self.drift_reference_h[self.station]
 
     def _own_layout(self, own) -> dict:
         nt = len(self.labels)
-        return {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:].tolist()}
+        out = {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:4 * nt].tolist()}
+        if self.time_h is not None:  # (the result adds drift_reference_h: a constant, not a parameter)
+            out["drift_mm_per_h"] = own[4 * nt:].tolist()
+        return out
 
     def beam_lengths(self, x) -> np.ndarray:
         """‖p − P_j‖ of every reading at x, mm."""
@@ -516,7 +605,7 @@ class DistanceMeasurement(_Measurement):
         """Expected readings ‖p − P_j‖ − d0_j (mm)."""
         xm, P, d0 = self._parts(x)
         p = self.model.positions(self.commands, self.dirs, xm)
-        return np.linalg.norm(p - P[self.station], axis=1) - d0[self.station]
+        return np.linalg.norm(p - P[self.station], axis=1) - d0
 
     def residuals(self, x):
         """r (M,) mm and the sparse dr/dx (M, P + 4 Nt): u·∂p/∂x, −u for P_j, −1 for d0_j."""
@@ -525,11 +614,14 @@ class DistanceMeasurement(_Measurement):
         diff = p - P[self.station]
         dist = np.linalg.norm(diff, axis=1)
         u = diff / dist[:, None]
-        r = dist - d0[self.station] - self.displacement
+        r = dist - d0 - self.displacement
         pm, nt = self.model.n_params, len(self.labels)
-        cols = np.column_stack([pm + 3 * self.station + c for c in range(3)] + [pm + 3 * nt + self.station])
-        vals = np.column_stack([-u, -np.ones(len(u))])
-        return r, jp.contract(u, vals, cols, len(self.names))
+        cols = [pm + 3 * self.station + c for c in range(3)] + [pm + 3 * nt + self.station]
+        vals = [-u, -np.ones((len(u), 1))]
+        if self.time_h is not None:  # ∂r/∂v_j = −(t − t̄_j)
+            cols.append(pm + 4 * nt + self.station)
+            vals.append(-self._dt()[:, None])
+        return r, jp.contract(u, np.hstack(vals), np.column_stack(cols), len(self.names))
 
     def probe(self, model, commands, dirs, rng):
         """The same kind of measurement for ``model`` at other poses, with random stations
@@ -541,8 +633,9 @@ class DistanceMeasurement(_Measurement):
         P *= (1.5 * reach / np.linalg.norm(P, axis=1))[:, None]
         m = len(commands)
         tiled_dirs = None if dirs is None else np.tile(dirs, (nt, 1))
+        times = None if self.time_h is None else rng.uniform(0.0, 1.0, nt * m)  # drift: generic, seen
         return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
-                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt))
+                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times)
 
 
 class PointMeasurement(_Measurement):
@@ -831,7 +924,8 @@ class SyntheticTruth:
     ``chain_params`` (6N + 3): joint-frame location errors and the tool offset;
     ``deviations``: a :class:`HarmonicDeviation` per joint (deg via its
     mdeg fields, with backlash); ``stations_mm`` (Nt, 3), ``dead_paths_mm``;
-    ``frame`` (6): the tracker frame (mm, deg Rx·Ry·Rz) mapping root to tracker.
+    ``frame`` (6): the tracker frame (mm, deg Rx·Ry·Rz) mapping root to tracker;
+    ``compliance_deg_per_Nm`` (N) or None: joint compliance under gravity (+c·τ(θ*)).
     """
 
     chain: SerialChain
@@ -840,11 +934,17 @@ class SyntheticTruth:
     stations_mm: np.ndarray
     dead_paths_mm: np.ndarray
     frame: np.ndarray
+    compliance_deg_per_Nm: Optional[np.ndarray] = None
 
     def actual_angles(self, commands, dirs=None) -> np.ndarray:
         th = np.atleast_2d(np.asarray(commands, float))
         d = np.ones_like(th) if dirs is None else np.broadcast_to(np.asarray(dirs, float), th.shape)
-        return th + np.column_stack([dev(th[:, i], d[:, i]) for i, dev in enumerate(self.deviations)])
+        out = th + np.column_stack([dev(th[:, i], d[:, i]) for i, dev in enumerate(self.deviations)])
+        if self.compliance_deg_per_Nm is not None:
+            from olti_drake.model.chain import gravity_torques
+
+            out = out + gravity_torques(self.chain, th) * np.asarray(self.compliance_deg_per_Nm, float)
+        return out
 
     def positions(self, commands, dirs=None) -> np.ndarray:
         """True tool point (M, 3) mm in the root frame."""

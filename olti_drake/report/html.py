@@ -15,16 +15,15 @@ Units: mm and degrees in the files; the page shows lengths in mm with uncertaint
 mdeg (and arc-seconds).
 """
 
-import base64
-import html
 import os
-from typing import List, Optional
+from typing import Optional
 
 import numpy as np
 
 from olti_drake.io.csvio import InputError, read_json
 from olti_drake.io.outputs import make_dir, preflight, write_json, write_text
-from olti_drake.report.iso230 import (ARCSEC_PER_DEG, EXTREME, NOT_AVAILABLE, STATISTICS, axis_statistics, map_statistics,
+from olti_drake.report import page as ui
+from olti_drake.report.iso230 import (ARCSEC_PER_DEG, axis_statistics, map_statistics,
                      node_indices)
 
 SCARA_FORMAT = "olti-result/1"
@@ -35,116 +34,6 @@ UNCERTAINTY_FORMAT = "olti-uncertainty/1"
 OUTPUT_NAMES = ("report.html", "iso230.json", "fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png",
                 "fig_residuals.png", "fig_path_x200.png", "fig_error_vectors.png", "fig_targets.png",
                 "fig_target_uncertainty.png")
-
-_ISO_LABELS = {
-    "B": ("B", "reversal value of the axis (B_i of largest |B_i|, sign kept)"),
-    "B_mean": ("B̄", "mean reversal value of the axis"),
-    "E_forward": ("E↑", "unidirectional systematic positional deviation, + direction"),
-    "E_reverse": ("E↓", "unidirectional systematic positional deviation, − direction"),
-    "E": ("E", "bidirectional systematic positional deviation of the axis"),
-    "M": ("M", "range of the mean bidirectional positional deviation of the axis"),
-}
-
-_CSS = """
-body{font-family:sans-serif;max-width:1300px;margin:1.5em auto;padding:0 1em;color:#222;line-height:1.4}
-h1{font-size:1.5em;border-bottom:2px solid #446;padding-bottom:.2em}
-h2{font-size:1.2em;margin-top:1.8em;border-bottom:1px solid #99a}
-h3{font-size:1.05em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.88em}
-th,td{border:1px solid #bbc;padding:.2em .55em;text-align:right}
-th{background:#eef}
-td.l,th.l{text-align:left}
-dl{display:grid;grid-template-columns:max-content auto;gap:.15em 1em}
-dt{font-weight:bold}
-dd{margin:0}
-figure{margin:1em 0}
-figure img{max-width:100%;border:1px solid #ccd}
-figcaption{font-size:.88em;color:#445}
-.note{background:#f6f6ee;border-left:4px solid #cc9;padding:.4em .8em;font-size:.9em}
-"""
-
-
-# -- small helpers -------------------------------------------------------------------------------------
-_LEFT = ' class="l"'
-
-def _e(text) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _table(header, rows, left=(0,)) -> str:
-    """An HTML table; every cell escaped. ``left``: column indices aligned left."""
-    def cells(tag, values):
-        return "".join(f"<{tag}{_LEFT if i in left else ''}>{_e(v)}</{tag}>" for i, v in enumerate(values))
-
-    body = "".join(f"<tr>{cells('td', r)}</tr>" for r in rows)
-    return f"<table><tr>{cells('th', header)}</tr>{body}</table>"
-
-
-def _p(text, cls=None) -> str:
-    attr = f' class="{cls}"' if cls else ""
-    return f"<p{attr}>{_e(text)}</p>"
-
-
-def _num(v, fmt) -> str:
-    return "—" if v is None or not np.isfinite(v) else format(v, fmt)
-
-
-def _check_uncertainty(unc: dict, raw: dict, keys, unc_path, result_path) -> None:
-    """The uncertainty object must have every value key of the result with the same shape."""
-    def walk(u, r, prefix):
-        for k in keys if prefix == "" else r:
-            name = f"{prefix}{k}"
-            if k not in r:
-                continue
-            if k not in u:
-                raise InputError(f"{os.fspath(unc_path)}: does not match {os.fspath(result_path)}: missing key "
-                                 f"'{name}'")
-            if isinstance(r[k], dict):
-                if not isinstance(u[k], dict):
-                    raise InputError(f"{os.fspath(unc_path)}: does not match {os.fspath(result_path)}: '{name}' "
-                                     f"is not an object")
-                walk(u[k], {kk: vv for kk, vv in r[k].items() if kk != "grid_deg"}, name + ".")
-                continue
-            try:
-                su, sr = np.shape(np.asarray(u[k], dtype=float)), np.shape(np.asarray(r[k], dtype=float))
-            except (TypeError, ValueError):
-                raise InputError(f"{os.fspath(unc_path)}: '{name}' is not numeric") from None
-            if su != sr:
-                raise InputError(f"{os.fspath(unc_path)}: does not match {os.fspath(result_path)}: '{name}' has "
-                                 f"shape {su}, the result {sr}")
-            if not np.all(np.isfinite(np.asarray(u[k], dtype=float))) or np.any(np.asarray(u[k], dtype=float) < 0):
-                raise InputError(f"{os.fspath(unc_path)}: '{name}' must hold finite standard uncertainties >= 0")
-
-    walk(unc, raw, "")
-
-
-def _png_uri(path) -> str:
-    with open(path, "rb") as f:
-        return "data:image/png;base64," + base64.b64encode(f.read()).decode("ascii")
-
-
-class _Page:
-    """Accumulates HTML sections and figures (written as PNG into ``out_dir`` and embedded)."""
-
-    def __init__(self, out_dir):
-        self.out_dir = out_dir
-        self.parts: List[str] = []
-        self.written: List[str] = []
-        self.header_rows: list = []  # (label, value) of the page header
-        self.iso = None  # {axis: AxisStatistics} of a SCARA error map
-
-    def add(self, s: str):
-        self.parts.append(s)
-
-    def figure(self, make, name: str, caption: str):
-        """``make(path)`` writes the PNG; the page embeds it as a data: URI with ``caption``."""
-        path = os.path.join(self.out_dir, name)
-        make_dir(self.out_dir)  # only now: bad input found earlier leaves nothing behind
-        make(path)
-        self.written.append(path)
-        self.add(f'<figure><img alt="{_e(caption)}" src="{_png_uri(path)}">'
-                 f"<figcaption>{_e(caption)} (also written as {_e(name)})</figcaption></figure>")
-
 
 # -- inputs ---------------------------------------------------------------------------------------------
 def _budget_of(unc: Optional[dict], unc_path, default):
@@ -229,26 +118,16 @@ _SCARA_KEYS = ("L1_mm", "L2_mm", "theta20_deg", "error_map", "reflectors_mm", "d
 _MACHINE_KEYS = ("targets_mm", "stations_mm", "dead_paths_mm")
 
 
-def _fit_rows(raw) -> list:
-    """Solver, iterations and condition number of a result, where present."""
-    rows = []
-    for key, label in (("solver", "solver"), ("iterations", "iterations"), ("condition_number", "condition number")):
-        if key in raw:
-            v = raw[key]
-            rows.append((label, format(v, ".3g") if isinstance(v, float) else v))
-    return rows
-
-
 def _parameter_rows(raw, model, std_src, k):
     rows = []
 
     def add(name, value, unit, u):
         if unit == "mm":
-            rows.append((name, f"{value:.4f} mm", _num(None if u is None else 1e3 * u, ".2f"),
-                         _num(None if u is None else 1e3 * k * u, ".2f"), "µm"))
+            rows.append((name, f"{value:.4f} mm", ui.num(None if u is None else 1e3 * u, ".2f"),
+                         ui.num(None if u is None else 1e3 * k * u, ".2f"), "µm"))
         else:
-            rows.append((name, f"{1e3 * value:.3f} mdeg", _num(None if u is None else 1e3 * u, ".3f"),
-                         _num(None if u is None else 1e3 * k * u, ".3f"), "mdeg"))
+            rows.append((name, f"{1e3 * value:.3f} mdeg", ui.num(None if u is None else 1e3 * u, ".3f"),
+                         ui.num(None if u is None else 1e3 * k * u, ".3f"), "mdeg"))
 
     s = std_src or {}
     add("L1", raw["L1_mm"], "mm", s.get("L1_mm"))
@@ -265,117 +144,6 @@ def _parameter_rows(raw, model, std_src, k):
     return rows
 
 
-def _plot_reversal(stats, truth_stats, k, path, method):
-    """B_i (mdeg) per node with U (k) error bars, B̄ and the truth: the ISO 230-2 reversal values."""
-    from olti_drake.report.figures import _pyplot, _save
-
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    for ax, axis in zip(axes, ("J1", "J2")):
-        s = stats[axis]
-        g = s.positions_deg
-        yerr = None if s.u_reversal_deg is None else 1e3 * k * s.u_reversal_deg
-        ax.errorbar(g, 1e3 * s.reversal_deg, yerr=yerr, fmt="o", color="tab:purple", capsize=3, ms=5,
-                    label="B_i = x̄↑_i − x̄↓_i, identified" + (f", U (k = {k:g})" if yerr is not None else ""))
-        ax.axhline(1e3 * s.B_mean_deg, color="tab:purple", lw=1, ls="--", label=f"B̄ = {1e3 * s.B_mean_deg:.2f} mdeg")
-        ax.plot([g[s.B_index]], [1e3 * s.B_deg], "s", mfc="none", color="k", ms=11,
-                label=f"B = {1e3 * s.B_deg:.2f} mdeg (largest |B_i|)")
-        if truth_stats is not None:
-            t = truth_stats[axis]
-            ax.plot(t.positions_deg, 1e3 * t.reversal_deg, "x-", color="0.4", lw=1, label="truth B_i")
-        ax.set(xlabel=f"{axis} command angle θ{axis[1]}*, deg", ylabel="reversal value, mdeg",
-               title=f"{axis}: reversal values at the map nodes (ISO 230-2 B_i)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle("Reversal values from the identified error map" + (f" -- u: {method}" if method else ""),
-                 fontsize=10)
-    return _save(fig, plt, path)
-
-
-def _plot_residuals(index, residual_mm, group, label, path):
-    """Residuals (µm) vs reading index, coloured per reflector (station), and their histogram."""
-    from olti_drake.report.figures import _pyplot, _save
-
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4.2), gridspec_kw={"width_ratios": [3, 1]})
-    r = 1e3 * np.asarray(residual_mm)
-    for j in np.unique(group):
-        s = group == j
-        rms = np.sqrt(np.mean(r[s] ** 2))
-        axes[0].plot(index[s], r[s], ".", ms=3, label=f"{label} {j}: RMS {rms:.2f} µm")
-        axes[1].hist(r[s], bins=30, histtype="step", lw=1.2, label=f"{label} {j}")
-    axes[0].axhline(0, color="k", lw=0.5)
-    axes[0].set(xlabel="reading index (valid readings, file order)", ylabel="residual, µm",
-                title=f"Residuals of the identified model per {label}")
-    axes[1].set(xlabel="residual, µm", ylabel="readings", title="Distribution")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=8)
-    return _save(fig, plt, path)
-
-
-def _iso_section(page, stats, truth_stats, k, u_note, truth_note):
-    page.add("<h2>ISO 230-2 style positioning statistics per axis</h2>")
-    page.add(_p("Target positions P_i are the map nodes θ*_i; the mean unidirectional positional deviations are "
-                "the identified node values x̄↑_i = Δθ(θ*_i, +1), x̄↓_i = Δθ(θ*_i, −1) (Eq. (7) of 000). These "
-                "are systematic statistics of the identified model, not of repeated runs (ISO 230-2:2014 terms "
-                "and definitions). All except the node values are differences of node values and so do not "
-                "depend on the J1 gauge constant."))
-    page.add(_p("Not available: " + " ".join(NOT_AVAILABLE.values()), "note"))
-    page.add(_p(u_note, "note"))
-    for axis in ("J1", "J2"):
-        s = stats[axis]
-        t = None if truth_stats is None else truth_stats[axis]
-        page.add(f"<h3>{_e(axis)} ({s.n_nodes} target positions, {s.positions_deg[0]:g} … "
-                 f"{s.positions_deg[-1]:g} deg)</h3>")
-        header = ["symbol", "ISO 230-2 term", "mdeg", "arcsec", "u (k = 1), mdeg", f"U (k = {k:g}), mdeg",
-                  "attained at"]
-        if t is not None:
-            header += ["truth, mdeg", "(est − truth)/u"]
-        rows = []
-        for name in STATISTICS:
-            sym, term = _ISO_LABELS[name]
-            v = s.value(name)
-            u = s.u.get(name)
-            where = s.where.get(name)
-            if name == "B":
-                at = f"θ* = {s.positions_deg[where]:g}°"
-            elif name == "E":
-                (i, di), (j, dj) = where
-                at = f"max {s.positions_deg[i]:g}° ({'+' if di > 0 else '−'}), min {s.positions_deg[j]:g}° " \
-                     f"({'+' if dj > 0 else '−'})"
-            elif name in EXTREME:
-                at = f"max {s.positions_deg[where[0]]:g}°, min {s.positions_deg[where[1]]:g}°"
-            else:
-                at = "all nodes"
-            if name in EXTREME and s.ambiguous.get(name):
-                at += " (runner-up within 2u: u optimistic)"
-            row = [sym, term, f"{1e3 * v:.3f}", f"{ARCSEC_PER_DEG * v:.2f}", _num(None if u is None else 1e3 * u, ".3f"),
-                   _num(None if u is None else 1e3 * k * u, ".3f"), at]
-            if t is not None:
-                tv = t.value(name)
-                row += [f"{1e3 * tv:.3f}", _num(None if not u else (v - tv) / u, "+.2f")]
-            rows.append(row)
-        page.add(_table(header, rows, left=(0, 1, 6)))
-        nh = ["θ*_i, deg", "x̄↑_i, mdeg", "u", "x̄↓_i, mdeg", "u", "B_i, mdeg", "u", "x̄_i, mdeg", "u"]
-        if t is not None:
-            nh += ["truth B_i, mdeg"]
-        nrows = []
-        for i in range(s.n_nodes):
-            def uu(a):
-                return _num(None if a is None else 1e3 * a[i], ".3f")
-            row = [f"{s.positions_deg[i]:g}", f"{1e3 * s.forward_deg[i]:.3f}", uu(s.u_forward_deg),
-                   f"{1e3 * s.reverse_deg[i]:.3f}", uu(s.u_reverse_deg), f"{1e3 * s.reversal_deg[i]:.3f}",
-                   uu(s.u_reversal_deg), f"{1e3 * s.mean_deg[i]:.3f}", uu(s.u_mean_deg)]
-            if t is not None:
-                row.append(f"{1e3 * t.reversal_deg[i]:.3f}" if t.n_nodes == s.n_nodes
-                           and np.allclose(t.positions_deg, s.positions_deg) else "—")
-            nrows.append(row)
-        page.add(_table(nh, nrows, left=()))
-    if truth_note:
-        page.add(_p(truth_note, "note"))
-
-
 def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, truth_path, k):
     from olti_drake.io.result import load_result
 
@@ -383,7 +151,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None and unc is None:
         try:
-            _check_uncertainty(std_src, raw, _SCARA_KEYS, result_path, result_path)
+            ui.check_uncertainty(std_src, raw, _SCARA_KEYS, result_path, result_path)
         except InputError:
             std_src = None
     std_label = ("the uncertainty file, method " + repr(unc.get("method", "?")) +
@@ -399,7 +167,9 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     if campaign_path is not None:
         from olti_drake.io.budget import default_budget
         from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
-        from olti_drake.estimation.uncertainty import ReadingErrors, identifier_at_result, linear_covariance
+        from olti_drake.estimation.identification import identifier_at_result
+        from olti_drake.estimation.uncertainty import linear_covariance
+        from olti_drake.io.budget import ReadingErrors
 
         data = load_campaign(campaign_path)
         campaign_note = check_campaign_matches(raw, data, result_path)
@@ -409,11 +179,11 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
 
     # -- header ----------------------------------------------------------------------------------------------
     kind = raw["model"]
-    page.add(f"<h1>Calibration report: SCARA, {_e('error-map model (000 Eq. 6-10)' if kind == 'errormap' else 'D-H model (000 Eq. 3-5)')}</h1>")
+    page.add(f"<h1>Calibration report: SCARA, {ui.e('error-map model (000 Eq. 6-10)' if kind == 'errormap' else 'D-H model (000 Eq. 3-5)')}</h1>")
     info = [("result", os.fspath(result_path)), ("model", kind), ("gauge", raw.get("gauge", "—")),
             ("readings", raw.get("n_readings", "—")),
             ("residual RMS", f"{1e3 * float(raw['residual_rms_mm']):.2f} µm" if "residual_rms_mm" in raw else "—")]
-    info += _fit_rows(raw)
+    info += ui.fit_rows(raw)
     if raw.get("outliers"):
         info.append(("suspect readings", f"{len(raw['outliers'])} beyond the outlier threshold"))
     for note in raw.get("notes", []) + ([campaign_note] if campaign_note else []):
@@ -428,15 +198,15 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     # -- parameters --------------------------------------------------------------------------------------------
     page.add("<h2>Identified parameters</h2>")
     if std_src is None:
-        page.add(_p("No standard uncertainties available (neither an uncertainty file nor an 'uncertainty' object "
+        page.add(ui.p("No standard uncertainties available (neither an uncertainty file nor an 'uncertainty' object "
                     "in the result).", "note"))
     else:
-        page.add(_p(f"Standard uncertainties u (k = 1) from {std_label}; expanded U = k·u with k = {k:g}"
+        page.add(ui.p(f"Standard uncertainties u (k = 1) from {std_label}; expanded U = k·u with k = {k:g}"
                     + (" (the uncertainty file's 'expanded')." if unc is not None and "expanded" in unc else ".")))
-    page.add(_table(["parameter", "value", "u (k = 1)", f"U (k = {k:g})", "unit of u, U"],
+    page.add(ui.table(["parameter", "value", "u (k = 1)", f"U (k = {k:g})", "unit of u, U"],
                     _parameter_rows(raw, model, std_src, k)))
     if kind == "errormap":
-        page.add(_p("The map node values Δθ(θ*_i, ±1) and their uncertainties are in the per-axis node tables of the "
+        page.add(ui.p("The map node values Δθ(θ*_i, ±1) and their uncertainties are in the per-axis node tables of the "
                     "ISO 230-2 section below."))
 
     truth_robot = truth_note = None
@@ -504,11 +274,11 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
             truth_stats = {a: axis_statistics(sample_map(truth_robot.deviation(a), m.grid_deg, a))
                            for a, m in (("J1", model.map1), ("J2", model.map2))}
         page.iso = stats
-        _iso_section(page, stats, truth_stats, k, u_note,
+        ui.iso_section(page, stats, truth_stats, k, u_note,
                      None if truth_stats is None else truth_note + " Truth statistics from the truth's deviation at "
                      "the same nodes; (est − truth)/u beyond ±3 flags a disagreement (for an ambiguous max the "
                      "estimate is biased away from zero).")
-        page.figure(lambda p: _plot_reversal(stats, truth_stats, k, p, "" if not stats["J1"].u else
+        page.figure(lambda p: ui.plot_reversal(stats, truth_stats, k, p, "" if not stats["J1"].u else
                                              ("correlated (campaign)" if stats["J1"].correlated else "independent")),
                     "fig_reversal.png", f"Reversal values B_i with U (k = {k:g}) error bars, B̄ and B"
                     + (", truth ×" if truth_stats is not None else ""))
@@ -516,14 +286,14 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     # -- uncertainty map of predicted positions ------------------------------------------------------------
     page.add("<h2>Uncertainty of predicted positions (001 Fig. 14 style)</h2>")
     if kind != "errormap":
-        page.add(_p("The predicted-position uncertainty map is drawn for error-map results (the workspace is the "
+        page.add(ui.p("The predicted-position uncertainty map is drawn for error-map results (the workspace is the "
                     "identified map range); this is a D-H result.", "note"))
     elif cov is not None:
         from olti_drake.report.figures import plot_prediction_uncertainty_map, prediction_uncertainty_map
 
         pmap = prediction_uncertainty_map(ident, x, cov=cov)
         U = k * pmap["u_mm"]
-        page.add(_p(f"Method: linear propagation (JCGM 100) of the full parameter covariance (correlations included) "
+        page.add(ui.p(f"Method: linear propagation (JCGM 100) of the full parameter covariance (correlations included) "
                     f"through the kinematic model, the covariance from the identification on "
                     f"{os.fspath(campaign_path)} with {budget_note}. Colour: U (k = {k:g}) = k·sqrt(u_x² + u_y²) "
                     f"on a {pmap['x_mm'][1] - pmap['x_mm'][0]:.3g} mm grid inside the map range; max "
@@ -540,7 +310,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
         if pe:
             msg += (f" The uncertainty file's summary ({unc.get('method', '?')}): U (k = {pe.get('k', k):g}) max "
                     f"{1e3 * pe['max']:.2f} µm, mean {1e3 * pe['mean']:.2f} µm over {pe.get('points', '?')} points.")
-        page.add(_p(msg, "note"))
+        page.add(ui.p(msg, "note"))
 
     # -- residuals ------------------------------------------------------------------------------------------------
     page.add("<h2>Residuals</h2>")
@@ -550,13 +320,13 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
         rows = [(f"reflector {j}", int(np.sum(grp == j)), f"{1e3 * np.sqrt(np.mean(r[grp == j] ** 2)):.2f}",
                  f"{1e3 * np.max(np.abs(r[grp == j])):.2f}") for j in np.unique(grp)]
         rows.append(("all", len(r), f"{1e3 * np.sqrt(np.mean(r ** 2)):.2f}", f"{1e3 * np.max(np.abs(r)):.2f}"))
-        page.add(_p(f"Model reading minus measured reading (Eq. (10) of 000) of every valid reading of "
+        page.add(ui.p(f"Model reading minus measured reading (Eq. (10) of 000) of every valid reading of "
                     f"{os.fspath(campaign_path)}, at the result's parameters."))
-        page.add(_table(["readings of", "n", "RMS, µm", "max |r|, µm"], rows))
-        page.figure(lambda p: _plot_residuals(np.arange(len(r)), r, grp, "reflector", p), "fig_residuals.png",
+        page.add(ui.table(["readings of", "n", "RMS, µm", "max |r|, µm"], rows))
+        page.figure(lambda p: ui.plot_residuals(np.arange(len(r)), r, grp, "reflector", p), "fig_residuals.png",
                     "Residuals per reflector vs reading index")
     else:
-        page.add(_p("Give the campaign (--campaign) to plot the residuals per reflector.", "note"))
+        page.add(ui.p("Give the campaign (--campaign) to plot the residuals per reflector.", "note"))
 
     # -- validation against the truth ------------------------------------------------------------------------------
     if truth_robot is not None:
@@ -585,7 +355,7 @@ def _validation_section(page, model, kind, truth_robot, nominal, data, truth_not
     sets = {"x200": x200_path(L1, L2), "grid": grid_paths(L1, L2, r1, r2),
             "random": random_commands(500, [0, STREAM_RANDOM_COMMANDS], r1, r2, L1, L2)}
     page.add("<h2>Validation on commands not used in the identification (000 §4.3, simulation)</h2>")
-    page.add(_p("The simulated truth robot is measured by the simulated laser tracker (AT960-XR of 000 §4.3, seed 0) "
+    page.add(ui.p("The simulated truth robot is measured by the simulated laser tracker (AT960-XR of 000 §4.3, seed 0) "
                 "on the X = 200 mm path (Figs. 9-10), a grid of Cartesian paths (Fig. 11) and 500 random commands; "
                 "each model's predictions are rotated about J1 onto the tracker readings (the unobservable gauge) "
                 "before the 2D errors are taken. " + truth_note
@@ -599,7 +369,7 @@ def _validation_section(page, model, kind, truth_robot, nominal, data, truth_not
         for name, c in cmp_.items():
             rows.append((cs.name, name, len(cs), f"{1e3 * c['rms_mm']:.1f}", f"{1e3 * c['max_mm']:.1f}",
                          f"{1e3 * c['rotation_deg']:.2f}", outside))
-    page.add(_table(["command set", "model", "points", "RMS, µm", "max, µm", "fitted rotation, mdeg",
+    page.add(ui.table(["command set", "model", "points", "RMS, µm", "max, µm", "fitted rotation, mdeg",
                      "outside the map range"], rows, left=(0, 1)))
     if "D-H" in models and "error map" in models:
         cs, meas, c = results["x200"]
@@ -611,7 +381,7 @@ def _validation_section(page, model, kind, truth_robot, nominal, data, truth_not
                                                  gc["error map"]["predicted_mm"], gc["D-H"]["predicted_mm"], p),
                     "fig_error_vectors.png", "Error vectors over the workspace (000 Fig. 11)")
     else:
-        page.add(_p("Give the campaign (--campaign) to draw Figs. 9-11 (they compare the D-H and error-map models).",
+        page.add(ui.p("Give the campaign (--campaign) to draw Figs. 9-11 (they compare the D-H and error-map models).",
                     "note"))
 
 
@@ -623,11 +393,13 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None and unc is None:
         try:
-            _check_uncertainty(std_src, raw, ("targets_mm",), result_path, result_path)
+            ui.check_uncertainty(std_src, raw, ("targets_mm",), result_path, result_path)
         except InputError:  # the result's own uncertainties are optional: without them, none are shown
             std_src = None
-    T = np.asarray(raw["targets_mm"], dtype=float).reshape(-1, 2)
-    S = np.asarray(raw["stations_mm"], dtype=float).reshape(-1, 2)
+    D = int(np.shape(raw["targets_mm"])[1]) if np.ndim(raw["targets_mm"]) == 2 else 2  # 001's table or 3D
+    T = np.asarray(raw["targets_mm"], dtype=float).reshape(-1, D)
+    S = np.asarray(raw["stations_mm"], dtype=float).reshape(-1, D)
+    axes = "xyz"[:D]
     L0 = np.asarray(raw["dead_paths_mm"], dtype=float).ravel()
     data, campaign_note = None, ""
     if campaign_path is not None:
@@ -640,27 +412,29 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
         if data.n_targets != len(T) or data.n_stations != len(S):
             raise InputError(f"{os.fspath(result_path)}: {len(T)} targets and {len(S)} stations, but the campaign "
                              f"{os.fspath(campaign_path)} has {data.n_targets} and {data.n_stations}")
-    cmd = (np.asarray(raw["commands_mm"], dtype=float).reshape(-1, 2) if "commands_mm" in raw
+    cmd = (np.asarray(raw["commands_mm"], dtype=float).reshape(-1, D) if "commands_mm" in raw
            else data.commands_mm if data is not None else None)
 
-    page.add("<h1>Calibration report: machine tool by self-calibrating multilateration (001 Eq. 2-6)</h1>")
+    page.add("<h1>Calibration report: machine tool by self-calibrating multilateration (001 Eq. 2-6"
+             + (", in 3D" if D == 3 else "") + ")</h1>")
     info = [("result", os.fspath(result_path)), ("format", raw["format"]), ("gauge", raw["gauge"]),
             ("readings", raw.get("n_readings", "—")),
             ("residual RMS", f"{1e3 * float(raw['residual_rms_mm']):.3f} µm" if "residual_rms_mm" in raw else "—"),
             ("targets / stations", f"{len(T)} / {len(S)}")]
-    info += _fit_rows(raw)
+    info += ui.fit_rows(raw)
     info += [("note", n) for n in ([campaign_note] if campaign_note else [])]
     info += [("warning", w) for w in raw.get("warnings", [])]
     info += [("uncertainty file", os.fspath(unc_path) if unc_path else "— (the result's own uncertainties)"),
              ("campaign", os.fspath(campaign_path) if campaign_path else "—")]
     page.header_rows = info
 
-    uT = None if std_src is None else np.asarray(std_src["targets_mm"], dtype=float).reshape(-1, 2)
+    uT = None if std_src is None else np.asarray(std_src["targets_mm"], dtype=float).reshape(-1, D)
+    norm = lambda v: np.sqrt(np.sum(np.square(v), axis=-1))  # noqa: E731 (the 2-norm over x, y (, z))
     label = ("the uncertainty file, method " + repr(unc.get("method", "?"))) if unc is not None else (
         "the result file (" + str(std_src.get("method", "?")) + ")" if std_src is not None else None)
     page.add("<h2>Target positions</h2>")
-    page.add(_p("Estimated target positions p_i in the result's gauge frame (" + str(raw["gauge"]) + "); deviation "
-                "from the command p*_i in µm" + (f"; u (k = 1) from {label}, U = k·sqrt(u_x² + u_y²) with "
+    page.add(ui.p("Estimated target positions p_i in the result's gauge frame (" + str(raw["gauge"]) + "); deviation "
+                "from the command p*_i in µm" + (f"; u (k = 1) from {label}, U = k·‖u‖ (x, y" + (", z" if D == 3 else "") + f") with "
                                                 f"k = {k:g}." if label else "; no uncertainties available.")
                 + ("" if cmd is not None else " No command positions (neither 'commands_mm' in the result nor "
                                               "--campaign): deviations not available.")))
@@ -669,56 +443,57 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
         row = [i]
         if cmd is not None:
             d = 1e3 * (p - cmd[i])
-            row += [f"{cmd[i, 0]:.3f}", f"{cmd[i, 1]:.3f}"]
-        row += [f"{p[0]:.4f}", f"{p[1]:.4f}"]
+            row += [f"{v:.3f}" for v in cmd[i]]
+        row += [f"{v:.4f}" for v in p]
         if cmd is not None:
-            row += [f"{d[0]:+.2f}", f"{d[1]:+.2f}", f"{np.hypot(*d):.2f}"]
+            row += [f"{v:+.2f}" for v in d] + [f"{norm(d):.2f}"]
         if uT is not None:
-            row += [f"{1e3 * uT[i, 0]:.2f}", f"{1e3 * uT[i, 1]:.2f}", f"{1e3 * k * np.hypot(*uT[i]):.2f}"]
+            row += [f"{1e3 * v:.2f}" for v in uT[i]] + [f"{1e3 * k * norm(uT[i]):.2f}"]
         rows.append(row)
-    header = ["i"] + (["x*, mm", "y*, mm"] if cmd is not None else []) + ["x, mm", "y, mm"] + (
-        ["Δx, µm", "Δy, µm", "|Δ|, µm"] if cmd is not None else []) + (
-        ["u_x, µm", "u_y, µm", f"U (k = {k:g}), µm"] if uT is not None else [])
-    page.add(_table(header, rows, left=()))
+    header = ["i"] + ([f"{a}*, mm" for a in axes] if cmd is not None else []) + [f"{a}, mm" for a in axes] + (
+        [f"Δ{a}, µm" for a in axes] + ["|Δ|, µm"] if cmd is not None else []) + (
+        [f"u_{a}, µm" for a in axes] + [f"U (k = {k:g}), µm"] if uT is not None else [])
+    page.add(ui.table(header, rows, left=()))
     if cmd is not None:
-        dev = 1e3 * np.hypot(*(T - cmd).T)
+        dev = 1e3 * norm(T - cmd)
         summary = f"Deviation from the commands: max {dev.max():.2f} µm, mean {dev.mean():.2f} µm"
         if uT is not None:
-            U = 1e3 * k * np.hypot(*uT.T)
+            U = 1e3 * k * norm(uT)
             summary += f"; U (k = {k:g}) of the 2-norm: max {U.max():.2f} µm, mean {U.mean():.2f} µm"
-        page.add(_p(summary + "."))
+        page.add(ui.p(summary + "."))
 
     page.add("<h2>Stations and dead paths</h2>")
-    uS = None if std_src is None or "stations_mm" not in std_src else np.asarray(std_src["stations_mm"]).reshape(-1, 2)
+    uS = None if std_src is None or "stations_mm" not in std_src else np.asarray(std_src["stations_mm"]).reshape(-1, D)
     uL = None if std_src is None or "dead_paths_mm" not in std_src else np.ravel(std_src["dead_paths_mm"])
-    rows = [(j, f"{S[j, 0]:.4f}", f"{S[j, 1]:.4f}", f"{L0[j]:.4f}",
-             _num(None if uS is None else 1e3 * uS[j, 0], ".2f"), _num(None if uS is None else 1e3 * uS[j, 1], ".2f"),
-             _num(None if uL is None else 1e3 * uL[j], ".2f")) for j in range(len(S))]
-    page.add(_table(["station", "x, mm", "y, mm", "dead path, mm", "u_x, µm", "u_y, µm", "u dead path, µm"], rows))
-    page.add(_p("ISO 230-2 statistics are given for the SCARA error map only: the multilateration estimates target "
+    rows = [[j] + [f"{v:.4f}" for v in S[j]] + [f"{L0[j]:.4f}"]
+            + [ui.num(None if uS is None else 1e3 * uS[j, c], ".2f") for c in range(D)]
+            + [ui.num(None if uL is None else 1e3 * uL[j], ".2f")] for j in range(len(S))]
+    page.add(ui.table(["station"] + [f"{a}, mm" for a in axes] + ["dead path, mm"] + [f"u_{a}, µm" for a in axes]
+                      + ["u dead path, µm"], rows))
+    page.add(ui.p("ISO 230-2 statistics are given for the SCARA error map only: the multilateration estimates target "
                 "positions, not an axis's positioning deviation at repeated approaches (compare the linear "
                 "positioning errors of 001 Fig. 13).", "note"))
 
     if cmd is not None:
         from olti_drake.report.figures import plot_machine_targets, plot_target_uncertainty
 
-        page.figure(lambda p: plot_machine_targets(cmd, S, T, p, stations_label="stations (identified)"),
+        page.figure(lambda p: plot_machine_targets(cmd[:, :2], S[:, :2], T[:, :2], p,
+                                                   stations_label="stations (identified)"),
                     "fig_targets.png", "Command and estimated target positions with the identified stations "
-                    "(001 Fig. 10 style; no reference instrument is compared here)")
+                    "(001 Fig. 10 style; no reference instrument is compared here)"
+                    + ("; XY projection of the volume" if D == 3 else ""))
         if uT is not None:
-            U = 1e3 * k * np.hypot(*uT.T)
+            U = 1e3 * k * norm(uT)
             page.figure(lambda p: plot_target_uncertainty(cmd, U, p, k, label), "fig_target_uncertainty.png",
                         f"U (k = {k:g}) of the estimated target positions (001 Fig. 14)")
     page.add("<h2>Residuals</h2>")
     if data is not None:
-        from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions
-
-        ml = Multilateration(data, MultilaterationOptions(stations_mm=S, gauge=raw.get("gauge_kind", "best-fit")))
-        r = ml.residuals(np.concatenate([T.ravel(), S.ravel(), L0]))[0]
-        page.figure(lambda p: _plot_residuals(np.arange(len(r)), r, data.station, "station", p), "fig_residuals.png",
+        # 001 Eq. (3): the identified targets, stations and dead paths against every reading
+        r = norm(T[data.target] - S[data.station]) - L0[data.station] - data.displacement_mm
+        page.figure(lambda p: ui.plot_residuals(np.arange(len(r)), r, data.station, "station", p), "fig_residuals.png",
                     "Residuals per station vs reading index")
     else:
-        page.add(_p("Give the campaign (--campaign) to plot the residuals per station.", "note"))
+        page.add(ui.p("Give the campaign (--campaign) to plot the residuals per station.", "note"))
 
 
 # -- the page ---------------------------------------------------------------------------------------------
@@ -751,13 +526,14 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
+    serial = raw["format"] == SCARA_FORMAT and isinstance(raw.get("robot"), dict)
     truth = None
-    if truth_path:
+    if truth_path and not serial:
         if raw["format"] != SCARA_FORMAT:
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
         truth = read_truth(truth_path)
-    if unc is not None:
-        _check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
+    if unc is not None and not serial:
+        ui.check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
                            uncertainty_path, result_path)
     k = 2.0
     if unc is not None and isinstance(unc.get("expanded"), dict) and "k" in unc["expanded"]:
@@ -765,22 +541,26 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
         if not (np.isfinite(k) and k > 0):
             raise InputError(f"{os.fspath(uncertainty_path)}: 'expanded.k' must be > 0, got {k:g}")
 
-    page = _Page(out_dir)
-    if raw["format"] == SCARA_FORMAT:
+    page = ui.Page(out_dir)
+    if serial:
+        from olti_drake.report.serial_report import serial_report
+
+        serial_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth_path, k)
+    elif raw["format"] == SCARA_FORMAT:
         _scara_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth, truth_path, k)
     else:
         _machine_report(page, raw, result_path, unc, uncertainty_path, campaign_path, k)
 
     date = date if date is not None else raw.get("date")
     header = list(page.header_rows) + ([("date", date)] if date else [])
-    head = "<dl>" + "".join(f"<dt>{_e(a)}</dt><dd>{_e(b)}</dd>" for a, b in header) + "</dl>"
+    head = "<dl>" + "".join(f"<dt>{ui.e(a)}</dt><dd>{ui.e(b)}</dd>" for a, b in header) + "</dl>"
     title = page.parts[0]
     body = [title, head] + page.parts[1:]
-    body.append(_p(f"olti_drake report; units mm and degrees (uncertainties of lengths in µm, angles in mdeg; "
+    body.append(ui.p(f"olti_drake report; units mm and degrees (uncertainties of lengths in µm, angles in mdeg; "
                    f"1 mdeg = {ARCSEC_PER_DEG / 1e3:g}″). Figures are embedded and written next to this page."))
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-           f"<title>{_e('olti report: ' + os.path.basename(os.fspath(result_path)))}</title>"
-           f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+           f"<title>{ui.e('olti report: ' + os.path.basename(os.fspath(result_path)))}</title>"
+           f"<style>{ui.CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
     make_dir(out_dir)
     written = list(page.written)
     if page.iso is not None:

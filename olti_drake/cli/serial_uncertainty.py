@@ -1,0 +1,61 @@
+"""``olti uncertainty`` for a robot identified from a model file (argument handling and printing; the method is
+:mod:`olti_drake.estimation.serial_uncertainty` and :mod:`olti_drake.estimation.uncertainty`)."""
+
+import time
+
+
+def uncertainty(args, propagate) -> int:
+    """Standard uncertainties of every parameter of a serial result (linear or Monte Carlo, by ``propagate``, the
+    verb's own), and of the predicted tool point over ``--workspace-poses`` seeded poses (``--map``: slices)."""
+    import numpy as np
+
+    from olti_drake.estimation.serial_uncertainty import calibration_at_result, workspace_uncertainty
+    from olti_drake.estimation.uncertainty import uncertainty_dict
+    from olti_drake.io.budget import ReadingErrors, budget_or_default
+    from olti_drake.io.campaign_io import check_campaign_matches
+    from olti_drake.io.outputs import write_json
+    from olti_drake.io.serial_io import load_serial_result, read_serial_campaign
+
+    if args.maps:
+        raise ValueError("--maps is the SCARA figure; for a robot from a model file the maps with these error bars "
+                         "are in olti report RESULT.json UNC.json")
+    t0 = time.perf_counter()
+    res = load_serial_result(args.result, outside="clamp", identified=True)
+    campaign = read_serial_campaign(args.campaign, res.model.chain.n_joints, robot=res.data["robot"]["file"])
+    note = check_campaign_matches(res.data, campaign, args.result)
+    budget = budget_or_default(args.budget, "scara")
+    cal, x = calibration_at_result(res, campaign)
+    std, cov, samples, extra, every = propagate(cal, x, ReadingErrors(budget), args)
+    if note:
+        extra["notes"] = list(extra.get("notes", [])) + [note]
+    n = res.model.n_params
+    ws = workspace_uncertainty(res.model, args.workspace_poses, args.seed,
+                               cov=None if cov is None else cov[:n, :n],
+                               samples=None if every is None else every[:, :n])
+    U = 1e3 * args.k * ws["u_norm_mm"]
+    extra.update(budget_file=args.budget or "built-in paper 000 Table 2", result=args.result, campaign=args.campaign,
+                 elapsed_s=round(time.perf_counter() - t0, 3),
+                 workspace={"poses": int(args.workspace_poses), "seed": args.seed, "k": args.k,
+                            "expanded_um_max": float(U.max()), "expanded_um_mean": float(U.mean()),
+                            "what": "k * sqrt(u_x^2 + u_y^2 + u_z^2) of the predicted tool point at seeded poses in "
+                                    "the model's commanded ranges"})
+    out = uncertainty_dict(cal, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
+                           extra=extra)
+    write_json(args.out, out)
+    print(f"uncertainty ({args.method}) of {args.result} ({res.model.chain.n_joints} joints) on {len(campaign)} "
+          f"readings; budget {budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None
+                                                 else ""))
+    worst = int(np.argmax(std[:n] / np.maximum(np.abs(x[:n]), 1e-12)))
+    print(f"  {n} model parameters; the largest relative u: {cal.names[worst]} = {x[worst]:.6g} +- {std[worst]:.3g}")
+    print(f"  predicted tool point over {args.workspace_poses} workspace poses: U (k = {args.k:g}) max "
+          f"{U.max():.2f} um, mean {U.mean():.2f} um")
+    for line in extra.get("notes", []):
+        print(f"  note: {line}")
+    print(f"wrote {args.out}")
+    if args.map:
+        from olti_drake.report.serial_report import plot_workspace_uncertainty
+
+        plot_workspace_uncertainty(ws["points_mm"], U, args.map, args.k,
+                                   f"{'Monte Carlo' if every is not None else 'linear'}, budget {budget.name}")
+        print(f"wrote {args.map}")
+    return 0

@@ -1,0 +1,280 @@
+"""Station placement design in 3D for N-joint robots read by floor tracers (000 §3.2.2 Remark 2 in 3D).
+
+000 §3.2.2 Remark 2: where the stations stand decides how well the campaign locates the tool, and
+"the uncertainty analysis (§5) is essential for the design". For a robot loaded from a model file
+this module chooses station positions among candidates in 3D boxes so that the predicted tool-point
+uncertainty over the workspace is smallest, by the linear method (JCGM 100), before any measurement:
+
+* **Information per station.** A station at P reads, for every plan pose it can see (the
+  line-of-sight and ±80° acceptance rules of :func:`~olti_drake.estimation.serial_plan.readable`),
+  d_k = ‖p_k − P‖ − d0 (000 Eq. (10) in 3D) with standard uncertainty u (the budget's reading and pose
+  contributors). Its own unknowns (P, d0) are eliminated by the Schur complement, so its
+  information on the model parameters θ is S(P) = (J_θᵀJ_θ − J_θᵀJ_s (J_sᵀJ_s)⁻¹ J_sᵀJ_θ)/u², and a
+  layout's information is the *sum* over its stations: each candidate is evaluated once.
+* **Cost.** With Z a basis of the null space of the model's gauge constraints
+  (:func:`~olti_drake.model.serial.find_gauge`: the rigid motion distances cannot see and the zeros
+  that trade with the tool), cov θ = Z (Zᵀ S Z)⁻¹ Zᵀ; the predicted tool point p(q) over seeded
+  workspace poses has u(q) = sqrt(trace(J_p(q) cov J_p(q)ᵀ)) (mm, k = 1); the cost is its maximum
+  or mean. A layout whose Zᵀ S Z is singular (a parameter not seen) costs infinity.
+* **Search.** Coordinate exchange from seeded random starts: replace one station at a time by the
+  feasible candidate that lowers the cost most, until a sweep brings nothing; stations keep
+  ``min_separation_mm`` from each other.
+
+Units: mm and degrees; uncertainties standard (k = 1) unless said otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+import scipy.linalg
+
+from olti_drake.estimation.serial_plan import PlanRules, readable
+from olti_drake.io.csvio import InputError, read_yaml, unit_bound
+from olti_drake.model.serial import DistanceMeasurement, SerialPositionModel, find_gauge
+from olti_drake.threads import single_thread_blas
+
+#: Default minimum distance between two stations, mm.
+MIN_SEPARATION_MM = 300.0
+#: A station reading fewer poses than this tells nothing beyond its own four unknowns: not a candidate.
+MIN_READINGS = 12
+
+
+def load_boxes(path) -> np.ndarray:
+    """(B, 3, 2) boxes [[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]] mm from a regions YAML:
+    ``regions: [{x_mm: [lo, hi], y_mm: [lo, hi], z_mm: [lo, hi]}, ...]`` (z_mm may be one value,
+    e.g. the floor height: [z, z])."""
+    doc = read_yaml(path, "a regions file")
+    regions = doc.get("regions") if isinstance(doc, dict) else None
+    if not isinstance(regions, list) or not regions:
+        raise InputError(f"{path}: expected 'regions:' with a list of boxes {{x_mm: [lo, hi], y_mm: [lo, hi], "
+                         f"z_mm: [lo, hi]}}")
+    out = []
+    for i, reg in enumerate(regions):
+        box = []
+        for key in ("x_mm", "y_mm", "z_mm"):
+            v = reg.get(key) if isinstance(reg, dict) else None
+            if isinstance(v, (int, float)):
+                v = [v, v]
+            try:
+                lo, hi = (float(a) for a in v)
+            except (TypeError, ValueError):
+                raise InputError(f"{path}: regions[{i}].{key} must be [lo, hi] in mm (3D design needs x_mm, y_mm "
+                                 f"and z_mm), got {v!r}") from None
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi) or max(abs(lo), abs(hi)) > unit_bound(key):
+                raise InputError(f"{path}: regions[{i}].{key} = [{lo:g}, {hi:g}] must be finite, lo <= hi, within "
+                                 f"±{unit_bound(key):g} mm")
+            box.append((lo, hi))
+        out.append(box)
+    return np.asarray(out, float)
+
+
+def candidate_points(boxes, step_mm: float) -> np.ndarray:
+    """(C, 3) candidate station positions on a ``step_mm`` grid inside every box (its ends included)."""
+    if not (np.isfinite(step_mm) and step_mm > 0):
+        raise InputError(f"--step-mm must be > 0, got {step_mm:g}")
+    pts = []
+    for box in np.asarray(boxes, float):
+        axes = [np.arange(lo, hi + 1e-9, step_mm) if hi > lo else np.array([lo]) for lo, hi in box]
+        if np.prod([a.size for a in axes]) > 200_000:
+            raise InputError(f"--step-mm {step_mm:g}: more than 200000 candidates in one region; use a larger step")
+        pts.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
+    return np.unique(np.vstack(pts), axis=0)
+
+
+def workspace_poses(model: SerialPositionModel, n_poses: int, seed: int):
+    """Seeded poses (n, N) deg uniform in the model's commanded ranges, random approach directions
+    (None for a one-directional model): where the predicted uncertainty is evaluated."""
+    rng = np.random.default_rng(seed)
+    ranges = model.command_ranges()
+    q = rng.uniform(ranges[:, 0], ranges[:, 1], size=(n_poses, len(ranges)))
+    dirs = rng.choice([-1.0, 1.0], size=q.shape) if model.bidirectional else None
+    return q, dirs
+
+
+@dataclass
+class StationInformation:
+    """Per-station information on the model parameters for a plan (module docstring), and the cost.
+
+    ``commands``/``dirs``: the plan's measured poses; ``u_reading_mm``: standard uncertainty of one
+    reading; ``workspace``: (poses, dirs) where the cost is evaluated; ``rules``: line of sight and
+    acceptance; ``gauge_rows``: (g, n) the gauge constraints on the model parameters."""
+
+    model: SerialPositionModel
+    commands: np.ndarray
+    dirs: Optional[np.ndarray]
+    u_reading_mm: float
+    workspace: tuple
+    rules: PlanRules = field(default_factory=PlanRules)
+    gauge_rows: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        m = self.model
+        self.p, self.jac = m.jacobian(self.commands, self.dirs)
+        wp, wj = m.jacobian(*self.workspace)
+        self.workspace_jacobian = wj.tocsr().toarray()  # (3K, n)
+        self.tool_offset = m.chain_parameters(m.start_vector())[-3:]
+        if self.gauge_rows is None:
+            self.gauge_rows = np.zeros((0, m.n_params))
+        self.Z = scipy.linalg.null_space(self.gauge_rows) if len(self.gauge_rows) else np.eye(m.n_params)
+        self.GZ = self.workspace_jacobian @ self.Z
+
+    def block(self, station_mm):
+        """(S (n, n) information on θ, readings) of one station at ``station_mm`` (3,) mm."""
+        P = np.asarray(station_mm, float)
+        ok = readable(self.model.chain, self.commands, P[None], self.rules, self.tool_offset)[:, 0]
+        n = self.model.n_params
+        if ok.sum() < MIN_READINGS:
+            return np.zeros((n, n)), int(ok.sum())
+        diff = self.p[ok] - P
+        u = diff / np.linalg.norm(diff, axis=1, keepdims=True)
+        Jm = self.jac.take(ok).contract(u)
+        Js = np.column_stack([-u, -np.ones(len(u))])
+        A = (Jm.T @ Jm).toarray()
+        B = np.asarray(Jm.T @ Js)
+        S = A - B @ np.linalg.solve(Js.T @ Js, B.T)
+        return S / self.u_reading_mm ** 2, int(ok.sum())
+
+    def position_u(self, S) -> np.ndarray:
+        """u (mm, k = 1) of the predicted tool point at every workspace pose for information S; inf if
+        the gauge-reduced information is singular."""
+        M = self.Z.T @ S @ self.Z
+        lam, V = np.linalg.eigh(0.5 * (M + M.T))
+        if lam[0] <= 1e-12 * max(lam[-1], 0.0) or lam[-1] <= 0:
+            return np.full(len(self.GZ) // 3, np.inf)
+        w = (self.GZ @ V) / np.sqrt(lam)  # u² = Σ (G Z V)² / λ per row
+        return np.sqrt(np.sum(w ** 2, axis=1).reshape(-1, 3).sum(axis=1))
+
+
+def gauge_rows(model: SerialPositionModel, commands, dirs, stations_mm, seed: int = 0) -> tuple:
+    """The model's gauge constraints (rows on θ, sentence) for a campaign from ``stations_mm``."""
+    nt = len(stations_mm)
+    reps = np.repeat(np.arange(nt), len(commands))
+    meas = DistanceMeasurement(model, np.tile(commands, (nt, 1)), None if dirs is None else np.tile(dirs, (nt, 1)),
+                               reps, np.zeros(len(reps)), stations_mm, np.zeros(nt))
+    gauge = find_gauge(meas, seed=seed)
+    return np.asarray(gauge.A, float)[:, :model.n_params], gauge.sentence
+
+
+@dataclass
+class StationDesign:
+    """The designed layout and how it was found (mm; costs are u, k = 1)."""
+
+    stations_mm: np.ndarray
+    cost_mm: float
+    criterion: str
+    candidates_mm: np.ndarray
+    readings: np.ndarray           # per candidate: readable plan poses
+    evaluations: int
+    starts: int
+    u_mm: np.ndarray               # per workspace pose, the designed layout
+    notes: list = field(default_factory=list)
+
+
+def layout_cost(info: StationInformation, blocks, criterion: str) -> float:
+    u = info.position_u(sum(blocks))
+    return float(np.max(u) if criterion == "max" else np.mean(u))
+
+
+def design_stations(info: StationInformation, candidates_mm, n_stations: int, *, criterion: str = "max",
+                    seed: int = 0, starts: int = 3, max_sweeps: int = 5,
+                    min_separation_mm: float = MIN_SEPARATION_MM,
+                    progress: Optional[Callable[[int, int, float], None]] = None) -> StationDesign:
+    """Coordinate exchange over ``candidates_mm`` (C, 3) for ``n_stations`` stations (module docstring)."""
+    if criterion not in ("max", "mean"):
+        raise InputError(f"criterion: 'max' or 'mean', not {criterion!r}")
+    cand = np.atleast_2d(np.asarray(candidates_mm, float))
+    with single_thread_blas():  # thousands of small (n x n) products: threads only contend
+        return _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress)
+
+
+def _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress):
+    blocks, counts = zip(*(info.block(c) for c in cand))
+    counts = np.asarray(counts)
+    feasible = np.flatnonzero(counts >= MIN_READINGS)
+    if len(feasible) < n_stations:
+        raise InputError(f"only {len(feasible)} candidate position(s) see at least {MIN_READINGS} plan poses "
+                         f"(line of sight, ±80° acceptance); {n_stations} stations are needed: widen the regions")
+    dist = np.linalg.norm(cand[:, None] - cand[None], axis=2)
+    rng = np.random.default_rng(seed)
+    best, best_cost, evaluations = None, np.inf, 0
+    for start in range(starts):
+        layout = _random_layout(rng, feasible, dist, n_stations, min_separation_mm)
+        if layout is None:
+            raise InputError(f"no {n_stations} feasible candidates are {min_separation_mm:g} mm apart: widen the "
+                             f"regions or lower --min-separation-mm")
+        cost = layout_cost(info, [blocks[i] for i in layout], criterion)
+        evaluations += 1
+        for sweep in range(max_sweeps):
+            improved = False
+            for slot in range(n_stations):
+                others = [i for k, i in enumerate(layout) if k != slot]
+                base = sum(blocks[i] for i in others)
+                for c in feasible:
+                    if c in layout or (others and dist[c, others].min() < min_separation_mm):
+                        continue
+                    u = info.position_u(base + blocks[c])
+                    evaluations += 1
+                    trial = float(np.max(u) if criterion == "max" else np.mean(u))
+                    if trial < cost * (1 - 1e-9):
+                        cost, layout[slot], improved = trial, c, True
+            if progress:
+                progress(start, sweep, cost)
+            if not improved:
+                break
+        if cost < best_cost:
+            best, best_cost = list(layout), cost
+    u = info.position_u(sum(blocks[i] for i in best))
+    return StationDesign(cand[best], best_cost, criterion, cand, counts, evaluations, starts, u)
+
+
+def _random_layout(rng, feasible, dist, n, min_sep):
+    """A seeded random set of n feasible candidates pairwise ≥ ``min_sep`` apart (None if none found)."""
+    for _ in range(200):
+        order = rng.permutation(feasible)
+        chosen = []
+        for c in order:
+            if all(dist[c, k] >= min_sep for k in chosen):
+                chosen.append(int(c))
+                if len(chosen) == n:
+                    return chosen
+    return None
+
+
+def evaluate_layout(info: StationInformation, stations_mm, criterion: str = "max") -> dict:
+    """Cost and readings of a given layout (e.g. the result's own stations), mm."""
+    blocks, counts = zip(*(info.block(s) for s in np.atleast_2d(stations_mm)))
+    u = info.position_u(sum(blocks))
+    return {"stations_mm": np.atleast_2d(stations_mm).tolist(), "readings": list(map(int, counts)),
+            "max_u_mm": float(np.max(u)), "mean_u_mm": float(np.mean(u)),
+            "cost_mm": float(np.max(u) if criterion == "max" else np.mean(u))}
+
+
+FORMAT = "olti-design/1"
+
+
+def design_document(design: StationDesign, current: Optional[dict], *, budget_name: str, u_reading_mm: float,
+                    result: str, plan: str, regions: str, step_mm: float, seed: int, max_sweeps: int,
+                    min_separation_mm: float, workspace_poses: int, gauge: str, elapsed_s: float) -> dict:
+    """The ``DESIGN.json`` document of a serial robot's station design (``olti-design/1``), mm."""
+    designed = {"stations_mm": design.stations_mm.tolist(), "max_u_mm": float(np.max(design.u_mm)),
+                "mean_u_mm": float(np.mean(design.u_mm)), "cost_mm": design.cost_mm}
+    improvement = None
+    if current is not None and np.isfinite(current["cost_mm"]) and design.cost_mm > 0:
+        improvement = current["cost_mm"] / design.cost_mm
+    return {"format": FORMAT, "criterion": design.criterion, "k": 1,
+            "method": "linear propagation (JCGM 100): per-station information with the station's own unknowns "
+                      "eliminated (Schur complement), the model's gauge, coordinate exchange from seeded starts "
+                      "(olti_drake.estimation.serial_design)",
+            "budget": budget_name, "u_reading_mm": u_reading_mm, "result": result, "plan": plan,
+            "regions": regions, "stations_mm": designed["stations_mm"], "current": current, "designed": designed,
+            "improvement": improvement, "evaluations": design.evaluations, "seed": seed, "starts": design.starts,
+            "max_sweeps": max_sweeps, "gauge": gauge,
+            "candidates": {"step_mm": step_mm, "count": int(len(design.candidates_mm)),
+                           "feasible": int((design.readings >= MIN_READINGS).sum())},
+            "rules": {"min_separation_mm": min_separation_mm, "min_readings": MIN_READINGS,
+                      "line_of_sight": "serial_plan.readable: capsules about the arm, ±80° acceptance"},
+            "workspace": {"poses": workspace_poses, "what": "seeded random poses in the model's commanded ranges"},
+            "elapsed_s": round(elapsed_s, 3)}

@@ -1,0 +1,102 @@
+"""Station placement design in 3D for robots loaded from a model file (issue 13, item 7)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.spatial
+
+from olti_drake.io.csvio import InputError
+from olti_drake.estimation.serial_design import (StationInformation, candidate_points, design_stations,
+                                                 evaluate_layout, gauge_rows, load_boxes, workspace_poses)
+from olti_drake.estimation.serial_plan import readable
+from olti_drake.io.resources import PACKAGE_DIR
+from olti_drake.model.chain import load_serial_chain
+from olti_drake.model.serial import DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign, synthetic_truth
+
+TOOL = (40.0, -25.0, 60.0)
+U_READING = 0.002
+
+
+@pytest.fixture(scope="module")
+def setup():
+    chain = load_serial_chain(os.path.join(PACKAGE_DIR, "models", "ur5.urdf"), "tool0")
+    truth = synthetic_truth(chain, seed=3, tool_offset_mm=TOOL)
+    camp = synthetic_campaign(truth, 250, seed=4, ranges_deg=np.array([[-90.0, 90.0]] * 6))
+    model = build_position_model(chain, camp.commands, camp.dirs, kind="errormap", grid_step_deg=45,
+                                 tool_offset_mm=TOOL)
+    A, _ = gauge_rows(model, camp.commands, camp.dirs, truth.stations_mm)
+    info = StationInformation(model, camp.commands, camp.dirs, U_READING, workspace_poses(model, 60, 1), gauge_rows=A)
+    return chain, truth, camp, model, info
+
+
+def test_predicted_u_equals_the_full_problem_with_stations_unknown(setup):
+    """The Schur-complement information summed over stations gives the same tool-point u as the covariance of
+    the whole distance problem (stations and dead paths unknown, the gauge of find_gauge), to 1e-6."""
+    chain, truth, camp, model, info = setup
+    P = truth.stations_mm
+    ok = readable(chain, camp.commands, P, info.rules, info.tool_offset)
+    pose, st = np.nonzero(ok)
+    meas = DistanceMeasurement(model, camp.commands[pose], camp.dirs[pose], st, np.zeros(len(st)), P, np.zeros(len(P)))
+    gauge = find_gauge(meas)
+    _, J = meas.residuals(meas.start_vector())
+    Z = scipy.linalg.null_space(gauge.A)
+    cov = U_READING ** 2 * Z @ np.linalg.inv(Z.T @ (J.T @ J).toarray() @ Z) @ Z.T
+    n = model.n_params
+    G = info.workspace_jacobian
+    direct = np.sqrt(np.sum((G @ cov[:n, :n]) * G, axis=1).reshape(-1, 3).sum(axis=1))
+    blocks = [info.block(p)[0] for p in P]
+    assert np.allclose(info.position_u(sum(blocks)), direct, rtol=1e-6)
+    assert [info.block(p)[1] for p in P] == list(ok.sum(axis=0))
+
+
+def test_design_beats_the_start_and_a_clustered_layout(setup):
+    chain, truth, camp, model, info = setup
+    cand = candidate_points(np.array([[[-1500, 1500], [-1500, 1500], [-400, -400]]]), 750.0)
+    d = design_stations(info, cand, 4, seed=0, starts=2, max_sweeps=3, min_separation_mm=300)
+    clustered = evaluate_layout(info, [[1500, 1500, -400], [1500, 750, -400], [750, 1500, -400], [750, 750, -400]])
+    assert d.cost_mm < clustered["cost_mm"]
+    assert d.cost_mm <= evaluate_layout(info, truth.stations_mm)["cost_mm"] * 1.5  # same league as a spread layout
+    assert np.min(scipy.spatial.distance.pdist(d.stations_mm)) >= 300
+    again = design_stations(info, cand, 4, seed=0, starts=2, max_sweeps=3, min_separation_mm=300)
+    assert np.array_equal(again.stations_mm, d.stations_mm)  # seeded
+
+
+def test_bad_regions_and_too_few_candidates_are_one_line(setup, tmp_path):
+    chain, truth, camp, model, info = setup
+    bad = tmp_path / "r.yaml"
+    bad.write_text("regions:\n  - {x_mm: [0, 100], y_mm: [0, 100]}\n")
+    with pytest.raises(InputError, match=r"regions\[0\]\.z_mm"):
+        load_boxes(bad)
+    with pytest.raises(InputError, match="stations are needed"):
+        design_stations(info, np.array([[1500.0, 0, -400], [0, 1500.0, -400]]), 4)
+
+
+def test_cli_design_of_a_serial_result(setup, tmp_path):
+    from olti_drake.estimation.calibration import Calibration
+    from olti_drake.io.serial_io import serial_result_dict, write_serial_result
+
+    chain, truth, camp, model, info = setup
+    meas = DistanceMeasurement(model, camp.distance_commands, camp.distance_dirs, camp.station, camp.displacement_mm,
+                               truth.stations_mm, truth.dead_paths_mm)
+    cal = Calibration(meas, gauge=find_gauge(meas))
+    result = tmp_path / "result.json"
+    write_serial_result(result, serial_result_dict(kind="errormap", robot_file="ur5", measurement=meas, fit=cal.fit(),
+                                                   gauge=cal.gauge))
+    regions = tmp_path / "regions.yaml"
+    regions.write_text("regions:\n  - {x_mm: [-1500, 1500], y_mm: [-1500, 1500], z_mm: -400}\n")
+    out = tmp_path / "design.json"
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
+                          "--step-mm", "1500", "--starts", "1", "--max-sweeps", "2", "--workspace-poses", "40",
+                          "--out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "olti-design/1" and np.shape(doc["stations_mm"]) == (4, 3)
+    assert doc["designed"]["cost_mm"] <= doc["current"]["cost_mm"] * 2 and "improvement" in doc
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
+                          "--reflectors", "3", "--out", str(tmp_path / "d2.json")], capture_output=True, text=True)
+    assert run.returncode == 2 and ">= 4" in run.stderr and "Traceback" not in run.stderr
