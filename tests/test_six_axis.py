@@ -86,9 +86,8 @@ def test_scenario_problems_found_with_the_robot_are_named(text, words):
 
 
 def test_simulate_refuses_bad_six_axis_input_in_one_line(tmp_path):
-    """A scenario problem found with the robot is one `error:` line naming the scenario, exit 2, no output;
-    --meshcat is refused for a six-axis scenario before any work."""
-    for extra in (["--scenario-text", "{robot: {tool_frame: nope}}"], ["--meshcat"]):
+    """A scenario problem found with the robot is one `error:` line naming the scenario, exit 2, no output."""
+    for extra in (["--scenario-text", "{robot: {tool_frame: nope}}"],):
         r = _olti("simulate", SIX_AXIS, *extra, "--out", tmp_path / "x")
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: "), r.stderr
         assert "six_axis.yaml" in r.stderr and not (tmp_path / "x").exists()

@@ -103,6 +103,19 @@ def _meshcat_view(args):
     return extend, rate or 0.0
 
 
+def _serial_meshcat_view(args):
+    """(extend, realtime rate) of the --meshcat options for a six-axis scenario, or none."""
+    if not args.meshcat:
+        return None, (args.realtime_rate or 0.0)
+    from olti_drake.sim.serial_view import add_serial_view, start_meshcat
+
+    meshcat = start_meshcat(args.meshcat_port)
+    print(f"meshcat: live view at {meshcat.web_url()}", flush=True)
+    rate = 20.0 if args.realtime_rate is None else args.realtime_rate
+    return (lambda builder, setup, station, seq: add_serial_view(builder, meshcat, setup, station, seq,
+                                                                 args.error_scale)), rate
+
+
 def _add_meshcat_options(p):
     p.add_argument("--meshcat", action="store_true",
                    help="live 3D view in the browser (prints the URL): arm, beam, reflectors, error vectors")
@@ -125,7 +138,9 @@ def cmd_simulate(args) -> int:
     from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
     if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
         print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
-                                      _progress(True), args.meshcat))
+                                      _progress(True), lambda: _serial_meshcat_view(args)))
+        if args.meshcat and sys.stdin.isatty():
+            input("press Enter to close the Meshcat view: ")
         return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))

@@ -468,11 +468,12 @@ def AddSimulatedSerialStation(builder, setup: SerialSetup, name: str = "station"
     return builder.AddNamedSystem(name, inner.Build())
 
 
-def build_serial_diagram(setup: SerialSetup, station_factory=None):
+def build_serial_diagram(setup: SerialSetup, station_factory=None, extend=None):
     """The whole six-axis campaign as a Diagram; returns (diagram, recorder, sequencer).
 
     ``station_factory(builder, setup)`` adds the station (default :func:`AddSimulatedSerialStation`;
-    ``olti run`` passes :func:`olti_drake.hardware.station.AddStation`: the scenario's station)."""
+    ``olti run`` passes :func:`olti_drake.hardware.station.AddStation`: the scenario's station).
+    ``extend(builder, setup, station, sequencer)`` adds more (e.g. :func:`olti_drake.sim.serial_view.add_serial_view`)."""
     from pydrake.systems.framework import DiagramBuilder
 
     from olti_drake.sim.systems import RowSequencer
@@ -497,6 +498,8 @@ def build_serial_diagram(setup: SerialSetup, station_factory=None):
         builder.Connect(seq.GetOutputPort(port), rec.GetInputPort(port))
     for port in ("direction", "displacement", "valid", "status"):
         builder.Connect(station.GetOutputPort(port), rec.GetInputPort(port))
+    if extend is not None:
+        extend(builder, setup, station, seq)
     diagram = builder.Build()
     diagram.station = station
     return diagram, rec, seq
@@ -515,13 +518,16 @@ class SerialCampaign:
         return len(self.columns["station"])
 
 
-def run_serial_campaign(setup: SerialSetup, progress=None) -> SerialCampaign:
-    """Simulate the diagram through every row; ``setup.timings`` gets ``build`` and ``stepping`` (s)."""
+def run_serial_campaign(setup: SerialSetup, progress=None, extend=None, realtime_rate: float = 0.0) -> SerialCampaign:
+    """Simulate the diagram through every row; ``setup.timings`` gets ``build`` and ``stepping`` (s).
+    ``extend``: as :func:`build_serial_diagram`'s (a live view); ``realtime_rate`` > 0 paces the run."""
     from pydrake.systems.analysis import Simulator
 
     t0 = time.perf_counter()
-    diagram, rec, seq = build_serial_diagram(setup)
+    diagram, rec, seq = build_serial_diagram(setup, extend=extend)
     simulator = Simulator(diagram)
+    if realtime_rate > 0:
+        simulator.set_target_realtime_rate(realtime_rate)
     t1 = time.perf_counter()
     chunks = 50 if progress else 1
     for k in range(1, chunks + 1):
@@ -598,13 +604,12 @@ def is_serial_scenario(path, name: Optional[str] = None) -> bool:
     return scenario_kind(path, name) == "serial"
 
 
-def simulate_serial_command(path, name, text, out_dir, seed=None, progress=None, meshcat=False) -> str:
+def simulate_serial_command(path, name, text, out_dir, seed=None, progress=None, view=None) -> str:
     """``olti simulate SCENARIO.yaml --out DIR`` for a six-axis scenario: load, check the outputs before
-    any work (never replacing a campaign), prepare, run the diagram, write; returns the summary."""
+    any work (never replacing a campaign), prepare, run the diagram, write; returns the summary.
+    ``view()``: (extend, realtime rate) of a live view, started once the outputs are known good."""
     from olti_drake.io.outputs import preflight
 
-    if meshcat:
-        raise ValueError(f"--meshcat: the live view is not available for six-axis scenarios yet ({path})")
     t0 = time.perf_counter()
     scenario = load_serial_scenario(path, name, text)
     if seed is not None:
@@ -613,7 +618,8 @@ def simulate_serial_command(path, name, text, out_dir, seed=None, progress=None,
     preflight([], inputs, measurements=[os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json")],
               dirs=[out_dir], create_dirs=True)
     setup = prepare_serial(scenario)
-    campaign = run_serial_campaign(setup, progress)
+    extend, rate = view() if view else (None, 0.0)
+    campaign = run_serial_campaign(setup, progress, extend, rate)
     paths = write_serial_simulation(campaign, out_dir, [f"scenario: {path}" + (f" ({name})" if name else "")
                                                         + f"; seed {scenario.seed}"])
     return "\n".join(serial_summary(setup, campaign, time.perf_counter() - t0) + [f"wrote {paths[0]} and {paths[1]}"])
