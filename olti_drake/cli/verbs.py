@@ -151,6 +151,19 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_plan(args) -> int:
+    """The plan of a six-axis scenario and its predicted quality before any measurement."""
+    from olti_drake.sim.serial_station import is_serial_scenario, plan_command
+
+    if not is_serial_scenario(args.scenario, args.scenario_name):
+        raise ValueError(f"{args.scenario}: olti plan reports six-axis (floor tracer) scenarios; the SCARA plan is "
+                         f"data/plan_paper000.yaml (olti design evaluates it)")
+    if args.out:
+        _check_outputs(args, [args.out], [args.scenario])
+    print(plan_command(args.scenario, args.scenario_name, args.scenario_text, args.out))
+    return 0
+
+
 def cmd_demo(args) -> int:
     """The whole story of paper 000 on the embedded default: simulate, identify, validate (§4)."""
     if args.robot == "six_axis":  # the six-axis story (olti_drake/report/six_axis_demo.py)
@@ -755,6 +768,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=cliargs.seed, default=None, help="override the scenario's seed")
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("plan", help="a six-axis scenario's plan and its predicted quality, before any measurement",
+                       description="Generate the plan of a six-axis (floor tracer) scenario and report, per joint, "
+                                   "the map nodes covered in each approach direction, and the plan's predicted "
+                                   "identifiability and node uncertainties by the linear method (the scenario's "
+                                   "budget and station estimates) -- before running it. mm and degrees.")
+    p.add_argument("scenario", help="six-axis scenario YAML (e.g. diagrams/six_axis.yaml)")
+    _add_scenario_options(p)
+    p.add_argument("--out", default=None, help="plan CSV to write (poses in order, joints, directions, stations)")
+    _add_force(p)
+    p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("identify", help="identify the D-H or error-map model from a SCARA or serial-robot campaign",
                        description="Identify the model of paper 000 (D-H: Eq. 3-5; error map: Eq. 6-10) "

@@ -625,6 +625,48 @@ def simulate_serial_command(path, name, text, out_dir, seed=None, progress=None,
     return "\n".join(serial_summary(setup, campaign, time.perf_counter() - t0) + [f"wrote {paths[0]} and {paths[1]}"])
 
 
+def plan_command(path, name, text, out=None) -> str:
+    """``olti plan SCENARIO.yaml [--out PLAN.csv]``: the six-axis scenario's plan and its predicted quality
+    before any measurement (issue "six-axis campaigns", item 2): per joint the nodes covered in each approach
+    direction, the rank with the gauge, the condition number, the predicted standard uncertainty of the map
+    nodes (linear method, the scenario's budget and station estimates) and what the plan cannot identify, by
+    name (:func:`olti_drake.estimation.serial_plan.plan_report`). ``out``: the plan as CSV (pose order,
+    joint commands, approach directions, ``station_<j>`` 1 where station j reads the pose)."""
+    from olti_drake.estimation.serial_plan import plan_report, reading_uncertainty_mm
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.outputs import preflight
+
+    scenario = load_serial_scenario(path, name, text)
+    inputs = [path, scenario.robot_path()] + ([scenario.resolve(scenario.budget)] if scenario.budget else [])
+    preflight([out] if out else [], inputs)
+    setup = prepare_serial(scenario)
+    plan = setup.plan
+    if plan is None:
+        raise InputError(f"scenario {path}: a robot-mounted scheme aims at a raster of tool points, not a joint "
+                         f"plan: olti plan reports floor-tracer plans")
+    u = reading_uncertainty_mm(setup.budget)
+    report = plan_report(setup.chain, plan, setup.stations_estimate_mm, u, tool_offset_mm=setup.tool_offset_mm,
+                         seed=scenario.plan.seed)
+    lines = [f"plan of {path}" + (f" ({name})" if name else "") + f": {len(plan.commands_deg)} poses, "
+             f"{plan.n_readings} readings from {plan.visible.shape[1]} stations, travel {plan.travel_deg():.0f} deg; "
+             f"linear prediction with the budget's u(reading) = {1e3 * u:.2f} um and the station estimates"]
+    lines += ["  " + ln for ln in report.lines()]
+    lines.append("  the plan identifies every parameter of the model" if report.identifiable else
+                 "  the plan does NOT identify every parameter: see 'unidentifiable' above")
+    if out:
+        n = setup.n_joints
+        cols = {"pose": np.arange(len(plan.commands_deg))}
+        cols.update({f"theta{i + 1}_deg": plan.commands_deg[:, i] for i in range(n)})
+        cols.update({f"dir{i + 1}": plan.dirs[:, i] for i in range(n)})
+        cols.update({f"station_{j}": plan.visible[:, j].astype(int) for j in range(plan.visible.shape[1])})
+        fmt = {c: "%d" for c in cols if not c.startswith("theta")}
+        fmt.update({c: "%.6f" for c in cols if c.startswith("theta")})
+        write_table(out, cols, fmt, comments=[f"olti plan: {path}; poses in order; station_<j> = 1: station j "
+                                             f"reads the pose; mm and degrees"])
+        lines.append(f"wrote {out}")
+    return "\n".join(lines)
+
+
 def serial_summary(setup: SerialSetup, campaign: SerialCampaign, elapsed_s: float) -> list:
     c = campaign.columns
     valid = c["valid"] > 0
