@@ -335,8 +335,31 @@ def test_six_axis_campaign_killed_mid_way_and_resumed_has_every_reading_once(tmp
     assert again.taken == 0 and _columns(out)["step"].size == t["step"].size
 
 
+def test_six_axis_hardware_station_on_one_port_per_head(tmp_path, six_axis_reference):
+    """station: !Hardware {robot_port, head_ports}: the real-device path (here the N-joint emulator's ptys,
+    started from the same scenario) reads what the emulated station reads."""
+    from olti_drake.hardware.runner import run
+    from olti_drake.hardware.station import serial_emulator_for
+    from olti_drake.sim.scenario import Emulated
+    from olti_drake.sim.serial_scenario import load_serial_scenario
+    from olti_drake.sim.serial_station import prepare_serial
+
+    emu = serial_emulator_for(prepare_serial(load_serial_scenario(_six_axis(tmp_path))), None, Emulated()).start()
+    try:
+        ports = ", ".join(emu.head_ports)
+        out = str(tmp_path / "run")
+        result = run(_six_axis(tmp_path, f"!Hardware {{robot_port: {emu.robot_port}, head_ports: [{ports}]}}"), out)
+    finally:
+        emu.stop()
+    assert result.complete and result.on_disk == six_axis_reference.planned
+    t, ref = _columns(out), _columns(six_axis_reference.out_dir)
+    np.testing.assert_array_equal(t["station"], ref["station"])
+    np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
+
+
 def test_six_axis_run_refuses_what_it_cannot_do_in_one_line(tmp_path):
-    for station, match in (("!Simulated {}", "olti simulate"), ("!Hardware {}", "!Hardware")):
+    for station, match in (("!Simulated {}", "olti simulate"), ("!Hardware {}", "head_ports"),
+                           ("!Hardware {robot_port: /dev/null, head_ports: [a, b]}", "4 in station order (got 2)")):
         proc = subprocess.run([sys.executable, "-m", "olti_drake.cli", "run", _six_axis(tmp_path, station), "--out",
                                str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
         assert proc.returncode == 2 and proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1, proc.stderr

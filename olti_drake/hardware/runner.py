@@ -163,14 +163,13 @@ class _Serial(_Scara):
 
     def __init__(self, scenario):
         from olti_drake.hardware.runlog import serial_columns
-        from olti_drake.sim.scenario import Emulated
+        from olti_drake.sim.scenario import Emulated, Hardware
         from olti_drake.sim.serial_station import prepare_serial
 
-        if not isinstance(scenario.station, Emulated):
+        if not isinstance(scenario.station, (Emulated, Hardware)):
             where = getattr(scenario, "source_file", None) or "scenario"
-            raise InputError(f"{where}: station: olti run takes a six-axis campaign on an !Emulated station "
-                             f"(simulated: olti simulate; real tracer heads: not yet), got "
-                             f"!{type(scenario.station).__name__}")
+            raise InputError(f"{where}: station: olti run takes a six-axis campaign on an !Emulated or !Hardware "
+                             f"station (simulated: olti simulate), got !{type(scenario.station).__name__}")
         self.scenario = scenario
         self.setup = s = prepare_serial(scenario)
         self.measured = np.asarray(s.measure, bool)

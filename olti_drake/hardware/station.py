@@ -344,8 +344,7 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
         return AddEmulatedStation(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):
         if serial:
-            raise InputError("station: !Hardware: a six-axis campaign on real tracer heads needs one port per "
-                             "head, which the scenario cannot name yet; use !Emulated")
+            return AddRealSerialStation(builder, setup, name)
         return AddRealStation(builder, setup, console_prompt, name)
     if serial:
         from olti_drake.sim.serial_station import AddSimulatedSerialStation
@@ -419,6 +418,20 @@ def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
     cfg = setup.scenario.station
     hook = None if set_reflector is None else (lambda counter, j: set_reflector(j))
     return _open_station(builder, setup, cfg, cfg.robot_port, cfg.counter_port, cfg.baud, [], hook, name)
+
+
+def AddRealSerialStation(builder, setup, name: str = "station"):
+    """Open a six-axis floor-tracer campaign's robot controller and tracer heads (``head_ports``, one per
+    station, in station order) and add the station driving them (the heads aim themselves: no prompt)."""
+    cfg = setup.scenario.station
+    if getattr(setup, "heads_true", None) is None:
+        raise InputError("station: !Hardware: only floor-tracer six-axis campaigns run on hardware so far (the "
+                         "robot-mounted scheme aims the robot, not heads)")
+    n = len(setup.stations_mm)
+    if len(cfg.head_ports) != n or not cfg.robot_port:
+        raise InputError(f"station: !Hardware: a six-axis floor-tracer campaign needs robot_port and head_ports: "
+                         f"one serial port per tracer head, {n} in station order (got {len(cfg.head_ports)})")
+    return _open_station(builder, setup, cfg, cfg.robot_port, list(cfg.head_ports), cfg.baud, [], None, name)
 
 
 def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name):

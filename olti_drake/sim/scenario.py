@@ -254,11 +254,13 @@ class Hardware:
     ``robot_driver``, ``counter_driver``: ``olti`` (the olti serial protocol; the operator is prompted to
     set up each reflector), ``bench`` (the counter sets each reflector with ``REFL``, as the emulator
     does: an unattended bench) or ``package.module:Class`` -- a driver of another device
-    (:mod:`olti_drake.hardware.drivers`).
+    (:mod:`olti_drake.hardware.drivers`). A six-axis floor-tracer campaign names one port per tracer
+    head in ``head_ports`` (station order; the heads are the counter, ``counter_port`` unused).
     """
 
     robot_port: str = ""
     counter_port: str = ""
+    head_ports: list[str] = field(default_factory=list)
     baud: int = 115200
     robot_driver: str = "olti"
     counter_driver: str = "olti"
