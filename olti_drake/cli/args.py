@@ -70,6 +70,27 @@ def pairs_mm(size: int, positive: bool = False):
     return parse
 
 
+def points_mm():
+    """``x,y;x,y;...`` or ``x,y,z;x,y,z;...`` in mm (2D or 3D points, all of one width) -> list of lists,
+    checked as :func:`pairs_mm`; the caller checks the width against its campaign."""
+    two, three = pairs_mm(2), pairs_mm(3)
+
+    def parse(text: str):
+        try:
+            return two(text)
+        except argparse.ArgumentTypeError:
+            try:
+                return three(text)
+            except argparse.ArgumentTypeError as e:
+                if "plausible" in str(e):
+                    raise
+                raise argparse.ArgumentTypeError(f"expected x,y;x,y;... or x,y,z;x,y,z;... in mm, "
+                                                 f"got {text!r}") from None
+
+    parse.__name__ = "mm points"
+    return parse
+
+
 def _inside(v, lo, hi, lo_open, hi_open) -> bool:
     above = lo is None or (v > lo if lo_open else v >= lo)
     below = hi is None or (v < hi if hi_open else v <= hi)

@@ -246,43 +246,9 @@ def cmd_identify(args) -> int:
 
 
 def cmd_multilaterate(args) -> int:
-    import numpy as np
+    from olti_drake.cli.machine_verbs import cmd_multilaterate as run
 
-    from olti_drake.estimation.multilateration import MultilaterationOptions, load_machine_campaign, multilaterate
-    from olti_drake.io.outputs import write_json
-
-    _check_outputs(args, [args.out], [args.campaign, args.budget])
-    options = MultilaterationOptions(
-        stations_mm=args.stations_mm, gauge=args.gauge,
-        loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
-        solver=args.solver)
-    data = load_machine_campaign(args.campaign)
-    if args.budget == "residuals":
-        budget = None
-    else:
-        from olti_drake.io.budget import budget_or_default
-
-        budget = budget_or_default(args.budget, "machine")
-    res = multilaterate(data, options, budget)
-    write_json(args.out, res.to_dict())
-    dev = 1e3 * np.hypot(*(res.targets_mm - res.commands_mm).T)
-    U = 2e3 * np.hypot(*res.targets_std_mm.T)
-    print(f"multilateration (001 Eq. 2-6): {len(data)} readings, {data.n_targets} targets, {data.n_stations} "
-          f"stations, {len(res.fit.names)} parameters, solver {res.fit.solver}")
-    print(f"  target deviation from command: max {dev.max():.2f} um, mean {dev.mean():.2f} um; "
-          f"U (k = 2) of the 2-norm: max {U.max():.2f} um")
-    for j, (P, L0) in enumerate(zip(res.stations_mm, res.dead_paths_mm)):
-        print(f"  station {j}: ({P[0]:.4f}, {P[1]:.4f}) mm, dead path {L0:.4f} mm")
-    print(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
-          f"condition number {res.fit.condition_number:.3g}")
-    print(f"  gauge: {res.gauge}")
-    for warning in res.fit.warnings:
-        print(f"  warning: {warning}")
-    if res.fit.outliers:
-        print(f"  {len(res.fit.outliers)} suspect reading(s): "
-              + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
-    print(f"wrote {args.out}")
-    return 0
+    return run(args)
 
 
 def _add_force(p):
@@ -381,46 +347,10 @@ def _propagate(ident, x, errors, args):
 
 
 def _uncertainty_multilateration(args, t0) -> int:
-    """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14): targets, stations, dead paths."""
-    import numpy as np
+    """``olti uncertainty`` of a machine-tool result, 2D or 3D (olti_drake.cli.machine_verbs)."""
+    from olti_drake.cli.machine_verbs import uncertainty_multilateration
 
-    from olti_drake.io.budget import budget_or_default
-    from olti_drake.report.figures import plot_target_uncertainty
-    from olti_drake.io.campaign_io import check_campaign_matches
-    from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, load_machine_campaign, load_result
-    from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.uncertainty import uncertainty_dict
-    from olti_drake.io.budget import ReadingErrors
-
-    if args.maps:
-        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
-    res = load_result(args.result)
-    budget = budget_or_default(args.budget, "machine")
-    data = load_machine_campaign(args.campaign)
-    campaign_note = check_campaign_matches(res, data, args.result)
-    ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"]))
-    x = np.concatenate([np.ravel(res["targets_mm"]), np.ravel(res["stations_mm"]), res["dead_paths_mm"]])
-    if len(x) != len(ident.names):
-        raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
-    std, _, samples, extra, every = _propagate(ident, x, ReadingErrors(budget), args)
-    _campaign_note(extra, campaign_note)
-    U = 1e3 * args.k * np.hypot(*std[:2 * data.n_targets].reshape(-1, 2).T)
-    extra.update(gauge=res["gauge"], elapsed_s=round(time.perf_counter() - t0, 3),
-                 target_expanded_um={"k": args.k, "max": float(U.max()), "mean": float(U.mean()),
-                                     "what": "k * sqrt(u_x^2 + u_y^2) of every estimated target (001 Fig. 14)"})
-    out = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
-                           extra=extra)
-    write_json(args.out, out)
-    print(f"uncertainty ({args.method}) of the multilateration {args.result} on {len(data)} readings; budget "
-          f"{budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None else ""))
-    print(f"  targets: U (k = {args.k:g}) of the 2-norm max {U.max():.2f} um, mean {U.mean():.2f} um")
-    _print_notes(extra)
-    print(f"wrote {args.out}")
-    if args.map:
-        plot_target_uncertainty(data.commands_mm, U, args.map, args.k,
-                                f"{'Monte Carlo' if every is not None else 'linear'}, budget {budget.name}")
-        print(f"wrote {args.map}")
-    return 0
+    return uncertainty_multilateration(args, t0, _propagate)
 
 
 def _campaign_note(extra: dict, note: str) -> None:
@@ -862,15 +792,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("multilaterate", help="paper-001 self-calibrating multilateration of a machine-tool campaign",
                        description="Identify target positions, station positions and dead paths from a machine-tool "
-                                   "campaign (001 Eq. 2-6, 2D) with the frame fixed by an explicit gauge; write "
+                                   "campaign (001 Eq. 2-6, 2D, or 3D when it has z_cmd_mm) with the frame fixed by an explicit gauge; write "
                                    "RESULT.json (formats.md). mm.")
     p.add_argument("campaign", help="machine-tool campaign CSV (formats.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
-    p.add_argument("--stations-mm", type=cliargs.pairs_mm(2),
-                   help="initial station positions 'x,y;x,y;...' mm (001 §2.2 estimates; default: from the data)")
-    p.add_argument("--gauge", choices=("best-fit", "first-two"), default="best-fit",
-                   help="best-fit: no mean translation/rotation of the targets from their commands (default); "
-                        "first-two: target 0 at its command, target 1 on its command direction")
+    from olti_drake.cli.machine_verbs import add_multilaterate_options
+
+    add_multilaterate_options(p, cliargs)
     p.add_argument("--budget", help="budget YAML for the standard uncertainties (default: 001 Table 4); "
                                     "'residuals' propagates the residual variance instead")
     _add_solver_options(p)

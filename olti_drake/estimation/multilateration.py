@@ -38,6 +38,7 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
 from olti_drake.model.scara import rows_to_csr
 from olti_drake.estimation.calibration import distance_rows_nd, station_fit  # noqa: F401 (station_fit re-exported)
 from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.threads import single_thread_blas
 
 FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
@@ -271,6 +272,9 @@ class Multilateration(LeastSquaresProgram):
     STATION_SPANS = 100.0
     #: A target estimated farther than this fraction of the command span from its command is absurd.
     TARGET_SPAN_FRACTION = 0.1
+    #: Stations whose extent across their best line (2D) or plane (3D) is below this fraction of their
+    #: extent along it are on it (singular values of the centred positions).
+    FLAT_STATIONS = 1e-4
 
     def _split(self, x):
         """(targets (N_i, D), stations (N_j, D), dead paths (N_j,)) of a parameter vector."""
@@ -349,9 +353,10 @@ class Multilateration(LeastSquaresProgram):
         beyond the gauge (found numerically; the condition number is infinite)."""
         d, D = self.data, self.dim
         _, stations, _ = self._split(x)
-        span = float(np.ptp(stations, axis=0).max())
-        # Tolerance: a millionth of the layout's span (the estimate's noise is µm over metres).
-        if affine_rank(stations, 1e-6 * span / max(1.0, float(np.abs(stations).max()))) < D:
+        spread = np.linalg.svd(stations - stations.mean(axis=0), compute_uv=False)
+        # Within 1e-4 of the layout's extent of a line/plane (0.1 mm over a metre): the start estimates carry
+        # µm of noise, and the fit would be rank deficient to that level.
+        if len(spread) < D or spread[D - 1] < self.FLAT_STATIONS * spread[0]:
             flat = _flat_name(D)
             raise UnidentifiableError(
                 f"{d.source}: not identifiable: P0..P{d.n_stations - 1} -- the {d.n_stations} stations lie on one "
@@ -473,14 +478,17 @@ class Multilateration(LeastSquaresProgram):
         from olti_drake.io.campaign_io import campaign_digest
 
         self._solve_budget = budget
-        f = self.fit()
-        if budget is not None:
-            from olti_drake.estimation.uncertainty import linear_covariance  # builds on this layer
-            from olti_drake.io.budget import ReadingErrors
+        # One BLAS thread: on the shared 2-core machine OpenBLAS threads made the 1820-unknown 3D solve
+        # (benchmarks/bench_multilateration3d.py) 59 s against 18 s, both under a load of 8.
+        with single_thread_blas():
+            f = self.fit()
+            if budget is not None:
+                from olti_drake.estimation.uncertainty import linear_covariance  # builds on this layer
+                from olti_drake.io.budget import ReadingErrors
 
-            f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
-            f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
-            f.notes.append(f"uncertainty: linear propagation of the budget '{budget.name}'")
+                f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
+                f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
+                f.notes.append(f"uncertainty: linear propagation of the budget '{budget.name}'")
         targets, stations, dead = self._split(f.x)
         return MultilaterationResult(targets, stations, dead, self._split(f.std)[0], f, self.gauge,
                                      self.data.commands_mm, self.options.gauge, campaign_digest(self.data),
@@ -519,20 +527,24 @@ def _gauge_rows(kind: str, c, n: int):
         b = np.array([c[0, 0], c[0, 1], -e[1] * c[0, 0] + e[0] * c[0, 1]])
         return A, b, ("origin fixed at target 0's command position and the X direction along the command "
                       "direction from target 0 to target 1 (target 1 constrained to that line)")
-    e1, e2 = c[1] - c[0], c[2] - c[0]
-    normal = np.cross(e1, e2)
-    if np.linalg.norm(normal) <= 1e-9 * np.linalg.norm(e1) * max(np.linalg.norm(e2), 1e-300):
-        raise InputError("gauge first-three: targets 0, 1, 2 have commands on one line; use best-fit or reorder")
-    # Two directions across e1: target 1 stays on the line; the normal keeps target 2 in the plane.
-    across = np.linalg.svd(e1[None])[2][1:]
+    # The third target: the first whose command is off the line of targets 0 and 1 (a grid's first few
+    # lie on one line).
+    e1 = c[1] - c[0]
+    normals = np.cross(e1, c - c[0])
+    off = np.flatnonzero(np.linalg.norm(normals, axis=1) > 1e-6 * np.linalg.norm(e1) * np.ptp(c, axis=0).max())
+    if not off.size or not np.linalg.norm(e1):
+        raise InputError("gauge first-three: every target command lies on the line of targets 0 and 1; use best-fit")
+    k = int(off[0])
+    normal = normals[k]
+    across = np.linalg.svd(e1[None])[2][1:]  # two directions across e1: target 1 stays on the line
     A = np.zeros((6, n))
     A[0:3, 0:3] = np.eye(3)
     A[3:5, 3:6] = across
-    A[5, 6:9] = normal
+    A[5, 3 * k:3 * k + 3] = normal  # target k stays in the plane of the three commands
     b = np.concatenate([c[0], across @ c[0], [normal @ c[0]]])
-    return A, b, ("origin fixed at target 0's nominal position, the X direction along the command direction "
-                  "from target 0 to target 1 (target 1 constrained to that line) and the XY plane through "
-                  "targets 0, 1, 2's nominal positions (target 2 constrained to it)")
+    return A, b, (f"origin fixed at target 0's nominal position, the X direction along the command direction "
+                  f"from target 0 to target 1 (target 1 constrained to that line) and the XY plane through the "
+                  f"nominal positions of targets 0, 1 and {k} (target {k} constrained to it)")
 
 
 def load_result(path) -> dict:
@@ -581,6 +593,8 @@ def align_to_commands(points_mm, commands_mm, *others_mm):
     """
     p = np.asarray(points_mm, dtype=float)
     c = np.asarray(commands_mm, dtype=float)
+    if c.shape[1] == 3:
+        return _align_3d(p, c, others_mm)
     centre = c.mean(axis=0)
     rel = c - centre
     angle, shift = 0.0, np.zeros(2)
@@ -595,6 +609,41 @@ def align_to_commands(points_mm, commands_mm, *others_mm):
     R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     moved = [(np.asarray(a, dtype=float) - centre) @ R.T + centre + shift for a in (p,) + others_mm]
     return moved[0] if not others_mm else tuple(moved)
+
+
+def _rodrigues(w) -> np.ndarray:
+    """Rotation matrix of the rotation vector w (rad)."""
+    angle = np.linalg.norm(w)
+    if angle == 0:
+        return np.eye(3)
+    k = w / angle
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def _align_3d(p, c, others):
+    """The 3D best-fit gauge of :func:`align_to_commands`: Newton on the rotation vector (the moment
+    Σ rel × e is nonlinear in it), the translation then exact."""
+    centre = c.mean(axis=0)
+    rel = c - centre
+
+    def moved(w, a):
+        q = (np.asarray(a, dtype=float) - centre) @ _rodrigues(w).T + centre
+        return q
+
+    def moment(w):
+        q = moved(w, p)
+        e = q - (q - c).mean(axis=0) - c
+        return np.cross(rel, e).sum(axis=0)
+
+    w = np.zeros(3)
+    for _ in range(8):
+        m = moment(w)
+        J = np.column_stack([(moment(w + 1e-7 * np.eye(3)[k]) - m) / 1e-7 for k in range(3)])
+        w = w - np.linalg.solve(J, m)
+    shift = -(moved(w, p) - c).mean(axis=0)
+    out = [moved(w, a) + shift for a in (p,) + tuple(others)]
+    return out[0] if not others else tuple(out)
 
 
 def multilaterate(data: MachineCampaign, options: MultilaterationOptions = None, budget=None) -> MultilaterationResult:

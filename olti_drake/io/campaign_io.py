@@ -72,9 +72,10 @@ def campaign_digest(data) -> dict:
     campaign: the last digests itself, ``SerialCampaign.digest``)."""
     if hasattr(data, "digest"):
         return data.digest()
-    if hasattr(data, "commands_mm"):  # MachineCampaign
-        return data_digest(data.station, data.target, data.commands_mm[data.target, 0],
-                           data.commands_mm[data.target, 1], data.displacement_mm)
+    if hasattr(data, "commands_mm"):  # MachineCampaign; 3D: z command and tool too (2D digests unchanged)
+        cmd = data.commands_mm[data.target]
+        more = () if cmd.shape[1] == 2 else (cmd[:, 2], data.tool[data.target])
+        return data_digest(data.station, data.target, cmd[:, 0], cmd[:, 1], *more, data.displacement_mm)
     c = data.commands
     return data_digest(data.reflector, c.theta1_deg, c.theta2_deg, c.dir1, c.dir2, data.displacement_mm)
 

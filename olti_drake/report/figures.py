@@ -428,10 +428,13 @@ def plot_linear_errors(panels, path):
 def plot_target_uncertainty(commands_mm, expanded_um, path, k: float = 2.0, method: str = ""):
     """Expanded uncertainty U(k) of each estimated target position, colour-coded at it (001 Fig. 14).
 
-    ``expanded_um`` (N,): k·sqrt(u_x² + u_y²), µm, of the targets at ``commands_mm`` (N, 2) mm.
+    ``expanded_um`` (N,): k·sqrt(u_x² + u_y²), µm, of the targets at ``commands_mm`` (N, 2) mm. In 3D
+    (N, 3) commands and k·sqrt(u_x² + u_y² + u_z²): the volume as slices at a few Z command levels.
     """
     plt = _pyplot()
     c, U = np.asarray(commands_mm, dtype=float), np.asarray(expanded_um, dtype=float)
+    if c.shape[1] == 3:
+        return _target_uncertainty_slices(plt, c, U, path, k, method)
     fig, ax = plt.subplots(figsize=(7.6, 6.4))
     sc = ax.scatter(c[:, 0], c[:, 1], c=U, s=520, marker="s", cmap="jet", edgecolors="k")
     for q, v in zip(c, U):
@@ -444,6 +447,28 @@ def plot_target_uncertainty(commands_mm, expanded_um, path, k: float = 2.0, meth
     ax.grid(True, alpha=0.3)
     fig.colorbar(sc, ax=ax, label=f"U (k = {k:g}) = k·sqrt(u_x² + u_y²), µm")
     fig.suptitle("Uncertainty of the estimated target positions (001 Fig. 14)")
+    return _save(fig, plt, path)
+
+
+def _target_uncertainty_slices(plt, c, U, path, k, method, most: int = 4):
+    """001 Fig. 14 in 3D: one XY panel per Z command level (at most ``most``, spread over the levels), one
+    colour scale; targets of several tools at one command show their largest U."""
+    levels = np.unique(np.round(c[:, 2], 6))
+    shown = levels[np.unique(np.round(np.linspace(0, len(levels) - 1, min(most, len(levels)))).astype(int))]
+    fig, axes = plt.subplots(1, len(shown), figsize=(5.2 * len(shown) + 1.5, 5.0), squeeze=False)
+    norm = plt.Normalize(U.min(), U.max())
+    for ax, z in zip(axes[0], shown):
+        at = np.abs(c[:, 2] - z) < 1e-6
+        sc = ax.scatter(c[at, 0], c[at, 1], c=U[at], norm=norm, s=260, marker="s", cmap="jet", edgecolors="k")
+        for q, v in zip(c[at], U[at]):
+            ax.annotate(f"{v:.1f}", q[:2], ha="center", va="center", fontsize=7, color="w", fontweight="bold")
+        ax.set(xlabel="X, mm", ylabel="Y, mm", title=f"Z command {z:g} mm")
+        ax.set_aspect("equal")
+        ax.margins(0.12)
+        ax.grid(True, alpha=0.3)
+    fig.colorbar(sc, ax=axes[0][-1], label=f"U (k = {k:g}) = k·sqrt(u_x² + u_y² + u_z²), µm")
+    fig.suptitle(f"Uncertainty of the estimated target positions (001 Fig. 14, slices of the volume): "
+                 f"max {U.max():.1f} µm, mean {U.mean():.1f} µm" + (f"\n{method}" if method else ""))
     return _save(fig, plt, path)
 
 
