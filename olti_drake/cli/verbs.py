@@ -902,7 +902,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "uncertainty map (001 Fig. 14 style, needs --campaign), residuals and, with "
                                    "--truth, validation (000 Figs. 9-11). Figures are embedded as data URIs and "
                                    "written as PNG files in DIR. mm and degrees.")
-    p.add_argument("result", help="result JSON (olti identify or olti multilaterate)")
+    p.add_argument("result", help="result JSON (olti identify, olti identify --model volumetric or olti multilaterate)")
     p.add_argument("uncertainty", nargs="?", default=None,
                    help="uncertainty JSON of this result (olti uncertainty; default: the result's own)")
     p.add_argument("--out", required=True, help="output directory")
