@@ -163,3 +163,19 @@ def test_a_3d_multilateration_result_is_reported_with_z(tmp_path, capsys):
     assert "4 " + " ".join(f"{v:.4f}" for v in S[4]) in page
     for name in ("fig_targets.png", "fig_target_uncertainty.png", "fig_residuals.png"):
         assert (tmp_path / "rep" / name).stat().st_size > 10_000
+
+
+def test_olti_design_on_a_volumetric_result(identified, tmp_path, capsys):
+    """olti design RESULT.json with a volumetric result: the targets are the identified tool points on a 3^3 grid
+    of the travel x every tool (estimation.machine_design), the result's stations the current layout."""
+    d = identified[3]
+    (tmp_path / "r.yaml").write_text("regions:\n  - {x_mm: [-400, -200], y_mm: [-300, 600], z_mm: [0, 400]}\n"
+                                     "  - {x_mm: [600, 800], y_mm: [-300, 600], z_mm: [0, 900]}\n")
+    code, out, err = _olti(capsys, "design", d / "result.json", "--regions", tmp_path / "r.yaml", "--step-mm", 300,
+                           "--starts", 1, "--max-sweeps", 1, "--out", tmp_path / "d.json")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert "81 targets" in doc["targets"] and len(doc["stations_mm"]) == 5 and len(doc["u_targets_mm"]) == 81
+    assert np.isfinite(doc["current"]["cost_mm"]) and doc["current"]["stations_mm"] == \
+        json.loads((d / "result.json").read_text())["stations_mm"]
+    assert doc["designed"]["cost_mm"] == pytest.approx(max(doc["u_targets_mm"]))

@@ -41,7 +41,7 @@ from olti_drake.model.volumetric3d import AXES, FORMAT as VOLUMETRIC_FORMAT
 #: A candidate closer than this to a target cannot aim at it (the beam direction is undefined), mm.
 MIN_RANGE_MM = 1.0
 #: Grid points per axis of a volumetric result's travel where the targets are placed.
-VOLUMETRIC_GRID = 4
+VOLUMETRIC_GRID = 3
 
 
 @dataclass
