@@ -88,6 +88,8 @@ def test_degenerate_design_spaces_are_refused_by_name(solved):
     with pytest.raises(InputError, match="counting condition"):
         check_design_space(np.random.default_rng(0).uniform(0, 500, (20, 3)), 4, 10)
     res = solved["best-fit"]
+    with pytest.raises(InputError, match="larger --step-mm"):
+        design_machine_stations(_info(res, "best-fit"), np.random.default_rng(1).uniform(-500, 900, (20000, 3)), 5)
     flat = res.targets_mm.copy()
     flat[:, 2] = 0.0
     with pytest.raises(InputError, match="targets lie in one plane"):

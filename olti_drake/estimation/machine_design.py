@@ -40,6 +40,8 @@ from olti_drake.model.volumetric3d import AXES, FORMAT as VOLUMETRIC_FORMAT
 
 #: A candidate closer than this to a target cannot aim at it (the beam direction is undefined), mm.
 MIN_RANGE_MM = 1.0
+#: The per-station information of every candidate is kept (each is evaluated once): at most this many bytes.
+MAX_BLOCK_BYTES = 2e9
 #: Grid points per axis of a volumetric result's travel where the targets are placed.
 VOLUMETRIC_GRID = 3
 
@@ -150,6 +152,11 @@ def design_machine_stations(info: MachineStationInformation, candidates_mm, n_st
     from olti_drake.estimation.serial_design import design_stations
 
     check_design_space(candidates_mm, n_stations, len(info.targets_mm), regions)
+    need = 2 * len(candidates_mm) * (3 * len(info.targets_mm)) ** 2 * 8  # two dense (n, n) blocks per candidate
+    if need > MAX_BLOCK_BYTES:
+        raise InputError(f"{len(info.targets_mm)} targets x {len(candidates_mm)} candidates need {need / 1e9:.1f} GB "
+                         f"of per-station information (at most {MAX_BLOCK_BYTES / 1e9:g} GB): use a larger --step-mm "
+                         f"or smaller regions")
     d = design_stations(info, candidates_mm, n_stations, criterion=criterion, seed=seed, starts=starts,
                         max_sweeps=max_sweeps, min_separation_mm=min_separation_mm)
     if not np.isfinite(d.cost_mm):
