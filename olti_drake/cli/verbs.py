@@ -516,7 +516,13 @@ def cmd_design(args) -> int:
     """
     from olti_drake.io.csvio import read_json
 
-    if isinstance(read_json(args.result, ("olti-result/1",), "a result").get("robot"), dict):
+    kind = read_json(args.result, ("olti-result/1", "olti-multilateration/1", "olti-volumetric/1"), "a result")
+    if kind["format"] != "olti-result/1":  # a machine tool in 3D: heads placed in 3D boxes
+        from olti_drake.cli.machine_design import design
+
+        _check_outputs(args, [args.out], [args.result, args.regions, args.budget])
+        return design(args)
+    if isinstance(kind.get("robot"), dict):
         from olti_drake.cli.serial_design import design
 
         _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
@@ -903,9 +909,11 @@ def build_parser() -> argparse.ArgumentParser:
                                   "current layout)")
     p.add_argument("--plan", help="plan CSV or YAML (default: the paper 000 plan, Eq. 11-12)")
     p.add_argument("--regions", required=True, help="regions YAML: rectangles {x_mm: [lo, hi], y_mm: [lo, hi]} "
-                                                    "(e.g. data/regions_paper000.yaml)")
-    p.add_argument("--reflectors", type=cliargs.integer(3, 1000), default=None,
-                   help="number of reflectors to place (default: as many as the result has)")
+                                                    "(e.g. data/regions_paper000.yaml); 3D boxes with z_mm for "
+                                                    "robots from a model file and machine tools in 3D")
+    p.add_argument("--reflectors", "--stations", type=cliargs.integer(3, 1000), default=None,
+                   help="number of reflectors (robots) or stations (machine tool in 3D) to place (default: as many "
+                        "as the result has)")
     p.add_argument("--criterion", choices=("max", "mean"), default="max",
                    help="minimize the worst (default) or the mean predicted-position u over the workspace")
     p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
@@ -945,7 +953,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "uncertainty map (001 Fig. 14 style, needs --campaign), residuals and, with "
                                    "--truth, validation (000 Figs. 9-11). Figures are embedded as data URIs and "
                                    "written as PNG files in DIR. mm and degrees.")
-    p.add_argument("result", help="result JSON (olti identify or olti multilaterate)")
+    p.add_argument("result", help="result JSON (olti identify, olti identify --model volumetric or olti multilaterate)")
     p.add_argument("uncertainty", nargs="?", default=None,
                    help="uncertainty JSON of this result (olti uncertainty; default: the result's own)")
     p.add_argument("--out", required=True, help="output directory")

@@ -98,12 +98,8 @@ def _read_points(path, names, n_tools: int):
 
 
 def position_std(result, commands_mm, tool) -> np.ndarray:
-    """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm: J C Jᵀ per point (linear, JCGM 100),
-    J the model's Jacobian at the command (clamped into the travel), C the result's covariance."""
-    from olti_drake.model.volumetric3d import clamp_commands
-
-    _, J = result.model.jacobian(clamp_commands(result.model.config, commands_mm), tool, result.params)
-    return np.sqrt(np.maximum(np.einsum("mip,pq,miq->mi", J, result.covariance, J), 0.0))
+    """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm (``VolumetricDocument.position_std``)."""
+    return result.position_std(commands_mm, tool)
 
 
 def predict(args) -> int:

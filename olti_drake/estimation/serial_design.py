@@ -32,6 +32,7 @@ import numpy as np
 import scipy.linalg
 
 from olti_drake.estimation.serial_plan import PlanRules, readable
+from olti_drake.estimation.station_information import predicted_u, station_information
 from olti_drake.io.csvio import InputError, read_yaml, unit_bound
 from olti_drake.model.serial import DistanceMeasurement, SerialPositionModel, find_gauge
 from olti_drake.threads import single_thread_blas
@@ -130,22 +131,13 @@ class StationInformation:
             return np.zeros((n, n)), int(ok.sum())
         diff = self.p[ok] - P
         u = diff / np.linalg.norm(diff, axis=1, keepdims=True)
-        Jm = self.jac.take(ok).contract(u)
-        Js = np.column_stack([-u, -np.ones(len(u))])
-        A = (Jm.T @ Jm).toarray()
-        B = np.asarray(Jm.T @ Js)
-        S = A - B @ np.linalg.solve(Js.T @ Js, B.T)
-        return S / self.u_reading_mm ** 2, int(ok.sum())
+        S = station_information(self.jac.take(ok).contract(u), u, np.full(len(u), 1 / self.u_reading_mm))
+        return S, int(ok.sum())
 
     def position_u(self, S) -> np.ndarray:
         """u (mm, k = 1) of the predicted tool point at every workspace pose for information S; inf if
         the gauge-reduced information is singular."""
-        M = self.Z.T @ S @ self.Z
-        lam, V = np.linalg.eigh(0.5 * (M + M.T))
-        if lam[0] <= 1e-12 * max(lam[-1], 0.0) or lam[-1] <= 0:
-            return np.full(len(self.GZ) // 3, np.inf)
-        w = (self.GZ @ V) / np.sqrt(lam)  # u² = Σ (G Z V)² / λ per row
-        return np.sqrt(np.sum(w ** 2, axis=1).reshape(-1, 3).sum(axis=1))
+        return predicted_u(S, self.Z, self.GZ)
 
 
 def gauge_rows(model: SerialPositionModel, commands, dirs, stations_mm, seed: int = 0) -> tuple:

@@ -86,6 +86,14 @@ class VolumetricDocument:
     def motions(self):
         return self.model.motions(self.params)
 
+    def position_std(self, commands_mm, tool) -> np.ndarray:
+        """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm: J C Jᵀ per point (linear, JCGM 100),
+        J the model's Jacobian at the command (clamped into the travel), C the result's covariance."""
+        from olti_drake.model.volumetric3d import clamp_commands
+
+        _, J = self.model.jacobian(clamp_commands(self.model.config, commands_mm), tool, self.params)
+        return np.sqrt(np.maximum(np.einsum("mip,pq,miq->mi", J, self.covariance, J), 0.0))
+
 
 def load_volumetric_result(path) -> VolumetricDocument:
     """Read an ``olti-volumetric/1`` result, checked: the model part (``model_from_document``), stations

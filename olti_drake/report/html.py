@@ -29,11 +29,13 @@ from olti_drake.report.iso230 import (ARCSEC_PER_DEG, axis_statistics, map_stati
 SCARA_FORMAT = "olti-result/1"
 MACHINE_FORMAT = "olti-multilateration/1"
 UNCERTAINTY_FORMAT = "olti-uncertainty/1"
+VOLUMETRIC_FORMAT = "olti-volumetric/1"
 
 #: Every file the report may write into DIR (checked against the inputs before anything is written).
 OUTPUT_NAMES = ("report.html", "iso230.json", "fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png",
                 "fig_residuals.png", "fig_path_x200.png", "fig_error_vectors.png", "fig_targets.png",
-                "fig_target_uncertainty.png")
+                "fig_target_uncertainty.png", "fig_motions_X.png", "fig_motions_Y.png", "fig_motions_Z.png",
+                "fig_volumetric_error.png", "fig_station_layout.png")
 
 # -- inputs ---------------------------------------------------------------------------------------------
 def _budget_of(unc: Optional[dict], unc_path, default):
@@ -502,7 +504,9 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     """Write ``out_dir/report.html`` (self-contained) and its PNG figures; returns the written paths.
 
     Args:
-        result_path: ``olti-result/1`` (SCARA, 000) or ``olti-multilateration/1`` (machine tool, 001).
+        result_path: ``olti-result/1`` (SCARA, 000; N-joint robots), ``olti-multilateration/1`` (machine tool,
+            001, 2D or 3D) or ``olti-volumetric/1`` (the machine's 21 error motions:
+            :mod:`olti_drake.report.volumetric_report`; no uncertainty file or truth).
         out_dir: output directory (created).
         uncertainty_path: ``olti uncertainty`` output for this result (``olti-uncertainty/1``); must have
             the result's keys and shapes. Default: the result's own ``uncertainty`` object.
@@ -524,7 +528,9 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     for p in inputs:
         if not os.path.isfile(p):
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
-    raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT), "a result")
+    raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT, VOLUMETRIC_FORMAT), "a result")
+    if raw["format"] == VOLUMETRIC_FORMAT:  # the machine's 21 error motions: report/volumetric_report.py
+        return _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, date)
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
     serial = raw["format"] == SCARA_FORMAT and isinstance(raw.get("robot"), dict)
     truth = None
@@ -550,7 +556,25 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
         _scara_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth, truth_path, k)
     else:
         _machine_report(page, raw, result_path, unc, uncertainty_path, campaign_path, k)
+    return _write_page(page, raw, result_path, out_dir, date)
 
+
+def _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, date):
+    """``olti-volumetric/1``: it carries its own uncertainty (covariance included) and has no simulation truth
+    file, so --uncertainty and --truth are refused in one line; k = 2."""
+    from olti_drake.report.volumetric_report import volumetric_report
+
+    for given, option in ((uncertainty_path, "an uncertainty file"), (truth_path, "--truth")):
+        if given:
+            raise InputError(f"{os.fspath(given)}: {option} does not apply to a volumetric result ({VOLUMETRIC_FORMAT} "
+                             f"carries its own uncertainty, covariance included); give the result and --campaign only")
+    page = ui.Page(out_dir)
+    volumetric_report(page, raw, result_path, campaign_path, 2.0)
+    return _write_page(page, raw, result_path, out_dir, date)
+
+
+def _write_page(page, raw, result_path, out_dir, date):
+    """Write the filled ``page`` as report.html (and iso230.json for an error map); returns the written paths."""
     date = date if date is not None else raw.get("date")
     header = list(page.header_rows) + ([("date", date)] if date else [])
     head = "<dl>" + "".join(f"<dt>{ui.e(a)}</dt><dd>{ui.e(b)}</dd>" for a, b in header) + "</dl>"

@@ -1,0 +1,55 @@
+"""``olti design`` for a 3D machine-tool result (multilateration or volumetric): station layout in 3D (argument
+handling and printing only; the method is :mod:`olti_drake.estimation.machine_design`)."""
+
+import os
+import time
+
+import numpy as np
+
+
+def design(args) -> int:
+    """Heads for a 3D multilateration campaign of the result's targets: candidates on a grid in the 3D regions,
+    cost = the worst or mean target u (linear, the budget; default 001 Table 4); writes DESIGN.json."""
+    from olti_drake.estimation.machine_design import (MachineStationInformation, design_machine_stations,
+                                                      design_targets, evaluate_machine_layout,
+                                                      machine_design_document)
+    from olti_drake.estimation.serial_design import candidate_points, load_boxes
+    from olti_drake.io.budget import ReadingErrors, budget_or_default
+    from olti_drake.io.outputs import write_json
+
+    targets = design_targets(args.result)
+    n = args.reflectors if args.reflectors is not None else (
+        0 if targets.stations_mm is None else len(targets.stations_mm))
+    budget = budget_or_default(args.budget, "machine")
+    cand = candidate_points(load_boxes(args.regions), args.step_mm)
+    t0 = time.perf_counter()
+    info = MachineStationInformation(targets.targets_mm, targets.nominal_mm, targets.gauge_kind, ReadingErrors(budget))
+    d = design_machine_stations(info, cand, n, criterion=args.criterion, seed=args.seed, starts=args.starts,
+                                max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
+                                regions=args.regions)
+    current = None
+    if targets.stations_mm is not None and len(targets.stations_mm) >= 4:
+        current = evaluate_machine_layout(info, targets.stations_mm, args.criterion)
+    doc = machine_design_document(d, current, targets, budget_name=budget.name, result=args.result,
+                                  regions=args.regions, step_mm=args.step_mm, seed=args.seed,
+                                  max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
+                                  gauge=info.gauge, elapsed_s=time.perf_counter() - t0)
+    write_json(args.out, doc)
+    print(f"station layout design in 3D (machine tool, {os.path.basename(args.result)}) by linear propagation "
+          f"(JCGM 100), budget {budget.name!r}")
+    print(f"  targets: {targets.what}; cost: {args.criterion} target u")
+    print(f"  candidates: {len(cand)} on a {args.step_mm:g} mm grid in {args.regions}")
+    for label, c in (("current (result)", current), (f"designed ({n} stations)", doc["designed"])):
+        if c is None:
+            continue
+        if np.isfinite(c["cost_mm"]):
+            print(f"  {label:24s} max u {1e3 * c['max_u_mm']:8.3f} um, mean u {1e3 * c['mean_u_mm']:8.3f} um")
+        else:
+            print(f"  {label:24s} the multilateration cannot solve from these stations")
+        print("    at " + ", ".join("(" + ", ".join(f"{v:.0f}" for v in s) + ")" for s in c["stations_mm"]) + " mm")
+    if doc["improvement"] is not None:
+        print(f"  improvement ({args.criterion} u, current / designed): {doc['improvement']:.2f}x")
+    print(f"  {d.evaluations} layouts evaluated from {args.starts} start(s), seed {args.seed}, "
+          f"{doc['elapsed_s']:.1f} s")
+    print(f"wrote {args.out}")
+    return 0
