@@ -114,6 +114,11 @@ def header(path):
     raise InputError(f"{os.fspath(path)}: empty file (no header row)")
 
 
+#: The SCARA campaign's optional column of the commanded J4 angle that steered the beam (000 Eq. (1), formats.md):
+#: every SCARA file stays a valid N = 2 campaign of the chain J1, J2 (``models/scara.sdf`` to ``beam``).
+SCARA_STEERING_COLUMN = "theta4_deg"
+
+
 def joint_count(path, n_joints: Optional[int] = None, robot: str = "") -> int:
     """N of a file's ``theta1_deg`` … ``thetaN_deg`` columns (consecutive from 1), checked against the
     robot's ``n_joints`` when given: one line naming the file, its header line and the robot."""
@@ -127,6 +132,8 @@ def joint_count(path, n_joints: Optional[int] = None, robot: str = "") -> int:
         raise InputError(f"{name}:{line}: missing required column 'theta1_deg' (joint angles theta1_deg .. "
                          f"thetaN_deg; header has {', '.join(cols)})")
     stray = [f"theta{k}_deg" for k in found if k > n]
+    if n == 2 and stray == [SCARA_STEERING_COLUMN]:
+        stray = []  # a SCARA campaign's J4 steering command (formats.md): not a joint of the position chain
     if stray:
         raise InputError(f"{name}:{line}: column '{stray[0]}' without 'theta{n + 1}_deg': joint columns run "
                          f"theta1_deg .. thetaN_deg without a gap")
@@ -339,7 +346,7 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     out["gauge"] = gauge
     out["residual_rms_mm"] = float(np.sqrt(np.mean(np.square(fit.residuals)))) if len(fit.residuals) else 0.0
     out["n_readings"] = int(len(measurement.commands))
-    unc = measurement.layout(np.asarray(fit.std, float))
+    unc = measurement.layout(np.asarray(fit.std, float), uncertainty=True)
     for m in unc.get("error_map", {}).values():
         m.pop("grid_deg", None)
     if "tracker_frame" in unc:
