@@ -149,3 +149,19 @@ def test_identify_cli_on_a_scara_campaign_writes_the_serial_result(tmp_path):
     assert stations.shape == (3, 3) and np.all(stations[:, 2] == 360.0) and np.all(u[:, 2] == 0)
     assert np.all(u[:, :2] > 0) and res["uncertainty"]["tool_offset_mm"][2] == 0
     assert "rotation about z" in res["gauge"]
+    # the serial verbs take the planar result: predict (cross-validation on the readings), linear uncertainty
+    pred, unc = tmp_path / "pred.csv", tmp_path / "unc.json"
+    for verb in (["predict", str(out), str(CAMPAIGN), "--out", str(pred)],
+                 ["uncertainty", str(out), str(CAMPAIGN), "--method", "linear", "--out", str(unc)]):
+        run = subprocess.run([sys.executable, "-m", "olti_drake.cli"] + verb, capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+    lines = [ln for ln in pred.read_text().splitlines() if not ln.startswith("#")]
+    head = lines[0].split(",")
+    rows = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    assert np.all(rows[:, head.index("z_mm")] == 360.0)
+    rms = np.sqrt(np.mean((rows[:, head.index("predicted_displacement_mm")] - rows[:, head.index("displacement_mm")])
+                          ** 2))
+    assert abs(rms - res["residual_rms_mm"]) < 1e-5
+    u = json.loads(unc.read_text())
+    assert np.all(np.array(u["stations_mm"])[:, 2] == 0) and np.all(np.array(u["stations_mm"])[:, :2] > 0)
+    assert u["tool_offset_mm"][2] == 0 and u["expanded"]["tool_offset_mm"][2] == 0

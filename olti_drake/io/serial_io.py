@@ -498,9 +498,10 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
     dropped = [(d.get("parameter", "?"), d.get("reason", "")) for d in data.get("dropped", []) if isinstance(d, dict)]
     compliant = [j for j in chain.joint_names if f"{j}_compliance_deg_per_Nm" in data]
     compliance = [float(json_numbers(data, name, f"{j}_compliance_deg_per_Nm")) for j in compliant]
+    held_tool = [p for p, _ in dropped if p in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]  # a planar robot's
     try:
         model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values,
-                                    compliant, compliance)
+                                    compliant, compliance, held_tool)
     except ValueError as e:
         raise InputError(f"{name}: {e}") from None
     P = json_numbers(data, name, "stations_mm", (None, 3)) if "stations_mm" in data else None
