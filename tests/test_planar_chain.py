@@ -61,7 +61,7 @@ def test_planar_base_set_holds_the_out_of_plane_parameters_by_name():
     assert len(base_parameter_set(ur5, ur5.nominal_parameters((40, -25, 60))).kept) == 27
 
 
-def _split_campaign(tmp_path):
+def _split_campaign():
     """The paper campaign without every 5th valid reading (identify) and those readings (held out)."""
     scara = load_campaign(CAMPAIGN)
     serial = read_serial_campaign(CAMPAIGN, 2, "scara")
@@ -74,8 +74,8 @@ def _scara_grids(data):
     return {"J1": np.unique(data.commands.theta1_deg), "J2": np.unique(data.commands.theta2_deg)}
 
 
-def _both(kind, tmp_path):
-    scara_fit, serial_fit, scara_held, serial_held = _split_campaign(tmp_path)
+def _both(kind):
+    scara_fit, serial_fit, scara_held, serial_held = _split_campaign()
     a = Identifier(scara_fit, IdentificationOptions(model=kind)).solve()
     chain = load_robot("scara", "beam")
     b = identify_serial(chain, serial_fit, SerialIdentificationOptions(model=kind, grids=_scara_grids(scara_fit)))
@@ -106,9 +106,9 @@ def _pairwise(p):
     return np.linalg.norm(p[:, None, :2] - p[None, :, :2], axis=2)
 
 
-def test_serial_engine_on_the_scara_equals_the_scara_path_dh(tmp_path):
+def test_serial_engine_on_the_scara_equals_the_scara_path_dh():
     """D-H (L1, L2, θ20 ↔ J2 dx, tool x, tool y): the same family, the same optimum within 1e-6 mm."""
-    a, b, scara_held, serial_held = _both("dh", tmp_path)
+    a, b, scara_held, serial_held = _both("dh")
     (ra, rb), (qa, qb) = _predictions(a, b, scara_held, serial_held)
     assert len(ra) > 150 and np.std(ra - scara_held.displacement_mm) > 0.01  # held-out readings: a real test
     assert np.abs(ra - rb).max() < 1e-6
@@ -121,10 +121,10 @@ def test_serial_engine_on_the_scara_equals_the_scara_path_dh(tmp_path):
     assert abs(325.0 + b.fit.x[b.fit.names.index("J2_dx_mm")] - a.value("L1_mm")) < 1e-6
 
 
-def test_serial_engine_on_the_scara_equals_the_scara_path_errormap(tmp_path):
+def test_serial_engine_on_the_scara_equals_the_scara_path_errormap():
     """Error maps on the same grids: predictions agree within the stated uncertainty (and J1's map, under the
     same gauge, node by node)."""
-    a, b, scara_held, serial_held = _both("errormap", tmp_path)
+    a, b, scara_held, serial_held = _both("errormap")
     (ra, rb), (qa, qb) = _predictions(a, b, scara_held, serial_held)
     u_j1 = a.std[[i for i, n in enumerate(a.names) if n.startswith("J1_")]]
     x_j1_a = a.x[[i for i, n in enumerate(a.names) if n.startswith("J1_")]]
