@@ -9,7 +9,8 @@ def uncertainty(args, propagate) -> int:
     verb's own), and of the predicted tool point over ``--workspace-poses`` seeded poses (``--map``: slices)."""
     import numpy as np
 
-    from olti_drake.estimation.serial_uncertainty import calibration_at_result, workspace_uncertainty
+    from olti_drake.estimation.serial_uncertainty import (calibration_at_result, workspace_uncertainty,
+                                                          zero_held_uncertainties)
     from olti_drake.estimation.uncertainty import uncertainty_dict
     from olti_drake.io.budget import ReadingErrors, budget_or_default
     from olti_drake.io.campaign_io import check_campaign_matches
@@ -39,8 +40,8 @@ def uncertainty(args, propagate) -> int:
                             "expanded_um_max": float(U.max()), "expanded_um_mean": float(U.mean()),
                             "what": "k * sqrt(u_x^2 + u_y^2 + u_z^2) of the predicted tool point at seeded poses in "
                                     "the model's commanded ranges"})
-    out = uncertainty_dict(cal, std, args.method, budget, k=args.k, samples=samples, coverage=args.coverage,
-                           extra=extra)
+    out = zero_held_uncertainties(uncertainty_dict(cal, std, args.method, budget, k=args.k, samples=samples,
+                                                   coverage=args.coverage, extra=extra), cal.measurement)
     write_json(args.out, out)
     print(f"uncertainty ({args.method}) of {args.result} ({res.model.chain.n_joints} joints) on {len(campaign)} "
           f"readings; budget {budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Dict, Optional, Sequence
 
 import numpy as np
 
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.leastsquares import SolverOptions, UnidentifiableError
 from olti_drake.io.csvio import InputError
+from olti_drake.model.chain import planar_axis
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
@@ -56,6 +57,8 @@ class SerialIdentificationOptions(SolverOptions):
     compliance: bool = False
     #: Dead-path drift of every station in time (``--drift``; distance campaigns with ``time_s``).
     drift: bool = False
+    #: Map nodes per joint name (deg), instead of every ``grid_step_deg`` (e.g. the SCARA path's grids).
+    grids: Optional[Dict[str, Sequence[float]]] = None
 
 
 @dataclass
@@ -97,20 +100,24 @@ class SerialCalibration(Calibration):
         return out
 
 
-def start_stations(model, campaign) -> tuple:
-    """Stations (Nt, 3) and dead paths (Nt,) mm fitted to the nominal tool points (station_fit)."""
+def start_stations(model, campaign, planar=None) -> tuple:
+    """Stations (Nt, 3) and dead paths (Nt,) mm fitted to the nominal tool points (station_fit).
+
+    ``planar``: the root axis normal to a planar robot's plane: each station is fitted in the plane
+    (2D, 000 Eq. (5)) and placed at the tool points' height along the axis (held there)."""
     p = model.positions(campaign.commands, campaign.dirs)
+    free = [c for c in range(3) if c != planar]
     labels = np.unique(campaign.station)
     P, d0 = [], []
     for j in labels:
         sel = campaign.station == j
         try:
-            Pj, d0j = station_fit(p[sel], campaign.displacement_mm[sel])
+            Pf, d0j = station_fit(p[sel][:, free], campaign.displacement_mm[sel])
         except ValueError as e:
-            hint = (" (a planar robot: its stations cannot be started in 3D; a SCARA is identified by olti identify "
-                    "without --robot)") if "one plane" in str(e) else ""
-            raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}{hint}") \
+            raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}") \
                 from None
+        Pj = np.full(3, p[sel][:, planar].mean() if planar is not None else 0.0)
+        Pj[free] = Pf
         P.append(Pj)
         d0.append(d0j)
     return np.array(P), np.array(d0)
@@ -134,18 +141,26 @@ def start_frame(model, campaign) -> np.ndarray:
 
 
 def build_problem(chain, campaign, options: SerialIdentificationOptions):
-    """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame)."""
+    """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame).
+
+    A distance campaign of a planar robot (:func:`~olti_drake.model.chain.planar_axis`: the SCARA of
+    000 as ``models/scara.sdf`` to its ``beam`` frame) is the planar problem: the out-of-plane
+    parameters dropped by name (``base_parameter_set(planar=...)``), the stations 2D in the plane at
+    the tool point's held height."""
+    planar = (planar_axis(chain, chain.nominal_parameters(options.tool_offset_mm))
+              if campaign.kind == "distance" else None)
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
-                                 grid_step_deg=options.grid_step_deg, tool_offset_mm=options.tool_offset_mm,
-                                 compliance=options.compliance)
+                                 grid_step_deg=options.grid_step_deg, grids=options.grids,
+                                 tool_offset_mm=options.tool_offset_mm, compliance=options.compliance,
+                                 planar=planar)
     if options.drift and (campaign.kind != "distance" or campaign.time_s is None):
         raise InputError(f"{campaign.source}: --drift needs a distance campaign with a 'time_s' column (the time of "
                          f"every reading, s)")
     if campaign.kind == "distance":
-        P, d0 = start_stations(model, campaign)
+        P, d0 = start_stations(model, campaign, planar)
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
                                    campaign.displacement_mm, P, d0,
-                                   time_h=campaign.time_s / 3600.0 if options.drift else None)
+                                   time_h=campaign.time_s / 3600.0 if options.drift else None, held_axis=planar)
     return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
                             start_frame(model, campaign))
 
@@ -239,9 +254,8 @@ def summary(ident: SerialIdentification) -> str:
     lines = [f"model {m.kind} of {m.chain.path} to '{m.chain.tool_frame}' ({m.chain.n_joints} joints): "
              f"{len(ident.measurement.commands)} readings ({ident.measurement.kind}), {len(fit.names)} parameters "
              f"({len(m.geometric_names)} location errors kept, {len(m.dropped)} dropped), solver {fit.solver}"]
-    t = m.n_dense - len(m.offset_joints)
-    tool = fit.x[t - 3:t]
-    ut = [u[n] for n in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]
+    tool = m.chain_parameters(fit.x[:m.n_params])[-3:]
+    ut = [u.get(n, 0.0) for n in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]
     lines.append("  tool offset (" + ", ".join(f"{v:.4f}" for v in tool) + ") +- ("
                  + ", ".join(f"{v:.4f}" for v in ut) + ") mm (k = 1)")
     for s, mp in zip(m.map_starts, m.maps):

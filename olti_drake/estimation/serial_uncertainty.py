@@ -28,6 +28,7 @@ def calibration_at_result(result, campaign):
     :class:`~olti_drake.io.serial_io.SerialCampaign` (the one the result came from)."""
     from olti_drake.estimation.leastsquares import SolverOptions
     from olti_drake.estimation.serial_identification import SerialCalibration
+    from olti_drake.model.chain import planar_axis
     from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, find_gauge
 
     model = result.model
@@ -48,7 +49,8 @@ def calibration_at_result(result, campaign):
                                    campaign.displacement_mm, result.stations_mm, result.dead_paths_mm,
                                    time_h=campaign.time_s / 3600.0 if drift else None,
                                    drift_mm_per_h=data.get("drift_mm_per_h"),
-                                   drift_reference_h=data.get("drift_reference_h"))
+                                   drift_reference_h=data.get("drift_reference_h"),
+                                   held_axis=planar_axis(model.chain, model.chain_params))  # as build_problem
     else:
         if result.tracker_frame is None:
             raise InputError(f"{campaign.source}: a point (tracker) campaign, but the result was identified from "
@@ -56,6 +58,24 @@ def calibration_at_result(result, campaign):
         meas = PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm, result.tracker_frame)
     cal = SerialCalibration(meas, SolverOptions(), find_gauge(meas), campaign.source, campaign.line)
     return cal, meas.start_vector()
+
+
+def zero_held_uncertainties(out: dict, measurement) -> dict:
+    """Set the uncertainty of every held coordinate of ``out`` (an uncertainty layout, and its ``expanded``) to 0.
+
+    A planar robot holds its stations' height and the tool offset along the plane's normal: they are not
+    parameters, yet the layout writes the held values where a free coordinate's u goes (the same layout
+    serves values and uncertainties)."""
+    model = measurement.model
+    held_tool = [k for k, t in enumerate(("tool_x_mm", "tool_y_mm", "tool_z_mm")) if t in model.held_tool]
+    axis = getattr(measurement, "held_axis", None)
+    for block in (out, out.get("expanded", {})):
+        for k in held_tool:
+            block["tool_offset_mm"][k] = 0.0
+        if axis is not None and "stations_mm" in block:
+            for row in block["stations_mm"]:
+                row[axis] = 0.0
+    return out
 
 
 def tool_point_uncertainty(model, commands, dirs, cov=None, samples=None) -> tuple:

@@ -114,6 +114,11 @@ def header(path):
     raise InputError(f"{os.fspath(path)}: empty file (no header row)")
 
 
+#: The SCARA campaign's optional column of the commanded J4 angle that steered the beam (000 Eq. (1), formats.md):
+#: every SCARA file stays a valid N = 2 campaign of the chain J1, J2 (``models/scara.sdf`` to ``beam``).
+SCARA_STEERING_COLUMN = "theta4_deg"
+
+
 def joint_count(path, n_joints: Optional[int] = None, robot: str = "") -> int:
     """N of a file's ``theta1_deg`` … ``thetaN_deg`` columns (consecutive from 1), checked against the
     robot's ``n_joints`` when given: one line naming the file, its header line and the robot."""
@@ -127,6 +132,8 @@ def joint_count(path, n_joints: Optional[int] = None, robot: str = "") -> int:
         raise InputError(f"{name}:{line}: missing required column 'theta1_deg' (joint angles theta1_deg .. "
                          f"thetaN_deg; header has {', '.join(cols)})")
     stray = [f"theta{k}_deg" for k in found if k > n]
+    if n == 2 and stray == [SCARA_STEERING_COLUMN]:
+        stray = []  # a SCARA campaign's J4 steering command (formats.md): not a joint of the position chain
     if stray:
         raise InputError(f"{name}:{line}: column '{stray[0]}' without 'theta{n + 1}_deg': joint columns run "
                          f"theta1_deg .. thetaN_deg without a gap")
@@ -339,7 +346,7 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     out["gauge"] = gauge
     out["residual_rms_mm"] = float(np.sqrt(np.mean(np.square(fit.residuals)))) if len(fit.residuals) else 0.0
     out["n_readings"] = int(len(measurement.commands))
-    unc = measurement.layout(np.asarray(fit.std, float))
+    unc = measurement.layout(np.asarray(fit.std, float), uncertainty=True)
     for m in unc.get("error_map", {}).values():
         m.pop("grid_deg", None)
     if "tracker_frame" in unc:
@@ -491,9 +498,10 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
     dropped = [(d.get("parameter", "?"), d.get("reason", "")) for d in data.get("dropped", []) if isinstance(d, dict)]
     compliant = [j for j in chain.joint_names if f"{j}_compliance_deg_per_Nm" in data]
     compliance = [float(json_numbers(data, name, f"{j}_compliance_deg_per_Nm")) for j in compliant]
+    held_tool = [p for p, _ in dropped if p in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]  # a planar robot's
     try:
         model = SerialPositionModel(chain, kind, geometric, params, offsets, maps, dropped, offset_values,
-                                    compliant, compliance)
+                                    compliant, compliance, held_tool)
     except ValueError as e:
         raise InputError(f"{name}: {e}") from None
     P = json_numbers(data, name, "stations_mm", (None, 3)) if "stations_mm" in data else None

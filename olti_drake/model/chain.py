@@ -26,11 +26,12 @@ plant (``drake_kinematics``) to 1e-9 mm.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence, Tuple
+from typing import Optional, Sequence, Tuple
 
 import numpy as np
 import scipy.linalg
@@ -449,9 +450,37 @@ class BaseSet:
         return kept / dropped if dropped > 0 else np.inf
 
 
+#: Relative size (of the reach) below which the tool points of random poses count as lying in one plane.
+PLANAR_RTOL = 1e-9
+
+
+def planar_axis(chain: SerialChain, params=None, *, n_poses: int = 40, seed: int = 0):
+    """The root axis (0, 1, 2 for x, y, z) normal to the plane the tool point never leaves, or None.
+
+    A planar robot (every joint axis along one root axis, e.g. the SCARA's J1, J2 about z) keeps
+    its nominal tool point at one height along that axis over any pose: tested on ``n_poses``
+    seeded random poses within the limits (spread below :data:`PLANAR_RTOL` of the reach). A plane
+    not normal to a root axis is not recognised (None): the model file's root frame is expected
+    to have the axes along one of its own axes, as a SCARA's has.
+    """
+    p = chain.positions(chain.random_angles(n_poses, seed), params)
+    reach = max(float(np.abs(p).max()), 1.0)
+    spread = np.ptp(p, axis=0)
+    flat = np.flatnonzero(spread < PLANAR_RTOL * reach)
+    return int(flat[0]) if flat.size == 1 else None
+
+
+def planar_reason(axis: int) -> str:
+    """Why a planar robot's readings cannot see a parameter that moves the tool point out of its plane."""
+    name = "xyz"[axis]
+    return (f"out of the plane: a planar robot (every joint axis along {name}) keeps the tool point at one {name}, "
+            f"and readings in that plane see this parameter only at second order (cosine) or as a combination of "
+            f"the in-plane ones; held at its start value")
+
+
 def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, seed: int = 0,
                        rtol: float = 1e-8, measurement_frame: str = "known",
-                       offsets: bool = True) -> BaseSet:
+                       offsets: bool = True, planar: Optional[int] = None) -> BaseSet:
     """Reduce the position model's parameters to an identifiable set (position-only readings).
 
     The Jacobian of the tool point at ``n_poses`` seeded random poses within
@@ -474,6 +503,14 @@ def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, se
     For a generic chain of R revolute joints the known count of independent
     kinematic parameters with full-pose readings is 4R + 6; with position
     readings the tool orientation (3) is unobservable, so 4R + 3 remain.
+
+    ``planar``: the root axis normal to a planar robot's plane (:func:`planar_axis`), for readings
+    in that plane (distances to stations at the tool point's height, 000 Eq. (10)). Every parameter
+    whose column has a component along that axis at some pose (a shift along it, a tilt of a joint
+    frame, the tool offset along it) is dropped first with :func:`planar_reason`, and the rest is
+    ranked on the in-plane rows only: the SCARA's J1, J2 keep 2R + 2 = 6 (J1 dx, dy and offset: the
+    base's place and turn; J2 dx = L1 − 325 mm, tool x = L2 − 225 mm, tool y; J2's offset θ20 trades
+    with tool y: (L2, θ20) in polar form).
     """
     if measurement_frame not in ("known", "unknown"):
         raise ValueError(f"measurement_frame: 'known' or 'unknown', not {measurement_frame!r}")
@@ -491,7 +528,17 @@ def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, se
         columns = np.hstack([columns, frame])
         names += list(FRAME_NAMES)
         groups.insert(0, list(range(7 * n + 3, 7 * n + 9)))
-    return _staged_rank(columns, names, groups, rtol, n_poses, seed)
+    if planar is None:
+        return _staged_rank(columns, names, groups, rtol, n_poses, seed)
+    rows = columns.reshape(-1, 3, columns.shape[1])
+    normal = np.abs(rows[:, planar, :]).max(axis=0)
+    out = normal > 1e-9 * max(np.abs(columns).max(), 1e-300)
+    groups = [[c for c in g if not out[c]] for g in groups]
+    base = _staged_rank(np.delete(rows, planar, axis=1).reshape(-1, columns.shape[1]), names, groups, rtol,
+                        n_poses, seed)
+    held = tuple((names[c], planar_reason(planar)) for c in np.flatnonzero(out))
+    return dataclasses.replace(base, dropped=held + base.dropped,
+                               independence={**base.independence, **{name: 0.0 for name, _ in held}})
 
 
 def _frame_columns(p) -> np.ndarray:

@@ -215,7 +215,7 @@ class SerialPositionModel:
     def __init__(self, chain: SerialChain, kind: str, geometric: Sequence[str],
                  chain_params=None, offsets: Sequence[str] = (), maps: Sequence[JointMap] = (),
                  dropped: Sequence[Tuple[str, str]] = (), offset_values=None,
-                 compliance: Sequence[str] = (), compliance_values=None):
+                 compliance: Sequence[str] = (), compliance_values=None, held_tool: Sequence[str] = ()):
         if kind not in MODEL_KINDS:
             raise ValueError(f"model: 'dh' or 'errormap', not {kind!r}")
         self.chain, self.kind = chain, kind
@@ -227,7 +227,13 @@ class SerialPositionModel:
         if unknown:
             raise ValueError(f"geometric parameter '{unknown[0]}' is not a location error of the chain")
         geo = sorted(all_names.index(g) for g in geometric)
-        self._chain_cols = np.array(geo + [6 * n, 6 * n + 1, 6 * n + 2], dtype=int)
+        bad = [t for t in held_tool if t not in TOOL_NAMES]
+        if bad:
+            raise ValueError(f"held tool coordinate '{bad[0]}' is not one of {', '.join(TOOL_NAMES)}")
+        # A planar robot's tool offset along the plane's normal is held (chain_params), not identified.
+        self.held_tool = tuple(t for t in TOOL_NAMES if t in held_tool)
+        self._tool_cols = [6 * n + k for k, t in enumerate(TOOL_NAMES) if t not in self.held_tool]
+        self._chain_cols = np.array(geo + self._tool_cols, dtype=int)
         joints = list(chain.joint_names)
         self.offset_joints = np.array(sorted(joints.index(j) for j in offsets), dtype=int)
         self.offset_values = (np.zeros(len(self.offset_joints)) if offset_values is None
@@ -258,7 +264,7 @@ class SerialPositionModel:
     @property
     def geometric_names(self) -> Tuple[str, ...]:
         """The free location errors (the first block of ``names``)."""
-        return self.names[:len(self._chain_cols) - 3]
+        return self.names[:len(self._chain_cols) - len(self._tool_cols)]
 
     @property
     def bidirectional(self) -> bool:
@@ -289,7 +295,8 @@ class SerialPositionModel:
         return SerialPositionModel(self.chain, self.kind, self.geometric_names,
                                    self.chain_parameters(x), [joints[j] for j in self.offset_joints],
                                    maps, self.dropped, x[len(self._chain_cols):self._compliance_start],
-                                   [joints[j] for j in self.compliance_joints], x[self._compliance_start:self.n_dense])
+                                   [joints[j] for j in self.compliance_joints], x[self._compliance_start:self.n_dense],
+                                   self.held_tool)
 
     def _check(self, x):
         x = np.asarray(x, float)
@@ -381,16 +388,20 @@ class SerialPositionModel:
         maps = tuple((s, j, cols, w) for s, j, (cols, w) in zip(self.map_starts, self.map_joints, interps))
         return p, PositionJacobian(dense, jac[:, :, :n], maps, self.n_params)
 
-    def layout(self, v) -> dict:
+    def layout(self, v, uncertainty: bool = False) -> dict:
         """A parameter-shaped vector (values or uncertainties) in result.json's keys (formats.md,
         serial robots): the location errors and ``dh`` offsets by name, ``tool_offset_mm`` [x, y,
         z], ``error_map`` keyed by joint name (``grid_deg``, ``forward_deg``, and ``reverse_deg``
-        when bidirectional)."""
+        when bidirectional). A held tool coordinate (planar robot) is its held value, or 0 when
+        ``uncertainty``."""
         v = self._check(v)
         out = {name: float(v[i]) for i, name in enumerate(self.names[:self.n_dense])
                if name not in TOOL_NAMES}
-        k = len(self._chain_cols)
-        out["tool_offset_mm"] = v[k - 3:k].tolist()
+        n = self.chain.n_joints
+        tool = np.zeros(3) if uncertainty else self.chain_params[6 * n:].copy()
+        k = len(self._chain_cols) - len(self._tool_cols)
+        tool[np.array(self._tool_cols, dtype=int) - 6 * n] = v[k:len(self._chain_cols)]
+        out["tool_offset_mm"] = tool.tolist()
         if self.maps:
             out["error_map"] = {m.joint: m.with_values(v[s:s + m.n_values]).to_dict()
                                 for s, m in zip(self.map_starts, self.maps)}
@@ -419,7 +430,8 @@ class SerialPositionModel:
 def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str = "errormap",
                          grid_step_deg: float = 15.0, grids: Optional[Dict[str, Sequence[float]]] = None,
                          tool_offset_mm=(0.0, 0.0, 0.0), chain_params=None,
-                         n_poses: int = 60, seed: int = 0, compliance: bool = False) -> SerialPositionModel:
+                         n_poses: int = 60, seed: int = 0, compliance: bool = False,
+                         planar: Optional[int] = None) -> SerialPositionModel:
     """The model of ``kind`` for a campaign's commands (M, N) deg.
 
     Free geometric parameters: the base set of :func:`base_parameter_set`
@@ -432,6 +444,8 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
     c_i under gravity for every joint whose gravity torque varies over the
     campaign by at least :data:`MIN_TORQUE_SPAN_NM` (``--compliance``).
     ``model.dropped`` names what was left out and why (the base set's reasons).
+    ``planar``: the root axis normal to a planar robot's plane (readings in the plane): the base
+    set's planar reduction, the tool offset along the axis held (``held_tool``).
     """
     if kind not in MODEL_KINDS:
         raise ValueError(f"model: 'dh' or 'errormap', not {kind!r}")
@@ -439,16 +453,17 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
     if th.shape[1] != chain.n_joints or th.shape[0] == 0:
         raise ValueError(f"commands: need (M, {chain.n_joints}) joint angles, got shape {th.shape}")
     params = chain.nominal_parameters(tool_offset_mm) if chain_params is None else np.asarray(chain_params, float)
-    base = base_parameter_set(chain, params, n_poses=n_poses, seed=seed)
+    base = base_parameter_set(chain, params, n_poses=n_poses, seed=seed, planar=planar)
+    held_tool = [t for t in TOOL_NAMES if t not in base.kept]
     offset_names = {f"{j}_offset_deg": j for j in chain.joint_names}
     geometric = [k for k in base.kept if k in chain.parameter_names()[:6 * chain.n_joints]]
     kept_offsets = [offset_names[k] for k in base.kept if k in offset_names]
-    dropped = [(k, why) for k, why in base.dropped if k not in offset_names]
+    dropped = [(k, why) for k, why in base.dropped if k not in offset_names]  # (held tool coordinates too)
     compliant = _compliant_joints(chain, th, dropped) if compliance else []
     if kind == "dh":
         dropped += [(k, why) for k, why in base.dropped if k in offset_names]
         return SerialPositionModel(chain, kind, geometric, params, offsets=kept_offsets, dropped=dropped,
-                                   compliance=compliant)
+                                   compliance=compliant, held_tool=held_tool)
     grids = dict(grids or {})
     bad = [g for g in grids if g not in chain.joint_names]
     if bad:
@@ -463,7 +478,8 @@ def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str =
         if grid is None:
             grid = grid_every(grid_step_deg, th[:, i].min(), th[:, i].max())
         maps.append(JointMap.zeros(joint, grid, bidirectional=dirs is not None))
-    return SerialPositionModel(chain, kind, geometric, params, maps=maps, dropped=dropped, compliance=compliant)
+    return SerialPositionModel(chain, kind, geometric, params, maps=maps, dropped=dropped, compliance=compliant,
+                               held_tool=held_tool)
 
 
 #: A joint whose gravity torque spans less than this over the campaign (N·m), or less than
@@ -520,10 +536,11 @@ class _Measurement:
             raise ValueError(f"parameter vector: {x.size} values, the problem has {len(self.names)}")
         return x[:self.model.n_params], x[self.model.n_params:]
 
-    def layout(self, v) -> dict:
-        """A parameter-shaped vector in result.json's keys: the model's, then the measurement's."""
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        """A parameter-shaped vector in result.json's keys: the model's, then the measurement's
+        (``uncertainty``: held coordinates are 0, not their held values)."""
         vm, own = self._split(v)
-        return {**self.model.layout(vm), **self._own_layout(own)}
+        return {**self.model.layout(vm, uncertainty), **self._own_layout(own, uncertainty)}
 
     def _position_jacobian(self, x_model):
         """Tool points (M, 3) and their :class:`PositionJacobian`, each distinct pose evaluated once."""
@@ -547,12 +564,17 @@ class DistanceMeasurement(_Measurement):
     d0_j(t) = d0_j + v_j·(t − t̄_j), own parameters ``drift_<j>_mm_per_h`` after
     the dead paths; t̄_j (``drift_reference_h``) is the mean time of station j's
     readings, so d0_j stays the dead path at mid-campaign.
+
+    ``held_axis`` (0, 1, 2 or None): a planar robot's readings in its plane cannot see the stations'
+    coordinate along the plane's normal (the beam stays in the plane); it is held at its value in
+    ``stations_mm`` (the plane's height) and the own parameters are the two in-plane coordinates.
     """
 
     kind = "distance"
 
     def __init__(self, model, commands, dirs, station, displacement_mm,
-                 stations_mm=None, dead_paths_mm=None, time_h=None, drift_mm_per_h=None, drift_reference_h=None):
+                 stations_mm=None, dead_paths_mm=None, time_h=None, drift_mm_per_h=None, drift_reference_h=None,
+                 held_axis: Optional[int] = None):
         super().__init__(model, commands, dirs)
         station = np.asarray(station).ravel()
         self.labels = np.unique(station)
@@ -561,11 +583,14 @@ class DistanceMeasurement(_Measurement):
         if not (len(station) == len(self.displacement) == len(self.commands)):
             raise ValueError("distance campaign: station, displacement and commands differ in length")
         nt = len(self.labels)
-        self.own_names = tuple(f"P{j}_{c}_mm" for j in self.labels for c in "xyz") + tuple(
+        self.held_axis = held_axis
+        self._free = [c for c in range(3) if c != held_axis]
+        self.own_names = tuple(f"P{j}_{'xyz'[c]}_mm" for j in self.labels for c in self._free) + tuple(
             f"d0_{j}_mm" for j in self.labels)
         P = np.zeros((nt, 3)) if stations_mm is None else np.asarray(stations_mm, float).reshape(nt, 3)
+        self._held_P = P.copy()  # the held coordinate's values (planar robot)
         d0 = np.zeros(nt) if dead_paths_mm is None else np.asarray(dead_paths_mm, float).reshape(nt)
-        self._own_start = np.concatenate([P.ravel(), d0])
+        self._own_start = np.concatenate([P[:, self._free].ravel(), d0])
         self.time_h = self.drift_reference_h = None
         if time_h is not None:
             self.time_h = np.asarray(time_h, float).ravel()
@@ -577,23 +602,32 @@ class DistanceMeasurement(_Measurement):
             self.own_names += tuple(f"drift_{j}_mm_per_h" for j in self.labels)
             self._own_start = np.concatenate([self._own_start, v])
 
+    def _stations(self, own, held_values: bool = True) -> np.ndarray:
+        """(Nt, 3) stations from the own parameters: the free coordinates, the held one at its value
+        (or 0: ``held_values=False``, an uncertainty)."""
+        nt, nf = len(self.labels), len(self._free)
+        P = self._held_P.copy() if held_values else np.zeros((nt, 3))
+        P[:, self._free] = own[:nf * nt].reshape(nt, nf)
+        return P
+
     def _parts(self, x):
         """Model part, stations (Nt, 3), and the dead path of every reading (drift included)."""
         xm, own = self._split(x)
-        nt = len(self.labels)
-        d0 = own[3 * nt:4 * nt][self.station]
+        nt, nf = len(self.labels), len(self._free)
+        d0 = own[nf * nt:(nf + 1) * nt][self.station]
         if self.time_h is not None:
-            d0 = d0 + own[4 * nt:][self.station] * self._dt()
-        return xm, own[:3 * nt].reshape(nt, 3), d0
+            d0 = d0 + own[(nf + 1) * nt:][self.station] * self._dt()
+        return xm, self._stations(own), d0
 
     def _dt(self) -> np.ndarray:
         return self.time_h - self.drift_reference_h[self.station]
 
-    def _own_layout(self, own) -> dict:
-        nt = len(self.labels)
-        out = {"stations_mm": own[:3 * nt].reshape(nt, 3).tolist(), "dead_paths_mm": own[3 * nt:4 * nt].tolist()}
+    def _own_layout(self, own, uncertainty=False) -> dict:
+        nt, nf = len(self.labels), len(self._free)
+        out = {"stations_mm": self._stations(own, not uncertainty).tolist(),
+               "dead_paths_mm": own[nf * nt:(nf + 1) * nt].tolist()}
         if self.time_h is not None:  # (the result adds drift_reference_h: a constant, not a parameter)
-            out["drift_mm_per_h"] = own[4 * nt:].tolist()
+            out["drift_mm_per_h"] = own[(nf + 1) * nt:].tolist()
         return out
 
     def beam_lengths(self, x) -> np.ndarray:
@@ -615,11 +649,11 @@ class DistanceMeasurement(_Measurement):
         dist = np.linalg.norm(diff, axis=1)
         u = diff / dist[:, None]
         r = dist - d0 - self.displacement
-        pm, nt = self.model.n_params, len(self.labels)
-        cols = [pm + 3 * self.station + c for c in range(3)] + [pm + 3 * nt + self.station]
-        vals = [-u, -np.ones((len(u), 1))]
+        pm, nt, nf = self.model.n_params, len(self.labels), len(self._free)
+        cols = [pm + nf * self.station + c for c in range(nf)] + [pm + nf * nt + self.station]
+        vals = [-u[:, self._free], -np.ones((len(u), 1))]
         if self.time_h is not None:  # ∂r/∂v_j = −(t − t̄_j)
-            cols.append(pm + 4 * nt + self.station)
+            cols.append(pm + (nf + 1) * nt + self.station)
             vals.append(-self._dt()[:, None])
         return r, jp.contract(u, np.hstack(vals), np.column_stack(cols), len(self.names))
 
@@ -627,15 +661,19 @@ class DistanceMeasurement(_Measurement):
         """The same kind of measurement for ``model`` at other poses, with random stations
         around the reach (for :func:`find_gauge`); readings zero."""
         p = model.positions(commands, dirs)
-        reach = max(np.linalg.norm(p, axis=1).max(), 1.0)
+        reach = max(np.linalg.norm(p[:, self._free], axis=1).max(), 1.0)
         nt = len(self.labels)
         P = rng.normal(size=(nt, 3))
+        P[:, [c for c in range(3) if c not in self._free]] = 0.0
         P *= (1.5 * reach / np.linalg.norm(P, axis=1))[:, None]
+        if self.held_axis is not None:  # a planar robot's probe: stations in the tool point's plane
+            P[:, self.held_axis] = p[:, self.held_axis].mean()
         m = len(commands)
         tiled_dirs = None if dirs is None else np.tile(dirs, (nt, 1))
         times = None if self.time_h is None else rng.uniform(0.0, 1.0, nt * m)  # drift: generic, seen
         return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
-                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times)
+                                   np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times,
+                                   held_axis=self.held_axis)
 
 
 class PointMeasurement(_Measurement):
@@ -661,7 +699,7 @@ class PointMeasurement(_Measurement):
         xm, own = self._split(x)
         return xm, own
 
-    def _own_layout(self, own) -> dict:
+    def _own_layout(self, own, uncertainty=False) -> dict:
         return {"tracker_frame": {"translation_mm": own[:3].tolist(), "rotation_deg": own[3:].tolist(),
                                   "convention": "tracker point = R p + t, R = Rx(rx) Ry(ry) Rz(rz)"}}
 
@@ -704,7 +742,7 @@ class RootPositionMeasurement(_Measurement):
         self.points = np.asarray(points_mm, float).reshape(-1, 3)
         self._own_start = np.zeros(0)
 
-    def _own_layout(self, own) -> dict:
+    def _own_layout(self, own, uncertainty=False) -> dict:
         return {}
 
     def predict(self, x) -> np.ndarray:
@@ -812,7 +850,7 @@ def _level_model(model: SerialPositionModel, x_model) -> SerialPositionModel:
     joints = model.chain.joint_names
     levels = sorted(set(model.offset_joints) | set(model.map_joints))
     return SerialPositionModel(model.chain, "dh", model.geometric_names, model.chain_parameters(x_model),
-                               offsets=[joints[j] for j in levels])
+                               offsets=[joints[j] for j in levels], held_tool=model.held_tool)
 
 
 def _candidates(reduced, probe):
@@ -824,7 +862,7 @@ def _candidates(reduced, probe):
                   and n[len(joint) + 1:] in GEOMETRIC_SUFFIXES]
         if f"{joint}_offset_deg" in names:
             order.append(names.index(f"{joint}_offset_deg"))
-    order += [names.index(t) for t in TOOL_NAMES]
+    order += [names.index(t) for t in TOOL_NAMES if t in names]
     order += list(range(reduced.n_params, len(names)))
     return order
 

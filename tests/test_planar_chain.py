@@ -1,0 +1,167 @@
+"""The SCARA of paper 000 as a model file: ``models/scara.sdf`` to its ``beam`` frame through the general
+serial engine (planar chain) identifies the same robot as the SCARA fast path (000 Eq. (3)-(10)).
+
+Equivalence is checked gauge-invariantly: the predicted readings of held-out campaign rows
+(‖p − P_j‖ − d0_j, each path with its own stations) and the distances between predicted end-effector
+positions at unseen commands; the direct positions agree too, both gauges putting X along the arm at
+θ1* = 0 and the origin on J1.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from olti_drake.estimation.identification import IdentificationOptions, Identifier
+from olti_drake.estimation.serial_identification import SerialIdentificationOptions, identify_serial
+from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.serial_io import load_robot, read_serial_campaign
+from olti_drake.model.chain import base_parameter_set, load_serial_chain, planar_axis
+from olti_drake.model.scara import JointCommands, forward_kinematics
+from olti_drake.sim.plant import scara_sdf_text
+
+ROOT = Path(__file__).resolve().parent.parent
+MODELS = ROOT / "olti_drake" / "models"
+CAMPAIGN = ROOT / "data" / "paper000" / "campaign.csv"
+OUT_OF_PLANE = ("J1_dz_mm", "J1_drx_deg", "J1_dry_deg", "J2_dz_mm", "J2_drx_deg", "J2_dry_deg", "tool_z_mm")
+
+
+def test_scara_sdf_beam_frame_is_the_scara_model(tmp_path):
+    """models/scara.sdf to 'beam' = 000 Eq. (3) (J1 axis z through the origin, L1, L2) in the plane z = 360 mm,
+    also with the link lengths the simulator writes into the file."""
+    theta = load_serial_chain(MODELS / "scara.sdf", "beam").random_angles(200, seed=3)
+    for L1, L2, path in ((325.0, 225.0, MODELS / "scara.sdf"), (300.0, 260.0, tmp_path / "scara.sdf")):
+        if not path.exists():
+            path.write_text(scara_sdf_text(L1, L2))
+        chain = load_serial_chain(path, "beam")
+        assert chain.joint_names == ("J1", "J2")
+        p = chain.positions(theta)
+        q, _ = forward_kinematics(theta[:, 0], theta[:, 1], L1, L2)
+        assert np.abs(p[:, :2] - q).max() < 1e-9
+        assert np.abs(p[:, 2] - 360.0).max() < 1e-9
+        assert planar_axis(chain) == 2
+
+
+def test_planar_base_set_holds_the_out_of_plane_parameters_by_name():
+    chain = load_serial_chain(MODELS / "scara.sdf", "beam")
+    base = base_parameter_set(chain, planar=planar_axis(chain))
+    reasons = dict(base.dropped)
+    for name in OUT_OF_PLANE:
+        assert reasons[name].startswith("out of the plane: a planar robot (every joint axis along z)")
+    assert set(base.kept) == {"tool_x_mm", "tool_y_mm", "J1_offset_deg", "J1_dx_mm", "J1_dy_mm", "J2_dx_mm"}
+    assert reasons["J2_offset_deg"] == "trades with tool_y_mm"  # θ20 and L2 in polar form
+    # a chain that is not planar is not taken for one; its base set is unchanged
+    ur5 = load_serial_chain(MODELS / "ur5.urdf", "tool0")
+    assert planar_axis(ur5) is None
+    link2 = load_serial_chain(MODELS / "scara.sdf", "link2")
+    assert planar_axis(link2, link2.nominal_parameters((225.0, 0.0, -100.0))) == 2
+    assert len(base_parameter_set(ur5, ur5.nominal_parameters((40, -25, 60))).kept) == 27
+
+
+def _split_campaign():
+    """The paper campaign without every 5th valid reading (identify) and those readings (held out)."""
+    scara = load_campaign(CAMPAIGN)
+    serial = read_serial_campaign(CAMPAIGN, 2, "scara")
+    assert len(scara) == len(serial) and np.array_equal(scara.line, serial.line)
+    held = np.arange(len(serial)) % 5 == 0
+    return scara.subset(~held), serial.subset(~held), scara.subset(held), serial.subset(held)
+
+
+def _scara_grids(data):
+    return {"J1": np.unique(data.commands.theta1_deg), "J2": np.unique(data.commands.theta2_deg)}
+
+
+def _both(kind):
+    scara_fit, serial_fit, scara_held, serial_held = _split_campaign()
+    a = Identifier(scara_fit, IdentificationOptions(model=kind)).solve()
+    chain = load_robot("scara", "beam")
+    b = identify_serial(chain, serial_fit, SerialIdentificationOptions(model=kind, grids=_scara_grids(scara_fit)))
+    return a, b, scara_held, serial_held
+
+
+def _predictions(a, b, scara_held, serial_held, seed=5):
+    """(held-out readings by a, by b), (points at unseen commands by a, by b)."""
+    c = scara_held.commands
+    pa = a.model.positions(c)
+    read_a = np.hypot(*(pa - a.reflectors_mm[scara_held.reflector]).T) - a.dead_paths_mm[scara_held.reflector]
+    mb = b.measurement
+    n = b.model.n_params
+    xb = b.fit.x
+    layout = mb.layout(xb)
+    P, d0 = np.array(layout["stations_mm"]), np.array(layout["dead_paths_mm"])
+    pb = b.model.positions(serial_held.commands, serial_held.dirs, xb[:n])
+    read_b = np.linalg.norm(pb - P[serial_held.station], axis=1) - d0[serial_held.station]
+    rng = np.random.default_rng(seed)
+    unseen = np.column_stack([rng.uniform(-140, 60, 300), rng.uniform(0, 140, 300)])
+    dirs = rng.choice([-1.0, 1.0], size=unseen.shape)
+    qa = a.model.positions(JointCommands(unseen[:, 0], unseen[:, 1], dirs[:, 0], dirs[:, 1]))
+    qb = b.model.positions(unseen, dirs, xb[:n])
+    return (read_a, read_b), (qa, qb)
+
+
+def _pairwise(p):
+    return np.linalg.norm(p[:, None, :2] - p[None, :, :2], axis=2)
+
+
+def test_serial_engine_on_the_scara_equals_the_scara_path_dh():
+    """D-H (L1, L2, θ20 ↔ J2 dx, tool x, tool y): the same family, the same optimum within 1e-6 mm."""
+    a, b, scara_held, serial_held = _both("dh")
+    (ra, rb), (qa, qb) = _predictions(a, b, scara_held, serial_held)
+    assert len(ra) > 150 and np.std(ra - scara_held.displacement_mm) > 0.01  # held-out readings: a real test
+    assert np.abs(ra - rb).max() < 1e-6
+    assert np.abs(_pairwise(qa) - _pairwise(qb)).max() < 1e-6
+    assert np.abs(qa - qb[:, :2]).max() < 1e-6 and np.abs(qb[:, 2] - 360.0).max() < 1e-9
+    assert abs(a.residual_rms_mm - b.residual_rms_mm) < 1e-9
+    tool = b.model.chain_parameters(b.fit.x[:b.model.n_params])[-3:]
+    assert abs(np.hypot(225.0 + tool[0], tool[1]) - a.value("L2_mm")) < 1e-6
+    assert abs(np.degrees(np.arctan2(tool[1], 225.0 + tool[0])) - a.value("theta20_deg")) < 1e-8
+    assert abs(325.0 + b.fit.x[b.fit.names.index("J2_dx_mm")] - a.value("L1_mm")) < 1e-6
+
+
+def test_serial_engine_on_the_scara_equals_the_scara_path_errormap():
+    """Error maps on the same grids: predictions agree within the stated uncertainty (and J1's map, under the
+    same gauge, node by node)."""
+    a, b, scara_held, serial_held = _both("errormap")
+    (ra, rb), (qa, qb) = _predictions(a, b, scara_held, serial_held)
+    u_j1 = a.std[[i for i, n in enumerate(a.names) if n.startswith("J1_")]]
+    x_j1_a = a.x[[i for i, n in enumerate(a.names) if n.startswith("J1_")]]
+    x_j1_b = b.fit.x[[i for i, n in enumerate(b.fit.names) if n.startswith("J1_forward") or n.startswith("J1_rev")]]
+    assert np.all(np.abs(x_j1_a - x_j1_b) < 0.01 * u_j1)
+    u_reading = a.residual_rms_mm
+    assert np.abs(ra - rb).max() < 1e-3 * u_reading and np.abs(ra - rb).max() < 1e-6
+    assert np.abs(_pairwise(qa) - _pairwise(qb)).max() < 1e-3 * u_reading
+    assert abs(a.residual_rms_mm - b.residual_rms_mm) < 1e-9
+
+
+def test_identify_cli_on_a_scara_campaign_writes_the_serial_result(tmp_path):
+    out = tmp_path / "dh.json"
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", str(CAMPAIGN), "--robot", "scara",
+                          "--tool-frame", "beam", "--model", "dh", "--out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    res = json.loads(out.read_text())
+    assert res["robot"]["tool_frame"] == "beam" and res["robot"]["joints"] == ["J1", "J2"]
+    reasons = {d["parameter"]: d["reason"] for d in res["dropped"]}
+    assert all(reasons[n].startswith("out of the plane") for n in OUT_OF_PLANE)
+    stations, u = np.array(res["stations_mm"]), np.array(res["uncertainty"]["stations_mm"])
+    assert stations.shape == (3, 3) and np.all(stations[:, 2] == 360.0) and np.all(u[:, 2] == 0)
+    assert np.all(u[:, :2] > 0) and res["uncertainty"]["tool_offset_mm"][2] == 0
+    assert "rotation about z" in res["gauge"]
+    # the serial verbs take the planar result: predict (cross-validation on the readings), linear uncertainty
+    pred, unc = tmp_path / "pred.csv", tmp_path / "unc.json"
+    for verb in (["predict", str(out), str(CAMPAIGN), "--out", str(pred)],
+                 ["uncertainty", str(out), str(CAMPAIGN), "--method", "linear", "--out", str(unc)]):
+        run = subprocess.run([sys.executable, "-m", "olti_drake.cli"] + verb, capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+    lines = [ln for ln in pred.read_text().splitlines() if not ln.startswith("#")]
+    head = lines[0].split(",")
+    rows = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    assert np.all(rows[:, head.index("z_mm")] == 360.0)
+    rms = np.sqrt(np.mean((rows[:, head.index("predicted_displacement_mm")] - rows[:, head.index("displacement_mm")])
+                          ** 2))
+    assert abs(rms - res["residual_rms_mm"]) < 1e-5
+    u = json.loads(unc.read_text())
+    assert np.all(np.array(u["stations_mm"])[:, 2] == 0) and np.all(np.array(u["stations_mm"])[:, :2] > 0)
+    assert u["tool_offset_mm"][2] == 0 and u["expanded"]["tool_offset_mm"][2] == 0
