@@ -36,7 +36,6 @@ gradients preconditioned by the identifiability check's factor -- no n³
 eigen-decomposition or n × n products, so ~4 000 unknowns identify in seconds.
 """
 
-import contextlib
 from dataclasses import dataclass, field
 from typing import List
 
@@ -50,7 +49,7 @@ from olti_drake.threads import single_thread_blas
 
 #: Relative eigenvalue below which a parameter combination counts as unidentifiable.
 RANK_TOLERANCE = 1e-12
-#: Up to this many unknowns the dense algebra runs on one BLAS thread.
+#: Up to this many unknowns the normal matrix is formed through a dense J.
 SMALL_PROBLEM = 300
 #: Above this many decision variables the algebra within the constraints is factorized (:class:`Within`, large
 #: path: Cholesky, Lanczos, no eigen-decomposition) and LM steps are conjugate gradients preconditioned by it.
@@ -282,10 +281,10 @@ class LeastSquaresProgram:
         x = self.x0 if x is None else x
         r, J = self.residuals(x)
         self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
-        H = _normal_matrix(self._pad(J), np.ones(J.shape[0]))
+        H = self._normal(self._pad(J), np.ones(J.shape[0]))
         prior = self._prior_hessian()
         if prior.any():  # priors determine too
-            H += prior
+            H = H + prior
         # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
         if untouched:
@@ -302,6 +301,16 @@ class LeastSquaresProgram:
         self._within0 = within  # the large path's LM steps are preconditioned by it
         low, top = within.extremes()
         return float(np.sqrt(top / low))
+
+    def _normal(self, J, w) -> np.ndarray:
+        """JᵀWJ dense; small problems keep the last one: the identifiability check's is LM's first, LM's last
+        is the covariance's (the same J object and weights). Large problems overwrite it: not kept."""
+        kept = getattr(self, "_normal_kept", None)
+        if kept is not None and kept[0] is J and np.array_equal(kept[1], w):
+            return kept[2]
+        H = _normal_matrix(J, w)
+        self._normal_kept = (J, w.copy(), H) if self.n_all <= LARGE_PROBLEM else None
+        return H
 
     def within(self, H, overwrite: bool = False) -> "Within":
         """H (over the model's parameters or all decision variables) within the program's linear equalities,
@@ -335,8 +344,10 @@ class LeastSquaresProgram:
             raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
         if o.solver == "lm":
             self.check_lm_program()
-        # Small dense algebra: BLAS threads cost more than they give (measured 5.7 -> 4.4 ms at paper scale).
-        with single_thread_blas() if len(self.names) <= SMALL_PROBLEM else contextlib.nullcontext():
+        # One BLAS thread at every size: small algebra gains nothing from threads (5.7 -> 4.4 ms at paper scale),
+        # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
+        # results then also do not depend on the thread count.
+        with single_thread_blas():
             fit = self._fit()
         self.accept(fit)
         fit.warnings.extend(self.residual_warnings(fit))
@@ -439,7 +450,7 @@ class LeastSquaresProgram:
         prior = self.quadratic_costs() if self._steps_by_cg() else None
         for _ in range(self.options.max_iterations):
             w = self._weights(r)
-            H = _NormalOperator(J, w) if prior is not None else _normal_matrix(J, w)
+            H = _NormalOperator(J, w) if prior is not None else self._normal(J, w)
             g = J.T @ (w * r)
             cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
             # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
@@ -607,7 +618,7 @@ class LeastSquaresProgram:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
         J = self._pad(J)
-        H = _normal_matrix(J, weights)
+        H = self._normal(J, weights)
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
         within = self.within(H + prior) if prior.any() else None
