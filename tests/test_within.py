@@ -152,3 +152,22 @@ def test_monte_carlo_of_a_calibration_solves_each_trial(ur5_problem):
     finally:
         meas.displacement = saved
     assert np.abs(trial - refit).max() < 1e-7
+
+
+def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product():
+    """Wide J (above SMALL_PROBLEM columns): busy columns by BLAS, the rest sparse -- the same JᵀWJ; the LM
+    operator's diagonal too."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(7)
+    rows, n, busy = 3000, leastsquares.SMALL_PROBLEM + 100, 25
+    dense = np.zeros((rows, n))
+    dense[:, :busy] = rng.normal(size=(rows, busy))
+    for k in range(rows):
+        dense[k, busy + rng.choice(n - busy, 4, replace=False)] = rng.normal(size=4)
+    dense[:, n - 1] = 0.0  # a column no row touches
+    w = rng.uniform(0.2, 1.0, rows)
+    expect = dense.T @ (w[:, None] * dense)
+    J = sp.csr_matrix(dense)
+    assert np.abs(leastsquares._normal_matrix(J, w) - expect).max() <= 1e-12 * np.abs(expect).max()
+    assert leastsquares._NormalOperator(J, w).diagonal() == pytest.approx(np.diag(expect), rel=1e-12)

@@ -99,7 +99,8 @@ def station_fit(points_mm, readings_mm, start_mm=None):
         diff = p - P
         dist = np.hypot(*diff.T)
         J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
-        step = np.linalg.lstsq(J, -(dist - L0 - d), rcond=None)[0]
+        # 3 unknowns, the points spread (checked above): the normal equations, ~5x cheaper than lstsq here.
+        step = np.linalg.solve(J.T @ J, -(J.T @ (dist - L0 - d)))
         P, L0 = P + step[:2], L0 + step[2]
         if np.max(np.abs(step)) < 1e-12:
             break

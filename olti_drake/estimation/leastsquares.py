@@ -322,6 +322,8 @@ class LeastSquaresProgram:
         return Within(H, self._equality_rows()[0], large=n > LARGE_PROBLEM, overwrite=overwrite)
 
     def _all_names(self) -> list:
+        if self.n_all == len(self.names):
+            return list(self.names)
         return self.names + [v.get_name() for v in self.prog.decision_variables()[len(self.names):]]
 
     def _regularize(self, error: UnidentifiableError):
@@ -375,7 +377,8 @@ class LeastSquaresProgram:
 
     def _user_costs(self):
         """The program's costs other than the data cost (which the solvers evaluate themselves)."""
-        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not self.data_cost.evaluator()]
+        data = self.data_cost.evaluator()
+        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not data]
 
     def check_lm_program(self) -> None:
         """LM steps take linear constraints and linear/quadratic costs only: name anything else, one line."""
@@ -636,8 +639,9 @@ class LeastSquaresProgram:
             cov_x = (within.inverse() * sigma2)[:n, :n]
             var = np.diag(cov_x)
         zr = r / _robust_sigma(r)
+        order = np.argsort(-np.abs(zr))
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
-               for k in np.argsort(-np.abs(zr)) if abs(zr[k]) > self.options.outlier_threshold]
+               for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
         stop = self._stop
         return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
@@ -882,7 +886,8 @@ class _NormalOperator:
         self.JT = self.J.T.tocsr()
 
     def diagonal(self) -> np.ndarray:
-        return np.asarray(self.J.multiply(self.J).T @ self.w).ravel()
+        rows = np.repeat(self.w, np.diff(self.J.indptr))
+        return np.bincount(self.J.indices, weights=rows * self.J.data ** 2, minlength=self.J.shape[1])
 
     def __matmul__(self, v):
         return self.JT @ (self.w * (self.J @ v))
@@ -911,11 +916,31 @@ def _pcg(apply, b, precondition, rtol=1e-10, max_iterations=100):
 
 
 def _normal_matrix(J, w) -> np.ndarray:
-    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there)."""
+    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there). Wide: the columns
+    that many rows touch (geometry, stations) as a dense block by BLAS, only the rest (map nodes, a few per
+    row) by a sparse product -- which would otherwise spend most of its time on the busy columns."""
     if J.shape[1] <= SMALL_PROBLEM:
         Jd = J.toarray()
         return Jd.T @ (w[:, None] * Jd)
-    return (J.T @ sp.diags(w) @ J).toarray()
+    J = J.tocsr()
+    busy = np.bincount(J.indices, minlength=J.shape[1]) > J.shape[0] // 20
+    if not busy.any() or busy.all():
+        return (J.T @ sp.diags(w) @ J).toarray()
+    perm = np.concatenate([np.flatnonzero(busy), np.flatnonzero(~busy)])
+    g = int(busy.sum())
+    Jp = J[:, perm]
+    Jd, Js = Jp[:, :g].toarray(), Jp[:, g:].tocsr()
+    WJd = w[:, None] * Jd
+    Hp = np.empty((J.shape[1], J.shape[1]))
+    Hp[:g, :g] = Jd.T @ WJd
+    Hp[g:, :g] = Js.T @ WJd
+    Hp[:g, g:] = Hp[g:, :g].T
+    WJs = Js.copy()
+    WJs.data *= np.repeat(w, np.diff(Js.indptr))
+    Hp[g:, g:] = (Js.T.tocsr() @ WJs).toarray()
+    inverse = np.empty_like(perm)
+    inverse[perm] = np.arange(len(perm))
+    return Hp[np.ix_(inverse, inverse)]
 
 
 def _rms(v) -> float:
