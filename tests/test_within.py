@@ -33,7 +33,7 @@ def test_large_path_equals_dense_on_a_random_normal_matrix(m):
     H, A = _normal(1, m=m)
     dense, large = Within(H, A, large=False), Within(H, A, large=True)
     assert large.dim == dense.dim == H.shape[0] - m
-    assert large.condition() == pytest.approx(dense.condition(), rel=1e-8)
+    assert large.condition() == pytest.approx(dense.condition(), rel=1e-6)
     ref = dense.inverse()
     assert np.abs(large.inverse() - ref).max() <= 1e-10 * np.abs(ref).max()
     assert large.inverse_diagonal() == pytest.approx(np.diag(ref), rel=1e-9)
@@ -49,7 +49,7 @@ def test_dependent_constraint_rows_count_once():
     A = np.vstack([A, A[0] + A[1]])
     dense, large = Within(H, A, large=False), Within(H, A, large=True)
     assert dense.dim == large.dim == H.shape[0] - 2
-    assert large.condition() == pytest.approx(dense.condition(), rel=1e-8)
+    assert large.condition() == pytest.approx(dense.condition(), rel=1e-6)
 
 
 def test_rank_deficiency_names_the_same_parameters_in_both_paths():
@@ -154,9 +154,10 @@ def test_monte_carlo_of_a_calibration_solves_each_trial(ur5_problem):
     assert np.abs(trial - refit).max() < 1e-7
 
 
-def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product():
-    """Wide J (above SMALL_PROBLEM columns): busy columns by BLAS, the rest sparse -- the same JᵀWJ; the LM
-    operator's diagonal too."""
+@pytest.mark.parametrize("interleaved", [False, True])
+def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product(interleaved):
+    """Wide J (above SMALL_PROBLEM columns): busy columns by BLAS, the rest sparse (one block, or scattered
+    among the busy ones) -- the same JᵀWJ; the LM operator's diagonal too."""
     import scipy.sparse as sp
 
     rng = np.random.default_rng(7)
@@ -166,6 +167,8 @@ def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product():
     for k in range(rows):
         dense[k, busy + rng.choice(n - busy, 4, replace=False)] = rng.normal(size=4)
     dense[:, n - 1] = 0.0  # a column no row touches
+    if interleaved:
+        dense = dense[:, np.random.default_rng(8).permutation(n)]
     w = rng.uniform(0.2, 1.0, rows)
     expect = dense.T @ (w[:, None] * dense)
     J = sp.csr_matrix(dense)

@@ -55,7 +55,7 @@ SMALL_PROBLEM = 300
 #: path: Cholesky, Lanczos, no eigen-decomposition) and LM steps are conjugate gradients preconditioned by it.
 LARGE_PROBLEM = 500
 #: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
-LANCZOS_TOLERANCE = 1e-9
+LANCZOS_TOLERANCE = 1e-7
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
@@ -556,7 +556,7 @@ class LeastSquaresProgram:
         if not result.is_success():
             raise InputError(f"the constraints added to the program cannot be satisfied "
                              f"({result.get_solver_id().name()}: {result.get_solution_result()})")
-        return result.GetSolution(d)
+        return result.get_x_val()  # = GetSolution(d): δ is the step program's only variables, in order
 
     def _solve_nlp(self):
         """The program itself (data cost, user variables, constraints, costs) by the solver Drake picks;
@@ -683,7 +683,7 @@ class Within:
         Hs /= self.s[:, None]
         Hs /= self.s[None, :]
         # Hs is symmetric: its transpose is the same numbers in Fortran order, which LAPACK overwrites in place.
-        QHQ = self._apply_q(self._apply_q(Hs.T, "L", "T"), "R", "N")
+        QHQ = self._apply_q(self._apply_q(Hs.T, "L", "T", overwrite=True), "R", "N", overwrite=True)
         self.M = np.asfortranarray(QHQ[self.r:, self.r:])
         U, info = lapack.dpotrf(self.M, lower=0, clean=1)
         self._U = U if info == 0 and np.all(np.isfinite(U)) else None
@@ -702,32 +702,42 @@ class Within:
         qr, _, tau, _, _ = lapack.dgeqp3(np.asarray(As.T, order="F"))
         diag = np.abs(np.diag(qr))
         self.r = int(np.sum(diag > 1e-12 * max(diag.max(initial=0.0), 1e-300)))
-        self._qr, self._tau = qr[:, :self.r].copy(order="F"), tau[:self.r].copy()
+        # The reflectors touch only the first r coordinates and those the constraints involve (a gauge row
+        # names a few parameters): Q is the identity elsewhere, so it is applied to those rows only.
+        below = np.tril(qr[:, :self.r], -1)
+        self._rows = np.union1d(np.arange(self.r), np.flatnonzero(np.any(below != 0, axis=1)))
+        self._qr, self._tau = np.asfortranarray(qr[self._rows, :self.r]), tau[:self.r].copy()
 
-    def _apply_q(self, C, side: str, trans: str):
-        """Q C, Qᵀ C (side L) or C Q, C Qᵀ (side R) with Q = [constraint rows | null-space basis N]."""
-        C = np.asarray(C, dtype=float, order="F")
+    def _apply_q(self, C, side: str, trans: str, overwrite: bool = False):
+        """Q C, Qᵀ C (side L) or C Q, C Qᵀ (side R) with Q = [constraint rows | null-space basis N]; C itself
+        is changed only with ``overwrite``."""
+        C = np.asarray(C, dtype=float, order="F") if overwrite else np.array(C, dtype=float, order="F")
         if self.r == 0:
             return C
-        lwork = 64 * max(C.shape)
-        out, _, info = lapack.dormqr(side, trans, self._qr, self._tau, C, lwork, overwrite_c=1)
-        return out
+        rows = self._rows
+        part = np.asfortranarray(C[rows, :] if side == "L" else C[:, rows])
+        out, _, info = lapack.dormqr(side, trans, self._qr, self._tau, part, 64 * max(part.shape), overwrite_c=1)
+        if side == "L":
+            C[rows, :] = out
+        else:
+            C[:, rows] = out
+        return C
 
     def basis(self) -> np.ndarray:
         """N (n, dim) explicit (dense path: as built; large: Q's last columns)."""
         if self._N is None:
             E = np.zeros((self.n, self.dim))
             E[self.r:] = np.eye(self.dim)
-            self._N = self._apply_q(E, "L", "N")
+            self._N = self._apply_q(E, "L", "N", overwrite=True)
         return self._N
 
     def to_full(self, z) -> np.ndarray:
         """N z (z over the null space, (dim,) or (dim, k)) in the scaled coordinates."""
         if not self.large:
             return self._N @ z
-        Z = np.zeros((self.n,) + np.shape(z)[1:])
+        Z = np.zeros((self.n,) + np.shape(z)[1:], order="F")
         Z[self.r:] = z
-        return self._apply_q(Z.reshape(self.n, -1), "L", "N").reshape(Z.shape)
+        return self._apply_q(Z.reshape(self.n, -1), "L", "N", overwrite=True).reshape(Z.shape)
 
     def to_null(self, y) -> np.ndarray:
         """Nᵀ y (y in the scaled coordinates, (n,) or (n, k))."""
@@ -926,21 +936,22 @@ def _normal_matrix(J, w) -> np.ndarray:
     busy = np.bincount(J.indices, minlength=J.shape[1]) > J.shape[0] // 20
     if not busy.any() or busy.all():
         return (J.T @ sp.diags(w) @ J).toarray()
-    perm = np.concatenate([np.flatnonzero(busy), np.flatnonzero(~busy)])
-    g = int(busy.sum())
-    Jp = J[:, perm]
-    Jd, Js = Jp[:, :g].toarray(), Jp[:, g:].tocsr()
+    dense, rest = np.flatnonzero(busy), np.flatnonzero(~busy)
+    Jd = J[:, dense].toarray()
     WJd = w[:, None] * Jd
-    Hp = np.empty((J.shape[1], J.shape[1]))
-    Hp[:g, :g] = Jd.T @ WJd
-    Hp[g:, :g] = Js.T @ WJd
-    Hp[:g, g:] = Hp[g:, :g].T
+    Js = J[:, rest].tocsr()
     WJs = Js.copy()
     WJs.data *= np.repeat(w, np.diff(Js.indptr))
-    Hp[g:, g:] = (Js.T.tocsr() @ WJs).toarray()
-    inverse = np.empty_like(perm)
-    inverse[perm] = np.arange(len(perm))
-    return Hp[np.ix_(inverse, inverse)]
+    H = np.empty((J.shape[1], J.shape[1]))
+    # The quiet columns are one block (the maps between geometry and stations): slices, not a gather of n².
+    span = slice(rest[0], rest[-1] + 1)
+    block = (span, span) if rest[-1] - rest[0] + 1 == len(rest) else np.ix_(rest, rest)
+    H[block] = (Js.T.tocsr() @ WJs).toarray()
+    cross = np.asarray(Js.T @ WJd)
+    H[rest[:, None], dense] = cross
+    H[dense[:, None], rest] = cross.T
+    H[dense[:, None], dense] = Jd.T @ WJd
+    return H
 
 
 def _rms(v) -> float:
