@@ -673,7 +673,7 @@ class Within:
         self.large = large
         self.n = len(self.s)
         As = A / self.s if A.size else np.zeros((0, self.n))
-        self._U = self._K = self._lam = self._vec = self._N = None
+        self._U = self._K = self._lam = self._vec = self._N = self._extremes = None
         if not large:
             self._N = _null_space(As) if As.size else np.eye(self.n)
             self.M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
@@ -752,8 +752,14 @@ class Within:
         return self._lam, self._vec
 
     def extremes(self):
-        """(smallest, largest) eigenvalue of M (the smallest 0 when M is not positive definite: large path)."""
-        if not self.large:
+        """(smallest, largest) eigenvalue of M (the smallest 0 when M is not positive definite: large path);
+        computed once."""
+        if self._extremes is None:
+            self._extremes = self._compute_extremes()
+        return self._extremes
+
+    def _compute_extremes(self):
+        if not self.large or self.dim < 10:  # (ARPACK needs more dimensions than eigenvalues asked for)
             lam = self._eigh()[0]
             return lam[0], lam[-1]
         from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
