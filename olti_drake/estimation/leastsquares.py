@@ -427,6 +427,7 @@ class LeastSquaresProgram:
                 self._regularize(e)
         self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
         x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
+        self._within0 = None  # the large path's preconditioner (n x n): done with it
         return self._finish(x, iterations, weights)
 
     def _weights(self, r):
