@@ -175,7 +175,9 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     batched residuals ``residual_rows(X (T, n), readings (K,) or (T, K)) ->
     (r (T, K), cols (K, m), vals (T, K, m))`` -- the SCARA
     :class:`~olti_drake.estimation.identification.Identifier` or the
-    :class:`~olti_drake.estimation.multilateration.Multilateration` of 001.
+    :class:`~olti_drake.estimation.multilateration.Multilateration` of 001; a program without them (a
+    :class:`~olti_drake.estimation.calibration.Calibration` of an N-joint robot) is solved trial by trial
+    on its ``residuals`` (:func:`_solve_trials_one_by_one`), with the same semantics.
 
     Readings are the model's own at x plus errors drawn from the budget, so
     the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
