@@ -248,8 +248,9 @@ PHASES = {
     "normal equations J^T W J, J^T W r (+ LM bookkeeping)": ("_solve_lm", "_weights", "_user_cost"),
     "LM step programs: build (Identifier._step)": ("_step",),
     "LM step programs: Drake Solve()": ("Solve",),
-    "identifiability check + covariance": ("check_identifiability", "_reduced_hessian", "_equality_rows",
+    "identifiability check + covariance": ("check_identifiability", "within", "_equality_rows", "_finish",
                                            "_prior_hessian", "_result", "_regularize"),
+    "fit acceptance, residual warning": ("accept", "residual_warnings", "beam_lengths", "implausible"),
     "NLP solver (Drake Solve of the whole program, less residuals)": ("_solve_nlp",),
     "program setup (Identifier.__init__, start x0)": ("__init__", "_initial_guess", "_robot_start",
                                                        "_check_reflectors", "_add_gauge"),
@@ -297,12 +298,14 @@ class PhaseTimer:
         self._nlp_depth = 0
         names = {m for methods in PHASES.values() for m in methods} - {"Solve"}
         for name in names:
-            if name in vars(Identifier):
-                fn = vars(Identifier)[name]
+            # Methods of Identifier or inherited (LeastSquaresProgram): wrapped on Identifier, restored after.
+            if hasattr(Identifier, name):
+                own = name in vars(Identifier)
+                fn = vars(Identifier)[name] if own else getattr(Identifier, name)
                 wrapped = self._wrap(name, fn)
                 if name == "_solve_nlp":
                     wrapped = self._nlp_marker(wrapped)
-                self._saved.append((Identifier, name, fn))
+                self._saved.append((Identifier, name, fn if own else None))
                 setattr(Identifier, name, wrapped)
         self._saved.append((pydrake.solvers, "Solve", pydrake.solvers.Solve))
         pydrake.solvers.Solve = self._wrap("Solve", pydrake.solvers.Solve)
@@ -320,7 +323,10 @@ class PhaseTimer:
 
     def __exit__(self, *exc):
         for owner, name, fn in reversed(self._saved):
-            setattr(owner, name, fn)
+            if fn is None:  # inherited: remove the wrapper, the base class's method shows again
+                delattr(owner, name)
+            else:
+                setattr(owner, name, fn)
         self._saved.clear()
 
     def split(self, total):

@@ -110,3 +110,41 @@ def test_scipy_baseline_stops_at_its_time_limit(small):
     data, _, opts = small
     with pytest.raises(bench.ScipyTimeout):
         bench.scipy_solve(Identifier(data, opts), time_limit_s=0.0)
+
+
+def test_phase_timer_times_inherited_methods_and_restores_them(small):
+    """The split sees the LeastSquaresProgram methods Identifier inherits (LM, steps, covariance) and leaves
+    the classes as they were."""
+    from olti_drake.estimation.leastsquares import LeastSquaresProgram
+
+    data, _, opts = small
+    _, total, split, calls = bench.timed_split(lambda: identify(data, opts))
+    assert calls["_step"] >= 1 and calls["_finish"] >= 1 and calls["check_identifiability"] >= 1
+    assert split["identifiability check + covariance"] > 0 and split["LM step programs: build (Identifier._step)"] > 0
+    assert sum(split.values()) == pytest.approx(total)
+    for name in ("_solve_lm", "_step", "_finish", "within", "accept"):
+        assert name not in vars(Identifier) and getattr(Identifier, name) is getattr(LeastSquaresProgram, name)
+
+
+_SERIAL_PATH = os.path.join(os.path.dirname(_PATH), "bench_serial_identify.py")
+_serial_spec = importlib.util.spec_from_file_location("bench_serial_identify", _SERIAL_PATH)
+serial_bench = importlib.util.module_from_spec(_serial_spec)
+_serial_spec.loader.exec_module(serial_bench)
+
+
+def test_serial_benchmark_problem_is_seeded_and_at_its_scale():
+    meas, gauge = serial_bench.problem("six-axis")
+    again, _ = serial_bench.problem("six-axis")
+    assert np.array_equal(meas.displacement, again.displacement)
+    assert len(meas.station) == 4 * 700 and 150 <= len(meas.names) <= 250  # ~200 unknowns
+    assert gauge.A.shape[1] == len(meas.names)
+
+
+def test_serial_scipy_baseline_reaches_the_cost_of_ours():
+    """The six-axis problem: scipy (gauge eliminated) and our Calibration reach the same least-squares cost,
+    and scipy's solution obeys the gauge."""
+    meas, gauge = serial_bench.problem("six-axis")
+    _, fit = serial_bench.ours(meas, gauge)
+    _, sci = serial_bench.scipy_lsmr(meas, gauge)
+    assert sci["rms_mm"] == pytest.approx(serial_bench.rms(fit.residuals), rel=serial_bench.SAME_COST_RTOL)
+    assert np.abs(gauge.A @ sci["x"] - gauge.b).max() < 1e-9

@@ -115,7 +115,8 @@ def station_fit(points_mm, readings_mm, start_mm=None):
         diff = p - P
         dist = np.hypot.reduce(diff, axis=1)
         J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
-        step = np.linalg.lstsq(J, -(dist - L0 - d), rcond=None)[0]
+        # D + 1 unknowns, the points spread (checked above): the normal equations, ~5x cheaper than lstsq here.
+        step = np.linalg.solve(J.T @ J, -(J.T @ (dist - L0 - d)))
         P, L0 = P + step[:D], L0 + step[D]
         if np.max(np.abs(step)) < 1e-12:
             break

@@ -25,14 +25,23 @@ nonlinear one it refuses with one line naming it (use ``solver='nlp'``).
 Before solving it checks identifiability (parameters no reading touches, rank
 deficiency within the constraints); after, it propagates the residual variance
 (linear, JCGM 100) and flags outliers. Units are the subclass's (mm, deg).
+
+All the algebra within the constraints (rank, condition number, covariance, and
+the LM steps of large problems) is one factorization, :class:`Within`: dense
+eigen-decomposition up to :data:`LARGE_PROBLEM` decision variables; above it a
+Householder null space of the constraints, a Cholesky factor of the reduced
+normal matrix, Lanczos for its extreme eigenvalues, the standard uncertainties
+from the factor (the full covariance only when read), and LM steps by conjugate
+gradients preconditioned by the identifiability check's factor -- no n³
+eigen-decomposition or n × n products, so ~4 000 unknowns identify in seconds.
 """
 
-import contextlib
 from dataclasses import dataclass, field
 from typing import List
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import lapack
 
 from olti_drake.io.budget import ReadingErrors
 from olti_drake.io.errors import InputError
@@ -40,8 +49,13 @@ from olti_drake.threads import single_thread_blas
 
 #: Relative eigenvalue below which a parameter combination counts as unidentifiable.
 RANK_TOLERANCE = 1e-12
-#: Up to this many unknowns the dense algebra runs on one BLAS thread.
+#: Up to this many unknowns the normal matrix is formed through a dense J.
 SMALL_PROBLEM = 300
+#: Above this many decision variables the algebra within the constraints is factorized (:class:`Within`, large
+#: path: Cholesky, Lanczos, no eigen-decomposition) and LM steps are conjugate gradients preconditioned by it.
+LARGE_PROBLEM = 500
+#: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
+LANCZOS_TOLERANCE = 1e-7
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
@@ -102,6 +116,23 @@ class Fit:
     warnings: list = field(default_factory=list)
     #: The user's own decision variables (added to ``prog``), by name: their solved values.
     extra: dict = field(default_factory=dict)
+
+
+def _covariance_get(fit):
+    """Fit.covariance: large problems form the (n, n) matrix from the factorization on first use only."""
+    cov = fit.__dict__["_covariance"]
+    if callable(cov):
+        cov = fit.__dict__["_covariance"] = cov()
+    return cov
+
+
+def _covariance_set(fit, value):
+    fit.__dict__["_covariance"] = value
+
+
+# A property over the dataclass field: Fit(..., covariance, ...) and fit.covariance = C still work; a callable
+# given as the covariance is evaluated (once) when the covariance is read.
+Fit.covariance = property(_covariance_get, _covariance_set)
 
 
 class LeastSquaresProgram:
@@ -250,23 +281,49 @@ class LeastSquaresProgram:
         x = self.x0 if x is None else x
         r, J = self.residuals(x)
         self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
-        H = _normal_matrix(self._pad(J), np.ones(J.shape[0])) + self._prior_hessian()  # priors determine too
+        H = self._normal(self._pad(J), np.ones(J.shape[0]))
+        prior = self._prior_hessian()
+        if prior.any():  # priors determine too
+            H = H + prior
         # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
         if untouched:
             raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
                                       f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})",
                                       untouched)
-        M, N, s = self.reduced_hessian(H)
-        lam = np.linalg.eigvalsh(M)
-        names = _weak_names(self._all_names(), M, N, s)
+        within = self.within(H, overwrite=True)
+        names = within.weak_names(self._all_names())
         if names:
+            lam = within._eigh()[0]
             weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
             raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
                                       f"reading unchanged (rank deficient by {weak}; {self.rank_hint})", names)
-        return float(np.sqrt(lam[-1] / lam[0]))
+        self._within0 = within  # the large path's LM steps are preconditioned by it
+        low, top = within.extremes()
+        return float(np.sqrt(top / low))
+
+    def _normal(self, J, w) -> np.ndarray:
+        """JᵀWJ dense; small problems keep the last one: the identifiability check's is LM's first, LM's last
+        is the covariance's (the same J object and weights). Large problems overwrite it: not kept."""
+        kept = getattr(self, "_normal_kept", None)
+        if kept is not None and kept[0] is J and np.array_equal(kept[1], w):
+            return kept[2]
+        H = _normal_matrix(J, w)
+        self._normal_kept = (J, w.copy(), H) if self.n_all <= LARGE_PROBLEM else None
+        return H
+
+    def within(self, H, overwrite: bool = False) -> "Within":
+        """H (over the model's parameters or all decision variables) within the program's linear equalities,
+        factorized (:class:`Within`; large path above :data:`LARGE_PROBLEM` variables; ``overwrite``: H may
+        serve as its work space)."""
+        n = self.n_all
+        if H.shape[0] < n:
+            H = np.pad(H, ((0, n - H.shape[0]), (0, n - H.shape[0])))
+        return Within(H, self._equality_rows()[0], large=n > LARGE_PROBLEM, overwrite=overwrite)
 
     def _all_names(self) -> list:
+        if self.n_all == len(self.names):
+            return list(self.names)
         return self.names + [v.get_name() for v in self.prog.decision_variables()[len(self.names):]]
 
     def _regularize(self, error: UnidentifiableError):
@@ -289,8 +346,10 @@ class LeastSquaresProgram:
             raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
         if o.solver == "lm":
             self.check_lm_program()
-        # Small dense algebra: BLAS threads cost more than they give (measured 5.7 -> 4.4 ms at paper scale).
-        with single_thread_blas() if len(self.names) <= SMALL_PROBLEM else contextlib.nullcontext():
+        # One BLAS thread at every size: small algebra gains nothing from threads (5.7 -> 4.4 ms at paper scale),
+        # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
+        # results then also do not depend on the thread count.
+        with single_thread_blas():
             fit = self._fit()
         self.accept(fit)
         fit.warnings.extend(self.residual_warnings(fit))
@@ -318,7 +377,8 @@ class LeastSquaresProgram:
 
     def _user_costs(self):
         """The program's costs other than the data cost (which the solvers evaluate themselves)."""
-        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not self.data_cost.evaluator()]
+        data = self.data_cost.evaluator()
+        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not data]
 
     def check_lm_program(self) -> None:
         """LM steps take linear constraints and linear/quadratic costs only: name anything else, one line."""
@@ -367,6 +427,7 @@ class LeastSquaresProgram:
                 self._regularize(e)
         self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
         x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
+        self._within0 = None  # the large path's preconditioner (n x n): done with it
         return self._finish(x, iterations, weights)
 
     def _weights(self, r):
@@ -388,18 +449,22 @@ class LeastSquaresProgram:
         J = self._pad(J)
         lam, steps = 1e-6, 0
         self._stop = None  # None after the loop: the iteration cap ended it
+        # Large problems with linear equalities and quadratic costs only: steps by conjugate gradients within
+        # the constraints, preconditioned by the factorization of the identifiability check (no n x n work).
+        prior = self.quadratic_costs() if self._steps_by_cg() else None
         for _ in range(self.options.max_iterations):
             w = self._weights(r)
-            H = _normal_matrix(J, w)
+            H = _NormalOperator(J, w) if prior is not None else self._normal(J, w)
             g = J.T @ (w * r)
             cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
             # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
             tol = 1e-12 * abs(cost)
             while True:
                 # The user's own variables carry no curvature of the data: damp them by the mean one.
-                D = np.diag(H).copy()
+                D = H.diagonal().copy()
                 D[D == 0] = np.mean(D[D > 0]) if (D > 0).any() else 1.0
-                delta = self._step(x, H + lam * np.diag(D), g)
+                delta = (self._cg_step(x, H, lam * D, g, prior) if prior is not None
+                         else self._step(x, H + lam * np.diag(D), g))
                 x_new = x + delta
                 r_new, J_new = self.residuals(x_new[:n])
                 J_new = self._pad(J_new)
@@ -424,6 +489,44 @@ class LeastSquaresProgram:
         self._final = (x, r, J)
         return x, steps, self._weights(r)
 
+    def _steps_by_cg(self) -> bool:
+        """Large path (:data:`LARGE_PROBLEM`) for LM steps: only linear equalities and quadratic costs on the
+        program, and the identifiability check's factorization at hand."""
+        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint, QuadraticCost
+
+        if self.n_all <= LARGE_PROBLEM or getattr(self, "_within0", None) is None:
+            return False
+        for b in self.prog.GetAllConstraints():
+            e = b.evaluator()
+            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)) or np.any(e.lower_bound() !=
+                                                                                     e.upper_bound()):
+                return False
+        return all(isinstance(b.evaluator(), QuadraticCost) for b in self._user_costs())
+
+    def _cg_step(self, x, H, damping, g, prior):
+        """The LM step of :meth:`_step` for the large path: min ½δᵀ(H + diag(damping) + Q)δ + (g + Qx + q)ᵀδ
+        with A δ = 0 (x is feasible), by preconditioned conjugate gradients on the null space of the scaled
+        constraints (preconditioner: the Cholesky factor of the identifiability check's reduced normal
+        matrix); if they do not converge (a large damping, a far iterate), one factorization of the damped
+        matrix itself."""
+        Q, q = prior
+        has_prior = bool(Q.any())
+        W = self._within0
+        s = W.s
+        grad = g + (Q @ x + q if has_prior else 0.0)
+
+        def apply(z):
+            v = W.to_full(z) / s
+            Hv = H @ v + damping * v + (Q @ v if has_prior else 0.0)
+            return W.to_null(Hv / s)
+
+        z, ok = _pcg(apply, -W.to_null(grad / s), W.solve)
+        if ok:
+            return W.to_full(z) / s
+        Hd = _normal_matrix(H.J, H.w) + np.diag(damping) + Q
+        direct = self.within(Hd)
+        return direct.to_full(direct.solve(-direct.to_null(grad / direct.s))) / direct.s
+
     def _feasible(self, x):
         """x moved onto the program's constraints by the least change (mm, deg) when it violates them -- e.g.
         a user variable tied to parameters, or a bound the start lies outside; LM's steps then keep it feasible
@@ -435,13 +538,17 @@ class LeastSquaresProgram:
         return x + self._step(x, np.eye(len(x)), np.zeros(len(x)))
 
     def _step(self, x, Hd, g):
-        """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ."""
-        from pydrake.solvers import MathematicalProgram, Solve
+        """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ.
+        The step program is built once for the program's bindings (:class:`_StepProgram`) and updated per step."""
+        from pydrake.solvers import Solve
 
-        step = MathematicalProgram()
-        d = step.NewContinuousVariables(len(x), "delta")
-        step.AddQuadraticCost(Hd, g, d, is_convex=True)
-        _shift_bindings(self.prog, step, d, x, skip=self.data_cost.evaluator())
+        key = (self.n_all, len(self.prog.GetAllConstraints()), len(self.prog.GetAllCosts()))
+        cached = getattr(self, "_step_program", None)
+        step = None if cached is None or cached.key != key else cached.at(x, Hd, g)
+        if step is None:
+            cached = self._step_program = _StepProgram(self.prog, self.n_all, self.data_cost.evaluator(), key)
+            step = cached.at(x, Hd, g)
+        step, d = step
         result = Solve(step)
         if not result.is_success():
             # EqConstrainedQP can refuse a nearly singular KKT system at the optimum: retry interior-point.
@@ -450,7 +557,7 @@ class LeastSquaresProgram:
         if not result.is_success():
             raise InputError(f"the constraints added to the program cannot be satisfied "
                              f"({result.get_solver_id().name()}: {result.get_solution_result()})")
-        return result.GetSolution(d)
+        return result.get_x_val()  # = GetSolution(d): δ is the step program's only variables, in order
 
     def _solve_nlp(self):
         """The program itself (data cost, user variables, constraints, costs) by the solver Drake picks;
@@ -515,82 +622,343 @@ class LeastSquaresProgram:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
         J = self._pad(J)
-        H = _normal_matrix(J, weights)
-        M_data, N, s = self.reduced_hessian(H)
-        lam = np.linalg.eigvalsh(M_data)
-        cond = float(np.sqrt(lam[-1] / lam[0])) if lam[0] > RANK_TOLERANCE * lam[-1] else float("inf")
-        self._stop = getattr(self, "_stop", (True, "solved"))
+        H = self._normal(J, weights)
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
-        if prior.any():
-            M, N, s = self.reduced_hessian(H + prior)
-        else:
-            M = M_data
-        self._weak = _weak_names(self._all_names(), M, N, s)  # what the covariance (with priors) cannot determine
-        dof = max(len(r) - N.shape[1], 1)
+        within = self.within(H + prior) if prior.any() else None
+        data = self.within(H, overwrite=True)
+        within = within or data
+        cond = data.condition()
+        self._stop = getattr(self, "_stop", (True, "solved"))
+        self._weak = within.weak_names(self._all_names())  # what the covariance (with priors) cannot determine
+        dof = max(len(r) - within.dim, 1)
         sigma2 = np.sum(weights * r * r) / dof
-        cov = (N / s[:, None]) @ np.linalg.solve(M, (N / s[:, None]).T) * sigma2
+        if within.large:  # the variances from the factor; the (n, n) matrix only when read
+            var = within.inverse_diagonal()[:n] * sigma2
+            cov_x = lambda: within.inverse()[:n, :n] * sigma2  # noqa: E731
+        else:
+            cov_x = (within.inverse() * sigma2)[:n, :n]
+            var = np.diag(cov_x)
         zr = r / _robust_sigma(r)
+        order = np.argsort(-np.abs(zr))
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
-               for k in np.argsort(-np.abs(zr)) if abs(zr[k]) > self.options.outlier_threshold]
+               for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
         stop = self._stop
-        cov_x = cov[:n, :n]
-        return Fit(list(self.names), z[:n], np.sqrt(np.maximum(np.diag(cov_x), 0)), cov_x, r, iterations, cond,
+        return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
                    stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
 
 
-# -- helpers -------------------------------------------------------------------------------------
-def _shift_bindings(src, dst, d, x, skip=None):
-    """Copy src's linear constraints and linear/quadratic costs to dst in the step δ = e − x
-    (all but the cost ``skip``: the data cost, which the step's Gauss-Newton model replaces)."""
-    from pydrake.solvers import LinearConstraint, BoundingBoxConstraint, LinearCost, QuadraticCost
+# -- the algebra within the constraints ------------------------------------------------------------
+class Within:
+    """A normal matrix H (n, n) within the program's linear equalities A x = b, factorized once.
 
-    for b in src.GetAllConstraints():
-        e = b.evaluator()
-        idx = src.FindDecisionVariableIndices(b.variables())
-        if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
-            raise InputError(f"constraint {type(e).__name__} is not linear: use the 'nlp' solver")
-        A = e.GetDenseA()
-        shift = A @ x[idx]
-        lo, hi = e.lower_bound() - shift, e.upper_bound() - shift
-        eq = e.lower_bound() == e.upper_bound()
-        # Equalities stay equalities, so Drake can pick its exact EqConstrainedQP solver.
-        if eq.any():
-            dst.AddLinearEqualityConstraint(A[eq], lo[eq], d[idx])
-        if (~eq).any():
-            dst.AddLinearConstraint(A[~eq], lo[~eq], hi[~eq], d[idx])
-    for b in src.GetAllCosts():
-        e = b.evaluator()
-        if e is skip:
-            continue
-        idx = src.FindDecisionVariableIndices(b.variables())
-        if isinstance(e, QuadraticCost):
-            dst.AddQuadraticCost(e.Q(), e.Q() @ x[idx] + e.b(), d[idx], is_convex=True)
-        elif isinstance(e, LinearCost):
-            dst.AddLinearCost(e.a(), 0.0, d[idx])
+    M = Nᵀ (H / s sᵀ) N with s = √diag H (1 where 0) and N an orthonormal basis of the null space of A / s
+    (the scaled coordinates y = s x); rank, condition number, covariance (N/s) M⁻¹ (N/s)ᵀ and steps within
+    the constraints all come from it.
+
+    * dense (``large`` False, the small problems): N explicit (SVD of A / s), M's eigen-decomposition --
+      the reference, exactly what the program always did;
+    * large: N kept as the Householder reflectors of (A / s)ᵀ (pivoted QR: m constraints, O(n m) storage),
+      M = (Qᵀ H_s Q)[r:, r:] by applying them to both sides (O(n² m), no n³ product), a Cholesky factor
+      U of M (M = UᵀU), the extreme eigenvalues by Lanczos (ARPACK) on M and on M⁻¹ through U, the
+      standard uncertainties from the rows of N U⁻¹ (one triangular inverse; the full covariance only when
+      asked for). Eigen-decomposition only to name what is not identifiable, on the refusal's path.
+    """
+
+    def __init__(self, H, A, large: bool, overwrite: bool = False):
+        """``overwrite``: H (dense) may be used as work space."""
+        H = H.toarray() if sp.issparse(H) else np.asarray(H, dtype=float)
+        d = np.diag(H)
+        self.s = np.where(d > 0, np.sqrt(np.maximum(d, 0)), 1.0)
+        self.large = large
+        self.n = len(self.s)
+        As = A / self.s if A.size else np.zeros((0, self.n))
+        self._U = self._K = self._lam = self._vec = self._N = self._extremes = None
+        if not large:
+            self._N = _null_space(As) if As.size else np.eye(self.n)
+            self.M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
+            return
+        self._householder(As)
+        Hs = H if overwrite else H.copy()
+        Hs /= self.s[:, None]
+        Hs /= self.s[None, :]
+        # Hs is symmetric: its transpose is the same numbers in Fortran order, which LAPACK overwrites in place.
+        QHQ = self._apply_q(self._apply_q(Hs.T, "L", "T", overwrite=True), "R", "N", overwrite=True)
+        self.M = np.asfortranarray(QHQ[self.r:, self.r:])
+        U, info = lapack.dpotrf(self.M, lower=0, clean=1)
+        self._U = U if info == 0 and np.all(np.isfinite(U)) else None
+
+    @property
+    def dim(self) -> int:
+        """Dimension of the null space (the free parameter combinations)."""
+        return self.M.shape[0]
+
+    # -- the null-space basis ------------------------------------------------------------------
+    def _householder(self, As):
+        """Pivoted QR of (A / s)ᵀ: the first r reflectors span the constraints' rows (r their rank)."""
+        self.r = 0
+        if not As.size:
+            return
+        qr, _, tau, _, _ = lapack.dgeqp3(np.asarray(As.T, order="F"))
+        diag = np.abs(np.diag(qr))
+        self.r = int(np.sum(diag > 1e-12 * max(diag.max(initial=0.0), 1e-300)))
+        # The reflectors touch only the first r coordinates and those the constraints involve (a gauge row
+        # names a few parameters): Q is the identity elsewhere, so it is applied to those rows only.
+        below = np.tril(qr[:, :self.r], -1)
+        self._rows = np.union1d(np.arange(self.r), np.flatnonzero(np.any(below != 0, axis=1)))
+        self._qr, self._tau = np.asfortranarray(qr[self._rows, :self.r]), tau[:self.r].copy()
+
+    def _apply_q(self, C, side: str, trans: str, overwrite: bool = False):
+        """Q C, Qᵀ C (side L) or C Q, C Qᵀ (side R) with Q = [constraint rows | null-space basis N]; C itself
+        is changed only with ``overwrite``."""
+        C = np.asarray(C, dtype=float, order="F") if overwrite else np.array(C, dtype=float, order="F")
+        if self.r == 0:
+            return C
+        rows = self._rows
+        part = np.asfortranarray(C[rows, :] if side == "L" else C[:, rows])
+        out, _, info = lapack.dormqr(side, trans, self._qr, self._tau, part, 64 * max(part.shape), overwrite_c=1)
+        if side == "L":
+            C[rows, :] = out
         else:
-            raise InputError(f"cost {type(e).__name__} is not linear or quadratic: use the 'nlp' solver")
+            C[:, rows] = out
+        return C
+
+    def basis(self) -> np.ndarray:
+        """N (n, dim) explicit (dense path: as built; large: Q's last columns)."""
+        if self._N is None:
+            E = np.zeros((self.n, self.dim))
+            E[self.r:] = np.eye(self.dim)
+            self._N = self._apply_q(E, "L", "N", overwrite=True)
+        return self._N
+
+    def to_full(self, z) -> np.ndarray:
+        """N z (z over the null space, (dim,) or (dim, k)) in the scaled coordinates."""
+        if not self.large:
+            return self._N @ z
+        Z = np.zeros((self.n,) + np.shape(z)[1:], order="F")
+        Z[self.r:] = z
+        return self._apply_q(Z.reshape(self.n, -1), "L", "N", overwrite=True).reshape(Z.shape)
+
+    def to_null(self, y) -> np.ndarray:
+        """Nᵀ y (y in the scaled coordinates, (n,) or (n, k))."""
+        if not self.large:
+            return self._N.T @ y
+        return self._apply_q(np.reshape(y, (self.n, -1)), "L", "T")[self.r:].reshape((self.dim,) + np.shape(y)[1:])
+
+    # -- rank and conditioning -----------------------------------------------------------------
+    def _eigh(self):
+        if self._lam is None:
+            self._lam, self._vec = np.linalg.eigh(self.M)
+        return self._lam, self._vec
+
+    def extremes(self):
+        """(smallest, largest) eigenvalue of M (the smallest 0 when M is not positive definite: large path);
+        computed once."""
+        if self._extremes is None:
+            self._extremes = self._compute_extremes()
+        return self._extremes
+
+    def _compute_extremes(self):
+        if not self.large or self.dim < 10:  # (ARPACK needs more dimensions than eigenvalues asked for)
+            lam = self._eigh()[0]
+            return lam[0], lam[-1]
+        from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
+
+        v0 = np.ones(self.dim)
+        try:
+            top = eigsh(self.M, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE, return_eigenvectors=False)[0]
+            if self._U is None:
+                return 0.0, top
+            inv = LinearOperator((self.dim, self.dim), matvec=self.solve, dtype=float)
+            low = 1.0 / eigsh(inv, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE,
+                             return_eigenvectors=False)[0]
+        except ArpackNoConvergence:  # rare: the dense decomposition decides
+            lam = self._eigh()[0]
+            return lam[0], lam[-1]
+        return low, top
+
+    def deficient(self) -> bool:
+        low, top = self.extremes()
+        return bool(low < RANK_TOLERANCE * top) or not np.isfinite(top)
+
+    def condition(self) -> float:
+        """√(λ_max / λ_min) of M (the conditioning within the constraints), inf when rank deficient."""
+        low, top = self.extremes()
+        return float(np.sqrt(top / low)) if low > RANK_TOLERANCE * top else float("inf")
+
+    def weak_names(self, names) -> list:
+        """What M cannot determine: the parameters in its near-null space (none when positive definite)."""
+        if not np.all(np.isfinite(self.M)):
+            return list(names)
+        if self.large and not self.deficient():
+            return []
+        lam, vec = self._eigh()
+        weak = lam < RANK_TOLERANCE * lam[-1]
+        if not weak.any():
+            return []
+        # Each parameter's share of the near-null space: the row norms of its orthonormal basis -- the same
+        # whatever basis the (near-degenerate) eigenvectors happen to take, so both paths name the same.
+        mag = np.linalg.norm(self.basis() @ vec[:, np.flatnonzero(weak)], axis=1)
+        return [names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
+
+    # -- solves and covariance -----------------------------------------------------------------
+    def solve(self, z) -> np.ndarray:
+        """M⁻¹ z (over the null space)."""
+        if not self.large:
+            return np.linalg.solve(self.M, z)
+        x, _ = lapack.dpotrs(self._U, np.reshape(z, (self.dim, -1)), lower=0)
+        return x.reshape(np.shape(z))
+
+    def _factor_rows(self) -> np.ndarray:
+        """K = (N U⁻¹) / s (n, dim): the covariance within the constraints is K Kᵀ (large path)."""
+        if self._K is None:
+            Uinv, _ = lapack.dtrtri(self._U, lower=0)
+            self._K = self.to_full(Uinv) / self.s[:, None]
+        return self._K
+
+    def inverse_diagonal(self) -> np.ndarray:
+        """diag((N/s) M⁻¹ (N/s)ᵀ): the variances within the constraints per unit σ²."""
+        if not self.large:
+            return np.diag(self.inverse())
+        K = self._factor_rows()
+        return np.einsum("ij,ij->i", K, K)
+
+    def inverse(self) -> np.ndarray:
+        """(N/s) M⁻¹ (N/s)ᵀ (n, n): the covariance within the constraints per unit σ²."""
+        if not self.large:
+            Ns = self._N / self.s[:, None]
+            return Ns @ np.linalg.solve(self.M, Ns.T)
+        K = self._factor_rows()
+        return K @ K.T
+
+
+# -- helpers -------------------------------------------------------------------------------------
+class _StepProgram:
+    """The LM step as a Drake program in the step δ = e − x: the Gauss-Newton model ½δᵀHdδ + gᵀδ, src's linear
+    constraints and linear/quadratic costs shifted to δ (all costs but ``skip``: the data cost, which the
+    model replaces). Built once per set of bindings; :meth:`at` updates its coefficients and bounds for
+    the next x (Drake's UpdateCoefficients, set_bounds) instead of building a program per step."""
+
+    def __init__(self, src, n, skip, key):
+        from pydrake.solvers import (BoundingBoxConstraint, LinearConstraint, LinearCost, MathematicalProgram,
+                                     QuadraticCost)
+
+        self.key, self.prog = key, MathematicalProgram()
+        self.d = d = self.prog.NewContinuousVariables(n, "delta")
+        self.model = self.prog.AddQuadraticCost(np.eye(n), np.zeros(n), d, is_convex=True)
+        self.constraints, self.costs = [], []
+        for b in src.GetAllConstraints():
+            e = b.evaluator()
+            idx = src.FindDecisionVariableIndices(b.variables())
+            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
+                raise InputError(f"constraint {type(e).__name__} is not linear: use the 'nlp' solver")
+            A = e.GetDenseA()
+            eq = e.lower_bound() == e.upper_bound()
+            # Equalities stay equalities, so Drake can pick its exact EqConstrainedQP solver.
+            shifted = [(mask, self.prog.AddLinearEqualityConstraint(A[mask], np.zeros(mask.sum()), d[idx])
+                        if equal else self.prog.AddLinearConstraint(A[mask], np.zeros(mask.sum()),
+                                                                    np.zeros(mask.sum()), d[idx]))
+                       for mask, equal in ((eq, True), (~eq, False)) if mask.any()]
+            self.constraints.append((e, A, eq, idx, shifted))
+        for b in src.GetAllCosts():
+            e = b.evaluator()
+            if e is skip:
+                continue
+            idx = src.FindDecisionVariableIndices(b.variables())
+            if isinstance(e, QuadraticCost):
+                self.costs.append((e, idx, self.prog.AddQuadraticCost(e.Q(), e.b(), d[idx], is_convex=True)))
+            elif isinstance(e, LinearCost):
+                self.costs.append((e, idx, self.prog.AddLinearCost(e.a(), 0.0, d[idx])))
+            else:
+                raise InputError(f"cost {type(e).__name__} is not linear or quadratic: use the 'nlp' solver")
+
+    def at(self, x, Hd, g):
+        """(program, δ variables) of the step at x; None when a constraint's coefficients (or which of its rows
+        are equalities) changed since it was built: then build anew."""
+        from pydrake.solvers import QuadraticCost
+
+        self.model.evaluator().UpdateCoefficients(Hd, g, 0.0, True)
+        for e, A, eq, idx, shifted in self.constraints:
+            if not (np.array_equal(e.GetDenseA(), A) and np.array_equal(e.lower_bound() == e.upper_bound(), eq)):
+                return None
+            shift = A @ x[idx]
+            lo, hi = e.lower_bound() - shift, e.upper_bound() - shift
+            for mask, binding in shifted:
+                binding.evaluator().set_bounds(lo[mask], hi[mask])
+        for e, idx, binding in self.costs:
+            if isinstance(e, QuadraticCost):
+                Q = e.Q()
+                binding.evaluator().UpdateCoefficients(Q, Q @ x[idx] + e.b(), 0.0, True)
+            else:
+                binding.evaluator().UpdateCoefficients(e.a(), 0.0)
+        return self.prog, self.d
+
+
+class _NormalOperator:
+    """JᵀWJ as an operator (large path): products and the diagonal without forming the matrix."""
+
+    def __init__(self, J, w):
+        self.J, self.w = J.tocsr(), w
+        self.JT = self.J.T.tocsr()
+
+    def diagonal(self) -> np.ndarray:
+        rows = np.repeat(self.w, np.diff(self.J.indptr))
+        return np.bincount(self.J.indices, weights=rows * self.J.data ** 2, minlength=self.J.shape[1])
+
+    def __matmul__(self, v):
+        return self.JT @ (self.w * (self.J @ v))
+
+
+def _pcg(apply, b, precondition, rtol=1e-10, max_iterations=100):
+    """Preconditioned conjugate gradients for apply(x) = b (symmetric positive definite): (x, converged)."""
+    x = np.zeros_like(b)
+    norm_b = np.linalg.norm(b)
+    if norm_b == 0:
+        return x, True
+    res = b.copy()
+    z = precondition(res)
+    p, rz = z.copy(), res @ z
+    for _ in range(max_iterations):
+        Ap = apply(p)
+        alpha = rz / (p @ Ap)
+        x += alpha * p
+        res -= alpha * Ap
+        if np.linalg.norm(res) <= rtol * norm_b:
+            return x, True
+        z = precondition(res)
+        rz, rz_old = res @ z, rz
+        p = z + (rz / rz_old) * p
+    return x, False
 
 
 def _normal_matrix(J, w) -> np.ndarray:
-    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there)."""
+    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there). Wide: the columns
+    that many rows touch (geometry, stations) as a dense block by BLAS, only the rest (map nodes, a few per
+    row) by a sparse product -- which would otherwise spend most of its time on the busy columns."""
     if J.shape[1] <= SMALL_PROBLEM:
         Jd = J.toarray()
         return Jd.T @ (w[:, None] * Jd)
-    return (J.T @ sp.diags(w) @ J).toarray()
-
-
-def _weak_names(names, M, N, s) -> list:
-    """Parameters in the near-null space of the reduced (scaled, within the constraints) normal matrix M."""
-    if not np.all(np.isfinite(M)):
-        return list(names)
-    lam, vec = np.linalg.eigh(M)
-    weak = lam < RANK_TOLERANCE * lam[-1]
-    if not weak.any():
-        return []
-    mag = np.max(np.abs(N @ vec[:, np.flatnonzero(weak)]), axis=1)
-    return [names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
+    J = J.tocsr()
+    busy = np.bincount(J.indices, minlength=J.shape[1]) > J.shape[0] // 20
+    if not busy.any() or busy.all():
+        return (J.T @ sp.diags(w) @ J).toarray()
+    dense, rest = np.flatnonzero(busy), np.flatnonzero(~busy)
+    Jd = J[:, dense].toarray()
+    WJd = w[:, None] * Jd
+    Js = J[:, rest].tocsr()
+    WJs = Js.copy()
+    WJs.data *= np.repeat(w, np.diff(Js.indptr))
+    H = np.empty((J.shape[1], J.shape[1]))
+    # The quiet columns are one block (the maps between geometry and stations): slices, not a gather of n².
+    span = slice(rest[0], rest[-1] + 1)
+    block = (span, span) if rest[-1] - rest[0] + 1 == len(rest) else np.ix_(rest, rest)
+    H[block] = (Js.T.tocsr() @ WJs).toarray()
+    cross = np.asarray(Js.T @ WJd)
+    H[rest[:, None], dense] = cross
+    H[dense[:, None], rest] = cross.T
+    H[dense[:, None], dense] = Jd.T @ WJd
+    return H
 
 
 def _rms(v) -> float:

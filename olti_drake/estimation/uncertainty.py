@@ -60,9 +60,7 @@ def _solution_map(ident, x):
     n = len(x)
     Q = ident.quadratic_costs()[0]  # over all decision variables: the user's own follow the parameters
     H = np.pad((J.T @ J).toarray(), ((0, len(Q) - n), (0, len(Q) - n))) + Q
-    M, N, s = ident.reduced_hessian(H)
-    Ns = N / s[:, None]
-    return (Ns @ np.linalg.solve(M, Ns.T))[:n, :n], J  # the parameters' rows: the readings move only them
+    return ident.within(H).inverse()[:n, :n], J  # the parameters' rows: the readings move only them
 
 
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
@@ -106,7 +104,43 @@ def _mc_batch(seed, size: int):
     rng = np.random.default_rng(seed)
     E = w["errors"].draw(rng, w["distance"], size)
     with single_thread_blas():  # the workers already fill the cores
+        if w["scatter"] is None:
+            return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"])
         return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
+
+
+def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30):
+    """:func:`_solve_trials` for a program without batched residuals (e.g. a
+    :class:`~olti_drake.estimation.calibration.Calibration`): the same chord iteration on the exact gradient,
+    trial by trial (each stops at its own convergence). Here a trial's row of D is r(x̂) + its errors, so that
+    its residual r(x) − D is the model's reading at x minus the trial's reading. The first iteration, at x̂
+    where r and J are known, is one product for all trials. The iteration converges linearly: once the
+    last two steps shrink by a rate ρ < 0.1 and the steps still to come (|step| ρ / (1 − ρ)) sum below a
+    tenth of the tolerance, the trial is converged without one more evaluation (each costs a forward
+    kinematics of the campaign)."""
+    out = np.full((len(D), len(x)), np.nan)
+    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    r, J = ident.residuals(x)
+    first = x - ((r - D) @ J + x @ Q + q) @ B  # Q symmetric: (Q x)ᵀ = xᵀ Q
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for t, d in enumerate(D):
+            xt = first[t].copy()
+            previous = np.max(np.abs(first[t] - x))
+            for _ in range(max_iter - 1):
+                r, J = ident.residuals(xt)
+                step = (J.T @ (r - d) + Q @ xt + q) @ B
+                xt -= step
+                size = np.max(np.abs(step))
+                if not size >= tol:  # converged, or NaN (stays NaN below)
+                    break
+                rate = size / previous
+                if rate < 0.1 and size * rate / (1.0 - rate) < 0.1 * tol:
+                    size = 0.0  # what is left is below the tolerance by the observed contraction
+                    break
+                previous = size
+            if size < tol:
+                out[t] = xt
+    return out
 
 
 def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
@@ -140,7 +174,9 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     batched residuals ``residual_rows(X (T, n), readings (K,) or (T, K)) ->
     (r (T, K), cols (K, m), vals (T, K, m))`` -- the SCARA
     :class:`~olti_drake.estimation.identification.Identifier` or the
-    :class:`~olti_drake.estimation.multilateration.Multilateration` of 001.
+    :class:`~olti_drake.estimation.multilateration.Multilateration` of 001; a program without them (a
+    :class:`~olti_drake.estimation.calibration.Calibration` of an N-joint robot) is solved trial by trial
+    on its ``residuals`` (:func:`_solve_trials_one_by_one`), with the same semantics.
 
     Readings are the model's own at x plus errors drawn from the budget, so
     the trials scatter around x. ``trials`` fixed, or with ``adaptive`` rounds
@@ -157,12 +193,15 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
         raise InputError(f"max_trials must be >= {2 * round_trials(coverage)} (two adaptive rounds), got {max_trials}")
     B, J = _solution_map(ident, x)
     distance = ident.beam_lengths(x)
-    # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
-    model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
     Q, q = ident.quadratic_costs()
     Q, q = Q[:len(x), :len(x)], q[:len(x)]  # priors on the parameters (a user's own variables: in B)
-    k, m = cols.shape
-    scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
+    if hasattr(ident, "residual_rows"):
+        # The residuals against zero readings are the model's own readings at x: no campaign layout needed.
+        model, cols, _ = ident.residual_rows(x[None], np.zeros(distance.size))
+        k, m = cols.shape
+        scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
+    else:  # trials one by one on ident.residuals; the trial's readings relative to the campaign's
+        model, scatter = ident.residuals(x)[0][None], None
     _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
                  q=q, Q=Q, scatter=scatter)
     workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)

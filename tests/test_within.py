@@ -1,0 +1,179 @@
+"""The large-problem algebra within the constraints equals the dense reference on small problems.
+
+``leastsquares.Within`` has two paths: dense (explicit null-space basis, eigen-decomposition: the reference)
+and large (Householder reflectors, Cholesky, Lanczos, conjugate-gradient LM steps), chosen by the number of
+decision variables (``LARGE_PROBLEM``). Here both run on the same small problems -- random normal matrices
+with gauge rows, the UR5 calibration, the SCARA error-map identification -- and must give the same rank,
+the same unidentifiable names, condition number, covariance and solution. Units: mm, deg.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import olti_drake
+from olti_drake.estimation import leastsquares
+from olti_drake.estimation.calibration import Calibration
+from olti_drake.estimation.leastsquares import SolverOptions, UnidentifiableError, Within
+
+
+def _normal(seed, n=40, m=3, rows=150, duplicate=None):
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(rows, n)) * rng.uniform(0.1, 10.0, n)
+    if duplicate is not None:
+        J[:, duplicate[1]] = 2.0 * J[:, duplicate[0]]
+    A = rng.normal(size=(m, n))
+    A[:, 6:] = 0.0  # gauge rows on a few parameters, as the models' are
+    return J.T @ J, A
+
+
+@pytest.mark.parametrize("m", [0, 1, 3])
+def test_large_path_equals_dense_on_a_random_normal_matrix(m):
+    H, A = _normal(1, m=m)
+    dense, large = Within(H, A, large=False), Within(H, A, large=True)
+    assert large.dim == dense.dim == H.shape[0] - m
+    assert large.condition() == pytest.approx(dense.condition(), rel=1e-6)
+    ref = dense.inverse()
+    assert np.abs(large.inverse() - ref).max() <= 1e-10 * np.abs(ref).max()
+    assert large.inverse_diagonal() == pytest.approx(np.diag(ref), rel=1e-9)
+    g = np.random.default_rng(2).normal(size=H.shape[0])
+    steps = [w.to_full(w.solve(w.to_null(g))) for w in (dense, large)]
+    assert np.abs(steps[0] - steps[1]).max() <= 1e-10 * np.abs(steps[0]).max()
+    assert not large.deficient() and large.weak_names([f"p{i}" for i in range(H.shape[0])]) == []
+
+
+def test_dependent_constraint_rows_count_once():
+    """A constraint given twice (or a combination of others) removes one dimension, in both paths."""
+    H, A = _normal(3, m=2)
+    A = np.vstack([A, A[0] + A[1]])
+    dense, large = Within(H, A, large=False), Within(H, A, large=True)
+    assert dense.dim == large.dim == H.shape[0] - 2
+    assert large.condition() == pytest.approx(dense.condition(), rel=1e-6)
+
+
+def test_rank_deficiency_names_the_same_parameters_in_both_paths():
+    H, A = _normal(4, duplicate=(10, 11))
+    names = [f"p{i}" for i in range(H.shape[0])]
+    dense, large = Within(H, A, large=False), Within(H, A, large=True)
+    assert dense.deficient() and large.deficient()
+    assert large.weak_names(names) == dense.weak_names(names) == ["p10", "p11"]
+    assert large.condition() == dense.condition() == float("inf")
+
+
+@pytest.fixture(scope="module")
+def ur5_problem():
+    from olti_drake.model.chain import load_serial_chain
+    from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
+                                         synthetic_truth)
+
+    chain = load_serial_chain(Path(olti_drake.__file__).parent / "models" / "ur5.urdf", "tool0")
+    truth = synthetic_truth(chain, seed=5, tool_offset_mm=(40.0, -25.0, 60.0))
+    ranges = np.tile([-90.0, 90.0], (chain.n_joints, 1))
+    camp = synthetic_campaign(truth, 150, seed=6, ranges_deg=ranges, noise_mm=0.0005)
+    model = build_position_model(chain, camp.commands, camp.dirs, kind="errormap", grid_step_deg=30.0,
+                                 tool_offset_mm=(40.0, -25.0, 60.0))
+    meas = DistanceMeasurement(model, camp.distance_commands, camp.distance_dirs, camp.station,
+                               camp.displacement_mm, truth.stations_mm, truth.dead_paths_mm)
+    return meas, find_gauge(meas)
+
+
+def _fit_both(monkeypatch, build):
+    dense = build().fit()
+    monkeypatch.setattr(leastsquares, "LARGE_PROBLEM", 0)
+    steps = []
+    cg_step = leastsquares.LeastSquaresProgram._cg_step
+    monkeypatch.setattr(leastsquares.LeastSquaresProgram, "_cg_step",
+                        lambda self, *a: steps.append(1) or cg_step(self, *a))
+    large = build().fit()
+    assert steps  # the large path ran: conjugate-gradient steps within the gauge
+    return dense, large
+
+
+def test_calibration_large_path_equals_dense(monkeypatch, ur5_problem):
+    meas, gauge = ur5_problem
+    dense, large = _fit_both(monkeypatch, lambda: Calibration(meas, SolverOptions(), gauge, "synthetic UR5"))
+    assert np.max(np.abs(large.x - dense.x) / np.maximum(dense.std, 1e-12)) < 1e-4
+    assert large.std == pytest.approx(dense.std, rel=1e-6, abs=1e-12)
+    assert np.abs(large.covariance - dense.covariance).max() <= 1e-6 * np.abs(dense.covariance).max()
+    assert large.condition_number == pytest.approx(dense.condition_number, rel=1e-6)
+    assert large.converged_by and dense.converged_by
+
+
+def test_unidentifiable_names_agree_in_both_paths(monkeypatch, ur5_problem):
+    """Without the gauge the rotation about J1 and the base placement are invisible: the same names, by
+    both paths."""
+    meas, _ = ur5_problem
+    errors = []
+    for limit in (leastsquares.LARGE_PROBLEM, 0):
+        monkeypatch.setattr(leastsquares, "LARGE_PROBLEM", limit)
+        with pytest.raises(UnidentifiableError) as e:
+            Calibration(meas, SolverOptions(), None, "synthetic UR5").fit()
+        errors.append(e.value)
+    assert errors[0].names and errors[0].names == errors[1].names
+    assert str(errors[0]) == str(errors[1])
+
+
+def test_scara_identification_large_path_equals_dense(monkeypatch):
+    from olti_drake.estimation.identification import IdentificationOptions, Identifier
+    from olti_drake.io.campaign_io import load_campaign
+
+    data = load_campaign(Path(__file__).resolve().parent.parent / "data" / "paper000" / "campaign.csv")
+    dense, large = _fit_both(monkeypatch, lambda: Identifier(data, IdentificationOptions(model="errormap")))
+    # Both stop when the cost no longer decreases by 1e-12 of itself: the same minimum, to far below u.
+    assert np.max(np.abs(large.x - dense.x) / dense.std) < 1e-4
+    assert large.std == pytest.approx(dense.std, rel=1e-6)
+    assert large.condition_number == pytest.approx(dense.condition_number, rel=1e-6)
+
+
+def test_monte_carlo_of_a_calibration_solves_each_trial(ur5_problem):
+    """Calibration programs (no batched residuals) go trial by trial: each trial is its own least-squares
+    solution (a full fit of the same readings agrees), seeded, and the spread follows the linear method."""
+    from olti_drake.estimation import uncertainty
+    from olti_drake.io.budget import ReadingErrors, default_budget
+
+    meas, gauge = ur5_problem
+    cal = Calibration(meas, SolverOptions(), gauge, "synthetic UR5")
+    x = cal.fit().x
+    errors = ReadingErrors(default_budget("scara"))
+    mc = uncertainty.monte_carlo(cal, x, errors, trials=300, seed=2, workers=1)
+    again = uncertainty.monte_carlo(cal, x, errors, trials=300, seed=2, workers=1)
+    assert np.array_equal(mc.samples, again.samples)
+    u = np.sqrt(np.diag(uncertainty.linear_covariance(cal, x, errors)))
+    seen = u > 1e-9 * u.max()  # the gauge's own combinations have none
+    assert mc.samples.std(axis=0, ddof=1)[seen] == pytest.approx(u[seen], rel=0.25)
+    # One trial re-solved from scratch: the readings the trial saw, identified by LM.
+    r0 = cal.residuals(x)[0]
+    E = errors.draw(np.random.default_rng(9), cal.beam_lengths(x), 1)
+    B, _ = uncertainty._solution_map(cal, x)
+    n = len(x)
+    trial = uncertainty._solve_trials_one_by_one(cal, x, B, r0 + E, np.zeros(n), np.zeros((n, n)))[0]
+    saved = meas.displacement
+    try:
+        meas.displacement = meas.predict(x) + E[0]
+        refit = Calibration(meas, SolverOptions(), gauge, "trial").fit().x
+    finally:
+        meas.displacement = saved
+    assert np.abs(trial - refit).max() < 1e-7
+
+
+@pytest.mark.parametrize("interleaved", [False, True])
+def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product(interleaved):
+    """Wide J (above SMALL_PROBLEM columns): busy columns by BLAS, the rest sparse (one block, or scattered
+    among the busy ones) -- the same JᵀWJ; the LM operator's diagonal too."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(7)
+    rows, n, busy = 3000, leastsquares.SMALL_PROBLEM + 100, 25
+    dense = np.zeros((rows, n))
+    dense[:, :busy] = rng.normal(size=(rows, busy))
+    for k in range(rows):
+        dense[k, busy + rng.choice(n - busy, 4, replace=False)] = rng.normal(size=4)
+    dense[:, n - 1] = 0.0  # a column no row touches
+    if interleaved:
+        dense = dense[:, np.random.default_rng(8).permutation(n)]
+    w = rng.uniform(0.2, 1.0, rows)
+    expect = dense.T @ (w[:, None] * dense)
+    J = sp.csr_matrix(dense)
+    assert np.abs(leastsquares._normal_matrix(J, w) - expect).max() <= 1e-12 * np.abs(expect).max()
+    assert leastsquares._NormalOperator(J, w).diagonal() == pytest.approx(np.diag(expect), rel=1e-12)
