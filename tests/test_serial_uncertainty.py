@@ -98,3 +98,26 @@ def test_without_tool_offset_the_model_is_rebuilt_around_the_fitted_tool_point(i
     assert "wrist_3_joint" in a["error_map"] and any("rebuilt around it" in n for n in a["notes"])
     assert a["residual_rms_mm"] == pytest.approx(b["residual_rms_mm"], rel=1e-6)
     assert np.allclose(a["tool_offset_mm"], b["tool_offset_mm"], atol=1e-6)
+
+
+def test_monte_carlo_agrees_with_the_linear_propagation(identified, tmp_path):
+    """JCGM 101 Monte Carlo (300 trials, the problem re-solved per trial) against JCGM 100 linear propagation
+    of the same budget: every parameter's u within the sampling error of 300 trials (±25 % at the extremes,
+    median ratio within 5 %), the workspace U within 10 %. Seeded: the same seed gives the same file."""
+    d = identified
+    outs = {}
+    for method, extra in (("linear", []), ("mc", ["--trials", "300", "--seed", "3"])):
+        outs[method] = tmp_path / f"{method}.json"
+        run = olti("uncertainty", d / "result.json", d / "campaign.csv", "--method", method, *extra,
+                   "--workspace-poses", "60", "--out", outs[method])
+        assert run.returncode == 0, run.stderr
+    lin, mc = (json.loads(outs[m].read_text()) for m in ("linear", "mc"))
+    a, b = np.array(mc["parameters"]["std"]), np.array(lin["parameters"]["std"])
+    ratio = a[b > 0] / b[b > 0]
+    assert 0.95 < np.median(ratio) < 1.05 and 0.75 < ratio.min() and ratio.max() < 1.25, (np.median(ratio), ratio.min(),
+                                                                                          ratio.max())
+    assert mc["workspace"]["expanded_um_mean"] == pytest.approx(lin["workspace"]["expanded_um_mean"], rel=0.1)
+    again = tmp_path / "again.json"
+    assert olti("uncertainty", d / "result.json", d / "campaign.csv", "--method", "mc", "--trials", "300", "--seed",
+                "3", "--workspace-poses", "60", "--out", again).returncode == 0
+    assert json.loads(again.read_text())["parameters"] == mc["parameters"]
