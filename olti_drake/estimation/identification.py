@@ -17,6 +17,7 @@ machinery of :mod:`olti_drake.estimation.leastsquares`.
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
+import copy
 import dataclasses
 import os
 from dataclasses import dataclass, field
@@ -201,10 +202,13 @@ class Identifier(LeastSquaresProgram):
         o = dataclasses.replace(self.options, grid1_deg=coarse[0], grid2_deg=coarse[1], reflectors_mm=reflectors_mm,
                                 check_resolution=False, regularize=False)
         try:
-            x = Identifier(self.data.subset(keep), o).fit().x
-            full = Identifier(self.data, o)
+            coarse_fit = Identifier(self.data.subset(keep), o)
+            x = coarse_fit.fit().x
         except InputError as e:  # too few readings left, or the coarse fit refused: say so, do not fail
             return {"method": how, "done": False, "why": str(e)}
+        # The same coarse model on every reading: residuals only, so no second program is built for it.
+        full = copy.copy(coarse_fit)
+        full.data = self.data
         r = full.residuals(x)[0]
         budget = self.options.budget if self.options.budget is not None else self.default_budget()
         u = _rms(ReadingErrors(budget).std(full.beam_lengths(x)))
