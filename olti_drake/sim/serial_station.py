@@ -297,18 +297,20 @@ def _systems():
     class PanTiltSteering(LeafSystem):
         """Open-loop pan/tilt command of the head in use (001 Eq. (1) in 3D): from the ESTIMATED centre
         and zero angles to the NOMINAL tool point of the commanded joints (the model file's plant,
-        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1); output
-        ``head_command`` (2, rad)."""
+        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1) and, with
+        ``tool_input`` (several tool offsets (T, 3) mm, e.g. a machine tool's mountings), ``tool`` (1:
+        the row's tool index); output ``head_command`` (2, rad)."""
 
-        def __init__(self, chain, tool_offset_mm, heads_est):
+        def __init__(self, chain, tool_offset_mm, heads_est, tool_input: bool = False):
             super().__init__()
             set_default_name(self)
             self._plant, self._heads = chain.plant, heads_est
             self._tool = chain.plant.get_frame(chain.tool_frame_index)
-            self._point = np.asarray(tool_offset_mm, float).reshape(3, 1) / M_TO_MM
+            self._points = np.atleast_2d(np.asarray(tool_offset_mm, float)).T / M_TO_MM  # (3, T) m
             self._starts = np.array([chain.plant.GetJointByName(n).position_start() for n in chain.joint_names])
             command = self.DeclareVectorInputPort("joint_command", chain.n_joints)
             self.DeclareVectorInputPort("reflector", 1)
+            self._tool_port = self.DeclareVectorInputPort("tool", 1) if tool_input else None
             self._plant_context = self.DeclareCacheEntry(
                 "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
                                                calc=self._calc_plant_context), {command.ticket()})
@@ -321,7 +323,8 @@ def _systems():
 
         def _calc(self, context, output):
             j = int(self.get_input_port(1).Eval(context)[0])
-            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._point,
+            m = int(round(self._tool_port.Eval(context)[0])) if self._tool_port is not None else 0
+            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._points[:, [m]],
                                                 self._plant.world_frame())[:, 0] * M_TO_MM
             output.SetFromVector(np.radians(a3.pan_tilt_commands(self._heads, [j], p[None])[0]))
 
