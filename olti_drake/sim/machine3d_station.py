@@ -25,7 +25,7 @@ Diagram (one clock: the sequencer moves every ``period_s``, the recorder reads h
 Station ports (the 2D :func:`~olti_drake.sim.machine_station.AddMachineStation` contract where it
 applies): inputs ``target_command`` (3, m), ``tool`` (1), ``head_command`` (2, rad; the 2D station's
 ``table_command``), ``station`` (1); outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m),
-``true_position`` (3, m: the true tool point; simulation only).
+``status``, ``true_position`` (3, m: the true tool point; simulation only).
 
 Units: mm, deg, µm, µrad in files and the API; SI on the Drake ports.
 """
@@ -184,10 +184,9 @@ def make_xyz_machine() -> XYZMachine:
 @functools.lru_cache(maxsize=None)
 def _systems():
     """The LeafSystems (pydrake imported when a diagram is built, not at import)."""
-    from pydrake.common.value import AbstractValue
-    from pydrake.systems.framework import LeafSystem, ValueProducer
+    from pydrake.systems.framework import LeafSystem
 
-    from olti_drake.sim.systems import ReadingRecorder, set_default_name
+    from olti_drake.sim.systems import BeamInterferometer, ReadingRecorder, set_default_name
 
     class VolumetricTool(LeafSystem):
         """Commanded axes -> the TRUE tool point (volumetric3d, the 21 motions composed exactly).
@@ -208,46 +207,33 @@ def _systems():
             m = int(round(self.get_input_port(1).Eval(context)[0]))
             output.SetFromVector(tool_positions(self._config, self._truth, cmd[None], [m])[0] / M_TO_MM)
 
-    class PanTiltInterferometer(LeafSystem):
+    class PanTiltInterferometer(BeamInterferometer):
         """The interferometer on pan/tilt heads reading a cat's eye at a given point (001 in 3D).
 
         Inputs ``tool_point`` (3, m: the true cat's-eye centre), ``station`` (1: head j),
         ``head_command`` (2, rad). The beam: :func:`aiming3d.pan_tilt_beam` of the TRUE heads with
-        ``head_error``; the reading: :func:`aiming3d.read_beam` against the counter zero
-        ``dead_paths_mm[j]``, cat's-eye axis ``catseye_axis`` (world), pose noise on the head
-        (``pose_noise_on``), noise from a generator seeded by (seed, sample count) so re-evaluating a
-        port gives the same value. Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m)."""
+        ``head_error``; the reading (:class:`~olti_drake.sim.systems.BeamInterferometer`) against the
+        counter zero ``dead_paths_mm[j]``, cat's-eye axis ``catseye_axis`` (world), pose noise on
+        ``pose_noise_on`` (the head: 001's rotary axis). Outputs ``displacement`` (1, m), ``valid`` (1),
+        ``miss`` (1, m), ``status``."""
 
         def __init__(self, heads_true, head_error, dead_paths_mm, catseye_axis, options, budget, seed: int,
                      period_s: float, pose_noise_on: str = "origin"):
             super().__init__()
             set_default_name(self)
             self._heads, self._err, self._dead = heads_true, head_error, np.asarray(dead_paths_mm, float)
-            self._axis, self._options, self._budget = np.asarray(catseye_axis, float), options, budget
-            self._seed, self._pose = int(seed), pose_noise_on
+            self._axis, self._pose = np.asarray(catseye_axis, float), pose_noise_on
             self.DeclareVectorInputPort("tool_point", 3)
             self.DeclareVectorInputPort("station", 1)
             self.DeclareVectorInputPort("head_command", 2)
-            self.DeclareDiscreteState(1)
-            self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
-            self._reading = self.DeclareCacheEntry(
-                "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc),
-                {self.all_sources_ticket()})
-            for i, name in enumerate(("displacement", "valid", "miss")):
-                self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+            self.DeclareReading(seed, period_s, options, budget)
 
-        def _count(self, context, discrete_state):
-            discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
-
-        def _calc(self, context, value):
+        def beam(self, context):
             target = self.get_input_port(0).Eval(context) * M_TO_MM
             j = int(round(self.get_input_port(1).Eval(context)[0]))
             head = np.degrees(self.get_input_port(2).Eval(context))[None]
             origin, u = a3.pan_tilt_beam(self._heads, [j], head, self._err)
-            rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-            r = a3.read_beam(origin, u, target[None], self._axis, self._dead[j], self._options, self._budget, rng,
-                             pose_noise_on=self._pose)
-            value.set_value(np.array([r.reading_mm[0] / M_TO_MM, float(r.valid[0]), r.miss_mm[0] / M_TO_MM]))
+            return origin, u, target[None], self._axis, self._dead[j], self._pose
 
     class Machine3DRecorder(ReadingRecorder):
         """Takes the reading half a period after each move: the row (station, target, x/y/z_cmd_mm, tool,
@@ -306,7 +292,7 @@ def AddMachine3DStation(builder, setup: Machine3DSetup, name: str = "station"):
     inner.ExportInput(tool.GetInputPort("tool"), "tool")
     inner.ExportInput(laser.GetInputPort("head_command"), "head_command")
     inner.ExportInput(laser.GetInputPort("station"), "station")
-    for port in ("displacement", "valid", "miss"):
+    for port in ("displacement", "valid", "miss", "status"):
         inner.ExportOutput(laser.GetOutputPort(port), port)
     inner.ExportOutput(tool.GetOutputPort("tool_point"), "true_position")
     return builder.AddNamedSystem(name, inner.Build())
