@@ -30,15 +30,16 @@ def _olti(*argv):
                           env=env, cwd=ROOT)
 
 
-def _scenario(**options):
-    return Machine3DScenario(config=MachineConfig(tool_offsets_mm=TOOLS), grid=(3, 3, 2), tools=(0, 1, 2),
+def _scenario(chains=(("X", "Y", "Z"), ()), **options):
+    return Machine3DScenario(config=MachineConfig(*chains, tool_offsets_mm=TOOLS), grid=(3, 3, 2), tools=(0, 1, 2),
                              interferometer=InterferometerOptions(**options), seed=4)
 
 
-def test_diagram_reads_what_the_numpy_twin_reads():
+@pytest.mark.parametrize("chains", [(("X", "Y", "Z"), ()), (("Z",), ("Y", "X"))], ids=["serial", "table-xy"])
+def test_diagram_reads_what_the_numpy_twin_reads(chains):
     """Noise and quantization off: the same rows and readings to 1e-9 mm, the same truth; the heads' own
-    errors, estimate errors and three tools are in."""
-    s = _scenario(noise=False, quantization=False)
+    errors, estimate errors and three tools are in; serial X-Y-Z and a table carrying X and Y."""
+    s = _scenario(chains, noise=False, quantization=False)
     twin, twin_truth = simulate_machine_campaign_3d(s)
     cols, truth = run_machine3d_campaign(s)
     assert set(cols) == set(twin)
@@ -107,15 +108,26 @@ def test_shipped_scenario_is_multilaterated_and_identified(tmp_path):
 def test_scenario_detection_and_bad_fields(tmp_path):
     assert is_machine3d_scenario(YAML)
     assert not is_machine3d_scenario(os.path.join(ROOT, "diagrams", "six_axis.yaml"))
-    assert not is_machine3d_scenario(YAML, "some_name")
+    assert not is_machine3d_scenario(os.path.join(ROOT, "diagrams", "paper000_scara.yaml"))
     doc = load_machine3d_scenario(YAML)
     assert doc.scenario().config.tools.shape == (3, 3)
+    # named scenarios over a base, as the other scenario files
+    named = tmp_path / "named.yaml"
+    named.write_text(f"small:\n  base: {YAML}\n  grid: [3, 3, 2]\n  tools: [1]\n")
+    assert is_machine3d_scenario(named, "small") and not is_machine3d_scenario(named, "other")
+    small = load_machine3d_scenario(named, "small").scenario()
+    assert small.grid == (3, 3, 2) and small.tools == (1,) and len(small.heads_mm) == 5
     for text, name in (("{tools: [0, 3]}", "tools"), ("{grid: [1, 4, 4]}", "grid"),
                        ("{heads_mm: [[0, 0]]}", "heads_mm"), ("{catseye_axis: [0, 0, 0]}", "catseye_axis"),
-                       ("{machine: {travel_mm: {X: [5, 1]}}}", "travel_mm")):
+                       ("{machine: {travel_mm: {X: [5, 1]}}}", "travel_mm"), ("{seed: -1}", "seed"),
+                       ("{interferometer: {acceptance_mm: -1}}", "acceptance_mm"), ("{period_s: 0}", "period_s")):
         with pytest.raises(InputError, match=name):
-            load_machine3d_scenario(YAML, text).scenario(f"scenario {YAML}")
-    r = _olti("simulate", YAML, "--scenario-text", "{grid: [1, 4, 4]}", "--out", tmp_path / "x")
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "grid" in r.stderr
-    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
-    assert not (tmp_path / "x" / "campaign.csv").exists()
+            load_machine3d_scenario(YAML, None, text).scenario(f"scenario {YAML}")
+    r = _olti("simulate", named, "--scenario", "small", "--out", tmp_path / "n")
+    assert r.returncode == 0 and "90 readings" in r.stdout, r.stderr
+    for text, name in (("{grid: [1, 4, 4]}", "grid"), ("{gird: [4, 4, 4]}", "gird"), ("{seed: x}", "machine_3d.yaml"),
+                       ("{budget: nope.yaml}", "nope.yaml")):
+        r = _olti("simulate", YAML, "--scenario-text", text, "--out", tmp_path / "x")
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and name in r.stderr, (text, r.stderr)
+        assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+        assert not (tmp_path / "x" / "campaign.csv").exists()

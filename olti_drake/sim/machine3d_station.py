@@ -83,6 +83,27 @@ class Machine3DScenarioFile:
     seed: int = 0
     period_s: float = 1.0
 
+    base: str = ""
+
+    def at(self, base_dir) -> "Machine3DScenarioFile":
+        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
+        self.base_dir = os.path.abspath(os.fspath(base_dir))
+        return self
+
+    def resolve(self, path: str) -> str:
+        """A path from the scenario, relative to the YAML file's folder (else the current directory)."""
+        path = os.fspath(path)
+        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
+
+    def load_budget(self):
+        """The budget file's :class:`~olti_drake.io.budget.Budget`, or 001 Table 4 when ``budget`` is empty."""
+        from olti_drake.io.budget import load_budget
+        return load_budget(self.resolve(self.budget)) if self.budget else paper001_budget()
+
+    def validate(self, where: str = "scenario") -> "Machine3DScenarioFile":
+        self.scenario(where)
+        return self
+
     def scenario(self, where: str = "scenario") -> Machine3DScenario:
         """The model-layer scenario; a bad value gets one line naming ``where`` and the field."""
         from olti_drake.model.volumetric3d import MachineConfig
@@ -106,40 +127,35 @@ class Machine3DScenarioFile:
         checks += [(name, np.isfinite(v) and v >= 0, "finite and >= 0") for name, v in (
             ("station_estimate_sigma_um", self.station_estimate_sigma_um),
             ("zero_angle_sigma_urad", self.zero_angle_sigma_urad), ("head_error_mdeg", self.head_error_mdeg))]
+        checks += [(name, v >= 0, "an integer >= 0") for name, v in (("seed", self.seed),
+                                                                      ("truth_seed", self.truth_seed))]
         for name, ok, need in checks:
             if not ok:
                 raise InputError(f"{where}: {name} must be {need}, got {getattr(self, name)!r}")
+        try:
+            self.interferometer.validate(f"{where}: interferometer")
+        except ValueError as e:
+            raise InputError(str(e)) from None
         return Machine3DScenario(config, tuple(self.grid), tuple(self.tools), heads.tolist(),
                                  self.station_estimate_sigma_um, self.zero_angle_sigma_urad, self.head_error_mdeg,
                                  tuple(self.catseye_axis), self.truth_seed, self.interferometer, self.seed)
 
 
 def is_machine3d_scenario(path, name=None) -> bool:
-    """Whether ``olti simulate`` runs this file here: a single scenario (no ``--scenario NAME``) with the
-    top-level key ``heads_mm``. An unreadable file is left to the other loaders, which name the problem."""
-    from olti_drake.io.csvio import read_yaml
+    """Whether ``olti simulate`` runs this scenario here: it (its named scenario, or a base it names) has
+    the top-level key ``heads_mm`` (:func:`~olti_drake.sim.serial_scenario.scenario_kind`)."""
+    from olti_drake.sim.serial_scenario import scenario_kind
 
-    if path is None or name is not None or not os.path.isfile(path):
-        return False
-    try:
-        raw = read_yaml(path, "scenario")
-    except ValueError:
-        return False
-    return isinstance(raw, dict) and "heads_mm" in raw
+    return scenario_kind(path, name) == "machine3d"
 
 
-def load_machine3d_scenario(path, text=None) -> Machine3DScenarioFile:
-    """The YAML file (and ``--scenario-text`` overrides) as a :class:`Machine3DScenarioFile`; one line on error."""
-    from pydrake.common.yaml import yaml_load_typed
+def load_machine3d_scenario(path, name=None, text=None) -> Machine3DScenarioFile:
+    """The YAML file (its named scenario ``name``, its ``base`` layers, then ``--scenario-text``
+    overrides) as a validated :class:`Machine3DScenarioFile`, by the scenario loader of
+    :func:`olti_drake.sim.scenario.load_scenario` (one line naming the file and the field on error)."""
+    from olti_drake.sim.scenario import load_scenario
 
-    try:
-        doc = yaml_load_typed(schema=Machine3DScenarioFile, filename=os.fspath(path))
-        if text:
-            doc = yaml_load_typed(schema=Machine3DScenarioFile, data=text, defaults=doc)
-    except (RuntimeError, ValueError, TypeError) as e:
-        raise InputError(f"scenario {path}: {str(e).strip().splitlines()[0]}") from None
-    doc.base_dir = os.path.dirname(os.path.abspath(path))
-    return doc
+    return load_scenario(path, name, text, defaults=Machine3DScenarioFile())
 
 
 # ------------------------------------------------------------------ the XYZ plant
@@ -351,24 +367,22 @@ def run_machine3d_campaign(scenario: Machine3DScenario, budget=None, period_s: f
     return cols, machine3d_truth(scenario, setup.run, cols["valid"].sum())
 
 
-def simulate_machine3d_command(path, text, out_dir, seed=None, meshcat=False) -> str:
+def simulate_machine3d_command(path, name, text, out_dir, seed=None, meshcat=False) -> str:
     """``olti simulate machine_3d.yaml --out DIR``: load, check the outputs before any work (never replacing
     a campaign), run the diagram, write DIR/campaign.csv and DIR/truth.json; returns the summary."""
-    from olti_drake.io.budget import load_budget
     from olti_drake.io.outputs import make_dir, preflight, write_json
 
     if meshcat:
         raise ValueError(f"--meshcat: the live view is not available for 3D machine scenarios yet ({path})")
     t0 = time.perf_counter()
-    doc = load_machine3d_scenario(path, text)
+    doc = load_machine3d_scenario(path, name, text)
     if seed is not None:
         doc.seed = seed
     scenario = doc.scenario(f"scenario {path}")
-    budget_path = os.path.join(doc.base_dir, doc.budget) if doc.budget else None
     csv_path, truth_path = (os.path.join(out_dir, n) for n in ("campaign.csv", "truth.json"))
-    preflight([], [path] + ([budget_path] if budget_path else []), measurements=[csv_path, truth_path],
+    preflight([], [path] + ([doc.resolve(doc.budget)] if doc.budget else []), measurements=[csv_path, truth_path],
               dirs=[out_dir], create_dirs=True)
-    cols, truth = run_machine3d_campaign(scenario, load_budget(budget_path) if budget_path else None, doc.period_s)
+    cols, truth = run_machine3d_campaign(scenario, doc.load_budget(), doc.period_s)
     make_dir(out_dir)
     write_machine_campaign(cols, csv_path)
     write_json(truth_path, truth, measurement=True)
