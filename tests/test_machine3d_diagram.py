@@ -131,3 +131,9 @@ def test_scenario_detection_and_bad_fields(tmp_path):
         assert r.returncode == 2 and r.stderr.startswith("error: ") and name in r.stderr, (text, r.stderr)
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
         assert not (tmp_path / "x" / "campaign.csv").exists()
+
+
+def test_olti_run_names_the_simulate_verb(tmp_path):
+    r = _olti("run", YAML, "--out", tmp_path / "r")
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "olti simulate" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1
