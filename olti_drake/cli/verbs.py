@@ -142,6 +142,11 @@ def cmd_simulate(args) -> int:
         if args.meshcat and sys.stdin.isatty():
             input("press Enter to close the Meshcat view: ")
         return 0
+    from olti_drake.sim.machine3d_station import is_machine3d_scenario, simulate_machine3d_command
+    if is_machine3d_scenario(args.scenario, args.scenario_name):  # a 3D machine tool (it has `heads_mm`)
+        print(simulate_machine3d_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
+                                         args.seed, args.meshcat))
+        return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))
     print(_summary(setup, campaign, time.perf_counter() - t0))

@@ -296,7 +296,11 @@ def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = No
     from olti_drake.sim.scenario import load_scenario
     from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 
-    if path is not None and scenario_kind(path, name) == "serial":
+    kind = scenario_kind(path, name) if path is not None else "scara"
+    if kind == "machine3d":  # no hardware station for it yet: say so instead of a schema error
+        raise ValueError(f"scenario {path}: a 3D machine-tool scenario (heads_mm) is simulated only: "
+                         f"olti simulate {path} --out DIR")
+    if kind == "serial":
         return load_serial_scenario(path, name, text)
     return load_scenario(path, name, text)
 

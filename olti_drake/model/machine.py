@@ -252,16 +252,40 @@ def grid_commands_3d(config, grid, tools=(0,)):
     return np.tile(pts, (len(tools), 1)), np.repeat(tools, len(pts))
 
 
-def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
-    """Readings of every target from every pan/tilt head (001 §2 in 3D): (columns dict, truth dict).
+@dataclass
+class Machine3DRun:
+    """A 3D machine campaign as planned, shared by the numpy twin and the Drake diagram
+    (:mod:`olti_drake.sim.machine3d_station`), so both aim, zero and read identically. mm, deg.
 
-    Each head aims by 001 Eq. (1) in 3D at the COMMANDED tool point (command + the tool's nominal offset)
-    from its ESTIMATED centre and zeros; the beam leaves the TRUE centre in the direction of the TRUE
-    angles (zeros and the head's own error included) and reads the TRUE tool point (the volumetric3d
-    truth), by :func:`~olti_drake.model.aiming3d.read_beam` (cosine error, beam loss, budget noise,
-    λ/64). The counter of head j is zeroed at its first reading (L0_j, 001 Eq. 3). Columns follow
-    formats.md (station, target, x/y/z_cmd_mm, tool, displacement_mm, valid).
+    ``commands_mm`` (N, 3) and ``tool`` (N,): target i; ``sequence``: :func:`machine_sequence` (dim 3);
+    ``truth``: the volumetric3d motions; ``actual_mm`` (N, 3): the true tool point of each target;
+    ``heads_true`` / ``heads_est``: centres and zeros, true and as estimated (001 §2.2);
+    ``head_error``: the heads' angular positioning error (or None); ``dead_paths_mm`` (N_j,): L0_j,
+    the distance from head j's true centre to the true tool point at its first reading (001 Eq. 3).
+    ``rng``: the scenario's generator, drawn up to here (the twin's reading noise continues it).
     """
+
+    config: object
+    commands_mm: np.ndarray
+    tool: np.ndarray
+    sequence: dict
+    truth: object
+    actual_mm: np.ndarray
+    heads_true: object
+    heads_est: object
+    head_error: object
+    dead_paths_mm: np.ndarray
+    rng: np.random.Generator
+
+    @property
+    def nominal_mm(self) -> np.ndarray:
+        """The commanded tool points (N, 3) mm: command + the tool's nominal offset (what the heads aim at)."""
+        return self.commands_mm + self.config.tools[self.tool]
+
+
+def machine_run_3d(scenario: Machine3DScenario) -> Machine3DRun:
+    """Draw the heads' zeros and estimates (seeded by ``scenario.seed``), the grid, the sequence, the
+    true tool points and the counter zeros of a 3D campaign (:func:`simulate_machine_campaign_3d`)."""
     from olti_drake.model import aiming3d
     from olti_drake.model.volumetric3d import MachineConfig, synthetic_truth, tool_positions
 
@@ -274,28 +298,53 @@ def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
     zeros_est = zeros - np.degrees(1e-6 * s.zero_angle_sigma_urad * rng.standard_normal(zeros.shape))
     cmd, tool = grid_commands_3d(config, s.grid, s.tools)
     seq = machine_sequence(cmd, len(P), dim=3)
-    i, j = seq["target"], seq["station"]
+    j = seq["station"]
     truth = synthetic_truth(config, s.truth_seed)
     actual = tool_positions(config, truth, cmd, tool)
-    nominal = cmd + config.tools[tool]
-    heads_true, heads_est = aiming3d.PanTiltHeads(P, zeros), aiming3d.PanTiltHeads(P_est, zeros_est)
-    angles = aiming3d.pan_tilt_commands(heads_est, j, nominal[i])
-    err = aiming3d.harmonic_head_error(s.seed + 1, s.head_error_mdeg) if s.head_error_mdeg else None
-    origin, u = aiming3d.pan_tilt_beam(heads_true, j, angles, err)
     first = np.array([np.flatnonzero(j == k)[0] for k in range(len(P))])
-    dead = np.hypot.reduce(actual[i[first]] - P, axis=1)
-    beam = aiming3d.read_beam(origin, u, actual[i], np.asarray(s.catseye_axis, float), dead[j], s.interferometer,
-                              budget or paper001_budget(), rng, pose_noise_on="origin")  # 001: the head's axis
+    dead = np.hypot.reduce(actual[seq["target"][first]] - P, axis=1)
+    err = aiming3d.harmonic_head_error(s.seed + 1, s.head_error_mdeg) if s.head_error_mdeg else None
+    return Machine3DRun(config, cmd, tool, seq, truth, actual, aiming3d.PanTiltHeads(P, zeros),
+                        aiming3d.PanTiltHeads(P_est, zeros_est), err, dead, rng)
+
+
+def machine3d_truth(scenario: Machine3DScenario, run: Machine3DRun, n_readings: int) -> dict:
+    """The simulated truth of a 3D campaign (multilateration result layout, formats.md)."""
+    return {"format": "olti-multilateration/1", "targets_mm": run.actual_mm.tolist(),
+            "stations_mm": run.heads_true.centres_mm.tolist(), "dead_paths_mm": run.dead_paths_mm.tolist(),
+            "commands_mm": run.commands_mm.tolist(), "tools": run.tool.tolist(),
+            "tool_offsets_mm": run.config.tools.tolist(),
+            "gauge": "simulation truth: the machine's command frame (workpiece side)", "residual_rms_mm": 0.0,
+            "n_readings": int(n_readings), "stations_estimate_mm": run.heads_est.centres_mm.tolist(),
+            "seed": scenario.seed, "truth_seed": scenario.truth_seed}
+
+
+def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
+    """Readings of every target from every pan/tilt head (001 §2 in 3D): (columns dict, truth dict).
+
+    Each head aims by 001 Eq. (1) in 3D at the COMMANDED tool point (command + the tool's nominal offset)
+    from its ESTIMATED centre and zeros; the beam leaves the TRUE centre in the direction of the TRUE
+    angles (zeros and the head's own error included) and reads the TRUE tool point (the volumetric3d
+    truth), by :func:`~olti_drake.model.aiming3d.read_beam` (cosine error, beam loss, budget noise,
+    λ/64). The counter of head j is zeroed at its first reading (L0_j, 001 Eq. 3). Columns follow
+    formats.md (station, target, x/y/z_cmd_mm, tool, displacement_mm, valid). The numpy twin of the
+    Drake diagram :mod:`olti_drake.sim.machine3d_station` (same :func:`machine_run_3d`).
+    """
+    from olti_drake.model import aiming3d
+
+    s = scenario
+    run = machine_run_3d(s)
+    cmd, tool = run.commands_mm, run.tool
+    i, j = run.sequence["target"], run.sequence["station"]
+    angles = aiming3d.pan_tilt_commands(run.heads_est, j, run.nominal_mm[i])
+    origin, u = aiming3d.pan_tilt_beam(run.heads_true, j, angles, run.head_error)
+    beam = aiming3d.read_beam(origin, u, run.actual_mm[i], np.asarray(s.catseye_axis, float), run.dead_paths_mm[j],
+                              s.interferometer, budget or paper001_budget(), run.rng,
+                              pose_noise_on="origin")  # 001: the head's axis
     cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1], "z_cmd_mm": cmd[i, 2],
             "tool": tool[i], "displacement_mm": np.where(beam.valid, beam.reading_mm, np.nan),
             "valid": beam.valid.astype(int)}
-    truth_doc = {"format": "olti-multilateration/1", "targets_mm": actual.tolist(), "stations_mm": P.tolist(),
-                 "dead_paths_mm": dead.tolist(), "commands_mm": cmd.tolist(), "tools": tool.tolist(),
-                 "tool_offsets_mm": config.tools.tolist(),
-                 "gauge": "simulation truth: the machine's command frame (workpiece side)", "residual_rms_mm": 0.0,
-                 "n_readings": int(beam.valid.sum()), "stations_estimate_mm": P_est.tolist(), "seed": s.seed,
-                 "truth_seed": s.truth_seed}
-    return cols, truth_doc
+    return cols, machine3d_truth(s, run, beam.valid.sum())
 
 
 def write_machine_campaign(columns: dict, path) -> None:

@@ -517,7 +517,7 @@ def _rebase(scenario: Scenario, folder: str) -> Scenario:
 
     if isinstance(scenario.budget, str) and scenario.budget:
         scenario.budget = rel(scenario.budget)
-    if isinstance(scenario.plan, PlanFile) and scenario.plan.path:
+    if isinstance(getattr(scenario, "plan", None), PlanFile) and scenario.plan.path:
         scenario.plan = PlanFile(rel(scenario.plan.path))
     return scenario
 

@@ -260,12 +260,16 @@ def _vector(name, v, size, nonzero=False):
 
 def scenario_kind(path, name: Optional[str] = None) -> str:
     """``"serial"`` when the scenario file (its named scenario ``name``, or a base it names) has the
-    top-level key ``scheme``; else ``"scara"`` (the default scenario, no file, is the SCARA's).
+    top-level key ``scheme``; ``"machine3d"`` when it has ``heads_mm`` (a 3D machine tool,
+    :mod:`olti_drake.sim.machine3d_station`); else ``"scara"`` (the default scenario, no file, is the SCARA's).
     A file or name that cannot be read is left to the loader, which names the problem."""
-    return "serial" if path is not None and _has_scheme(os.fspath(path), name, set()) else "scara"
+    for kind, key in (("serial", "scheme"), ("machine3d", "heads_mm")):
+        if path is not None and _has_key(os.fspath(path), name, key, set()):
+            return kind
+    return "scara"
 
 
-def _has_scheme(path: str, child: Optional[str], seen: set) -> bool:
+def _has_key(path: str, child: Optional[str], top_key: str, seen: set) -> bool:
     key = (os.path.abspath(path), child)
     if key in seen or not os.path.isfile(path):
         return False
@@ -277,14 +281,14 @@ def _has_scheme(path: str, child: Optional[str], seen: set) -> bool:
         raw = raw.get(child) if isinstance(raw, dict) else None
     if not isinstance(raw, dict):
         return False
-    if "scheme" in raw:
+    if top_key in raw:
         return True
     base = raw.get("base")
     if not isinstance(base, str) or not base:
         return False
     file, _, base_child = base.partition("#")
     file = os.path.join(os.path.dirname(os.path.abspath(path)), file) if file else path
-    return _has_scheme(file, base_child or None, seen | {key})
+    return _has_key(file, base_child or None, top_key, seen | {key})
 
 
 def load_serial_scenario(path=None, name: Optional[str] = None, text: Optional[str] = None) -> SerialScenario:

@@ -292,23 +292,25 @@ def _systems():
     from pydrake.math import RigidTransform, RotationMatrix
     from pydrake.systems.framework import LeafSystem, ValueProducer
 
-    from olti_drake.sim.systems import ReadingRecorder, ReadStatus, set_default_name
+    from olti_drake.sim.systems import BeamInterferometer, ReadingRecorder, ReadStatus, set_default_name
 
     class PanTiltSteering(LeafSystem):
         """Open-loop pan/tilt command of the head in use (001 Eq. (1) in 3D): from the ESTIMATED centre
         and zero angles to the NOMINAL tool point of the commanded joints (the model file's plant,
-        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1); output
-        ``head_command`` (2, rad)."""
+        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1) and, with
+        ``tool_input`` (several tool offsets (T, 3) mm, e.g. a machine tool's mountings), ``tool`` (1:
+        the row's tool index); output ``head_command`` (2, rad)."""
 
-        def __init__(self, chain, tool_offset_mm, heads_est):
+        def __init__(self, chain, tool_offset_mm, heads_est, tool_input: bool = False):
             super().__init__()
             set_default_name(self)
             self._plant, self._heads = chain.plant, heads_est
             self._tool = chain.plant.get_frame(chain.tool_frame_index)
-            self._point = np.asarray(tool_offset_mm, float).reshape(3, 1) / M_TO_MM
+            self._points = np.atleast_2d(np.asarray(tool_offset_mm, float)).T / M_TO_MM  # (3, T) m
             self._starts = np.array([chain.plant.GetJointByName(n).position_start() for n in chain.joint_names])
             command = self.DeclareVectorInputPort("joint_command", chain.n_joints)
             self.DeclareVectorInputPort("reflector", 1)
+            self._tool_port = self.DeclareVectorInputPort("tool", 1) if tool_input else None
             self._plant_context = self.DeclareCacheEntry(
                 "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
                                                calc=self._calc_plant_context), {command.ticket()})
@@ -321,11 +323,12 @@ def _systems():
 
         def _calc(self, context, output):
             j = int(self.get_input_port(1).Eval(context)[0])
-            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._point,
+            m = int(round(self._tool_port.Eval(context)[0])) if self._tool_port is not None else 0
+            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._points[:, [m]],
                                                 self._plant.world_frame())[:, 0] * M_TO_MM
             output.SetFromVector(np.radians(a3.pan_tilt_commands(self._heads, [j], p[None])[0]))
 
-    class SerialLaserInterferometer(LeafSystem):
+    class SerialLaserInterferometer(BeamInterferometer):
         """The interferometer of a six-axis campaign in 3D (000 §5: cosine error, acceptance, λ/64, noise).
 
         Input ``position`` (N, rad): the actual joint angles (chain order); ``reflector`` (1): j;
@@ -335,8 +338,7 @@ def _systems():
         model's Δ_i), the tool point from the truth's tool offset. Tracers: the beam leaves the true
         head centre along command + head error + true zeros; the cat's eye is the tool point, axis
         in the tool frame. Robot-mounted: the beam leaves the tool point along the laser direction;
-        the cat's eye is the true reflector. The reading is :func:`aiming3d.read_beam` (noise from
-        a generator seeded by (seed, sample count), so re-evaluating a port gives the same value).
+        the cat's eye is the true reflector. The reading: :class:`~olti_drake.sim.systems.BeamInterferometer`.
         Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m), ``status``."""
 
         def __init__(self, setup: SerialSetup, seed: int, period_s: float):
@@ -344,7 +346,7 @@ def _systems():
 
             super().__init__()
             set_default_name(self)
-            self._setup, self._seed = setup, int(seed)
+            self._setup = setup
             chain = load_serial_chain(setup.chain.path, setup.chain.tool_frame)  # this station's own plant
             self._plant = plant = chain.plant
             self._tool = plant.get_frame(chain.tool_frame_index)
@@ -366,14 +368,7 @@ def _systems():
             self._plant_context = self.DeclareCacheEntry(
                 "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._true_context()),
                                                calc=self._calc_plant_context), {position.ticket()})
-            self.DeclareDiscreteState(1)
-            self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
-            self._reading = self.DeclareCacheEntry(
-                "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc),
-                {self.all_sources_ticket()})
-            for i, name in enumerate(("displacement", "valid", "miss")):
-                self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
-            self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+            self.DeclareReading(seed, period_s, setup.scenario.interferometer, setup.budget)
 
         def _true_context(self):
             """A plant Context whose joint frames carry the truth's location errors."""
@@ -390,14 +385,7 @@ def _systems():
             q[self._starts] = self.get_input_port(0).Eval(context)
             self._plant.SetPositions(value.get_mutable_value(), q)
 
-        def _count(self, context, discrete_state):
-            discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
-
-        def _calc_status(self, context, value):
-            valid = self._reading.Eval(context)[1] > 0.5
-            value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
-
-        def _calc(self, context, value):
+        def beam(self, context):
             s = self._setup
             X = self._tool.CalcPoseInWorld(self._plant_context.Eval(context))
             R, o = X.rotation().matrix(), X.translation() * M_TO_MM
@@ -410,10 +398,7 @@ def _systems():
             else:
                 origin, u = tool_point[None], (R @ a3._unit(s.laser_true.direction))[None]
                 target, axis = s.stations_mm[j][None], self._axis
-            rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-            r = a3.read_beam(origin, u, target, axis, s.truth.dead_paths_mm[j], s.scenario.interferometer,
-                             s.budget, rng, pose_noise_on="target" if s.tracers else "origin")
-            value.set_value(np.array([r.reading_mm[0] / M_TO_MM, float(r.valid[0]), r.miss_mm[0] / M_TO_MM]))
+            return origin, u, target, axis, s.truth.dead_paths_mm[j], "target" if s.tracers else "origin"
 
     class SerialCampaignRecorder(ReadingRecorder):
         """Takes the reading half a period after each move and keeps the measured rows:

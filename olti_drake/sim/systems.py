@@ -409,6 +409,48 @@ def KinematicLaserInterferometer_(T):
 KinematicLaserInterferometer = KinematicLaserInterferometer_[None]
 
 
+class BeamInterferometer(LeafSystem):
+    """The reading machinery of the 3D interferometers (six-axis and 3D machine-tool diagrams).
+
+    A subclass declares its input ports, then calls :meth:`DeclareReading`, and gives
+    :meth:`beam`: (origin (1, 3) mm, unit u (1, 3), cat's-eye centre (1, 3) mm, cat's-eye axis
+    (world), dead path mm, ``pose_noise_on``) of the sample. The reading is
+    :func:`~olti_drake.model.aiming3d.read_beam` (cosine error, acceptance, λ/64, budget noise; 000
+    §5, 001 Table 4), cached per Context; its noise comes from a generator seeded by (seed, sample
+    count) -- the count advances every ``period_s`` -- so re-evaluating a port gives the same value.
+    Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m), ``status`` (:class:`ReadStatus`).
+    """
+
+    def DeclareReading(self, seed: int, period_s: float, options: InterferometerOptions, budget) -> None:
+        self._seed, self._options, self._budget = int(seed), options, budget
+        self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
+        self._reading = self.DeclareCacheEntry(
+            "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc_reading),
+            {self.all_sources_ticket()})
+        for i, name in enumerate(("displacement", "valid", "miss")):
+            self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
+        self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
+
+    def beam(self, context):
+        raise NotImplementedError
+
+    def _count(self, context, discrete_state):
+        discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
+
+    def _calc_status(self, context, value):
+        valid = self._reading.Eval(context)[1] > 0.5
+        value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
+
+    def _calc_reading(self, context, value):
+        from olti_drake.model.aiming3d import read_beam
+
+        origin, u, target, axis, dead_mm, pose_noise_on = self.beam(context)
+        rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
+        r = read_beam(origin, u, target, axis, dead_mm, self._options, self._budget, rng, pose_noise_on=pose_noise_on)
+        value.set_value(np.array([r.reading_mm[0] / 1e3, float(r.valid[0]), r.miss_mm[0] / 1e3]))
+
+
 class RowSequencer(LeafSystem):
     """One row of every output table per period: the clock of a campaign (move every ``period_s``).
 
