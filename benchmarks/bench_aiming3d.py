@@ -35,7 +35,7 @@ from timing import best_of, cpu_busy  # noqa: E402
 
 import olti_drake  # noqa: E402
 from olti_drake.estimation import serial_plan  # noqa: E402
-from olti_drake.model.interferometer import InterferometerOptions  # noqa: E402
+from olti_drake.model.instrument import InterferometerOptions  # noqa: E402
 from olti_drake.model import aiming3d as a  # noqa: E402
 from olti_drake.model.chain import load_serial_chain  # noqa: E402
 from olti_drake.model.serial import synthetic_truth  # noqa: E402

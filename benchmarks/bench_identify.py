@@ -59,7 +59,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.optimize import least_squares
 
-from olti_drake.io.campaign_io import CampaignData, load_campaign
+from olti_drake.io.csvio import CampaignData, load_campaign
 from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
 from olti_drake.model.scara import JointCommands
 from olti_drake.sim.scenario import Scenario

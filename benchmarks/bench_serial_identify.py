@@ -51,7 +51,7 @@ from timing import cpu_busy  # noqa: E402
 
 import olti_drake  # noqa: E402
 from olti_drake.estimation.calibration import Calibration  # noqa: E402
-from olti_drake.estimation.leastsquares import SolverOptions  # noqa: E402
+from olti_drake.estimation.calibration import SolverOptions  # noqa: E402
 from olti_drake.model.chain import load_serial_chain  # noqa: E402
 from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge,  # noqa: E402
                                      synthetic_campaign, synthetic_truth)

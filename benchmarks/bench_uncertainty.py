@@ -33,7 +33,7 @@ import numpy as np
 
 from olti_drake.estimation import design as D
 from olti_drake.io.budget import load_budget, paper000_budget
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.estimation.identification import Identifier
 from olti_drake.model.plan import bidirectional_grid, load_plan
 from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo

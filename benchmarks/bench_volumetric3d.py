@@ -101,7 +101,7 @@ def main() -> int:
     truth = synthetic_truth(cfg3, 1)
     c3, t3 = campaign(cfg3, 600, 1)
     measured = tool_positions(cfg3, truth, c3, t3) + [1.0, -2.0, 0.5]
-    with single_thread_blas():  # as the identifier's solver (olti_drake/leastsquares.py) does
+    with single_thread_blas():  # as the identifier's solver (olti_drake/calibration.py) does
         t_fit, params = best_of(lambda: fit_targets(model3, c3, t3, measured), 1)
     err = motion_errors(model3, params, truth)
     t_id, t_sp, agree_id, rms_id = identification_timing()

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.estimation.identification import IdentificationOptions, Identifier
 
 

@@ -22,7 +22,7 @@ import sys
 
 from olti_drake.report import validation as v
 from olti_drake.sim.campaign import prepare, run_campaign
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.sim.scenario import as_plain, load_scenario
 
 

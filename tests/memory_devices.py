@@ -8,7 +8,7 @@ the driver methods (olti_drake.hardware.drivers). The truth is the noise-free si
 import numpy as np
 
 from olti_drake.model.errormap import approach_directions
-from olti_drake.model.interferometer import beam_geometry
+from olti_drake.model.instrument import beam_geometry
 from olti_drake.hardware.protocol import Joints, Position, Reading
 
 

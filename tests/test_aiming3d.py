@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import olti_drake
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model import aiming3d as a
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import synthetic_truth

@@ -115,7 +115,7 @@ def test_scipy_baseline_stops_at_its_time_limit(small):
 def test_phase_timer_times_inherited_methods_and_restores_them(small):
     """The split sees the LeastSquaresProgram methods Identifier inherits (LM, steps, covariance) and leaves
     the classes as they were."""
-    from olti_drake.estimation.leastsquares import LeastSquaresProgram
+    from olti_drake.estimation.calibration import LeastSquaresProgram
 
     data, _, opts = small
     _, total, split, calls = bench.timed_split(lambda: identify(data, opts))

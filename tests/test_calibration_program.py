@@ -148,7 +148,7 @@ def test_public_names_at_the_top_and_import_stays_light():
             "assert 'pydrake' not in sys.modules; print(Identifier.__module__, load_campaign.__module__)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["olti_drake.estimation.identification", "olti_drake.io.campaign_io"]
+    assert out.stdout.split() == ["olti_drake.estimation.identification", "olti_drake.io.csvio"]
 
 
 def test_calibration_over_the_serial_chain_model_solves_a_synthetic_campaign():
@@ -161,7 +161,7 @@ def test_calibration_over_the_serial_chain_model_solves_a_synthetic_campaign():
     from pydrake.solvers import Solve
 
     from olti_drake.estimation.calibration import Calibration
-    from olti_drake.estimation.leastsquares import SolverOptions
+    from olti_drake.estimation.calibration import SolverOptions
     from olti_drake.model.chain import load_serial_chain
     from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
                                          synthetic_truth)

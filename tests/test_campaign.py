@@ -11,7 +11,7 @@ import pytest
 from numeric_files import assert_same_numbers
 
 from olti_drake.sim.campaign import campaign_commands, prepare, run_campaign
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.plan import bidirectional_grid
 from olti_drake.sim.scenario import ExactEstimate, PlanFile, Scenario
 

@@ -18,7 +18,7 @@ from olti_drake.model.errormap import ErrorMap, approach_directions
 from olti_drake.estimation.identification import IdentificationOptions, identify
 from olti_drake.model.scara import ScaraModel, inverse_kinematics
 from olti_drake.io.result import write_result
-from olti_drake.model.truth import TrueRobot
+from olti_drake.model.scara import TrueRobot
 from olti_drake.sim.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[1]

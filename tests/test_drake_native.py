@@ -10,7 +10,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram
 
 from olti_drake.model.errormap import ErrorMap, HarmonicDeviation
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.campaign import build_campaign_diagram, prepare, run_campaign
 from olti_drake.sim.scenario import ExactEstimate, Scenario
 from olti_drake.sim.systems import BeamSteering, CampaignRecorder, ErrorMapJoint, ErrorMapJoint_, PlanSequencer
@@ -100,7 +100,7 @@ def test_systems_have_default_names():
 
 
 def test_reflector_estimates_and_dead_paths_are_context_parameters():
-    from olti_drake.model.steering import beam_command_deg
+    from olti_drake.model.instrument import beam_command_deg
 
     setup = prepare(_small(quantization=False))
     diagram, rec, seq = build_campaign_diagram(setup)
@@ -222,7 +222,7 @@ def test_station_autodiff_reading_derivative_equals_identifier_jacobian():
     off: the reading is ‖p − P_j‖ − d0_j, the identifier's model family.
     """
     from olti_drake.estimation.identification import IdentificationOptions, Identifier
-    from olti_drake.io.campaign_io import CampaignData
+    from olti_drake.io.csvio import CampaignData
     from olti_drake.model.scara import JointCommands
 
     setup = _map_truth_setup(noise=False, quantization=False, cosine_error=False, beam_loss=False)

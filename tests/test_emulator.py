@@ -19,11 +19,11 @@ import serial
 from olti_drake.sim.campaign import campaign_commands, prepare, simulate_vectorized
 from olti_drake.hardware.emulator import (ALARM_CODE, DEFAULT_ENCODER_RESOLUTION, STREAM_NOISE, Emulator, Faults, _Device)
 from olti_drake.model.errormap import approach_directions
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.hardware.protocol import (Frame, LinkLost, FrameParser, NakError, Responder, Transport, decode_alarms, decode_pong,
                                  decode_position, decode_reading, encode, expect_ack, fmt_deg, movj_fields)
 from olti_drake.sim.scenario import ExactEstimate, Scenario
-from olti_drake.model.steering import beam_command_deg
+from olti_drake.model.instrument import beam_command_deg
 
 QUIET = InterferometerOptions(noise=False, quantization=False, cosine_error=False, beam_loss=False)
 

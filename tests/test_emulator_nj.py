@@ -18,7 +18,7 @@ from olti_drake.hardware import protocol as P
 from olti_drake.hardware.serial_emulator import SerialEmulator
 from olti_drake.model.aiming3d import pan_tilt_commands
 from olti_drake.model.errormap import approach_directions
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 
 EXACT = InterferometerOptions(noise=False, quantization=False, cosine_error=False, beam_loss=False)
 POSES = np.array([[10.0, -80.0, 95.0, -30.0, -90.0, 45.0], [20.0, -70.0, 80.0, -40.0, -80.0, 30.0],

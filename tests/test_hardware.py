@@ -10,7 +10,7 @@ import pytest
 from olti_drake.hardware.station import AddStation
 from olti_drake.sim.campaign import prepare, run_campaign
 from olti_drake.io.csvio import InputError
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.scenario import Emulated, ExactEstimate, Hardware, Scenario, Simulated, as_plain, load_scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -24,11 +24,11 @@ import pytest
 
 from olti_drake.io.budget import paper000_budget
 from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
-from olti_drake.io.campaign_io import CampaignData, load_campaign
+from olti_drake.io.csvio import CampaignData, load_campaign
 from olti_drake.model.errormap import ErrorMap, HarmonicDeviation, NoDeviation, sample_map
 from olti_drake.estimation.identification import (IdentificationOptions, Identifier, UnidentifiableError,
                                        identify)
-from olti_drake.model.interferometer import InterferometerOptions, displacement_model
+from olti_drake.model.instrument import InterferometerOptions, displacement_model
 from olti_drake.model.scara import JointCommands, ScaraModel
 from olti_drake.model.plan import BidirectionalGrid, bidirectional_grid
 from olti_drake.sim.scenario import ExactEstimate, MapTable, Robot, Scenario
@@ -555,7 +555,7 @@ def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
     refusal path (a covariance singular within the gauge at the solution, a non-finite estimate) by name."""
     import scipy.sparse as sp
 
-    from olti_drake.estimation.leastsquares import FitRefused, LeastSquaresProgram, SolverOptions
+    from olti_drake.estimation.calibration import FitRefused, LeastSquaresProgram, SolverOptions
 
     class Line(LeastSquaresProgram):
         t = np.linspace(0.0, 1.0, 20)

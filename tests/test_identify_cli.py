@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
-from olti_drake.io.campaign_io import load_campaign, load_commands
+from olti_drake.io.csvio import load_campaign, load_commands
 from olti_drake.io.result import load_result
 from olti_drake.sim.scenario import Scenario
 

@@ -27,7 +27,7 @@ PLAN_YAML = os.path.join(DATA, "plan_paper000.yaml")
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
     """The error-map result of the shipped campaign (one identification per module), its path and dict."""
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify
     from olti_drake.io.result import write_result
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from olti_drake.io.budget import Budget, Contributor, paper000_budget
-from olti_drake.model.interferometer import (InterferometerOptions, beam_geometry, displacement_model,
+from olti_drake.model.instrument import (InterferometerOptions, beam_geometry, displacement_model,
                                        quantize, simulate_readings)
 
 QUIET = InterferometerOptions(noise=False, quantization=False)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from olti_drake.io.csvio import InputError
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d
 from olti_drake.model.volumetric3d import MachineConfig
 from olti_drake.sim.machine3d_station import (is_machine3d_scenario, load_machine3d_scenario,

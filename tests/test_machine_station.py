@@ -10,7 +10,7 @@ from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import (MachineScenario, VolumetricError, machine_sequence, simulate_machine_campaign,
                                 square_targets)
 from olti_drake.sim.machine_station import (VolumetricErrorAxes, build_machine_diagram, machine_columns,

@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from olti_drake.model.interferometer import InterferometerOptions
-from olti_drake.estimation.leastsquares import UnidentifiableError
+from olti_drake.model.instrument import InterferometerOptions
+from olti_drake.estimation.calibration import UnidentifiableError
 from olti_drake.model.machine import (MachineScenario, paper001_budget, simulate_machine_campaign, square_targets,
                                 write_machine_campaign)
 from olti_drake.estimation.multilateration import (MultilaterationOptions, align_to_commands, load_machine_campaign,

@@ -4,7 +4,7 @@ simulated 3D campaign on pan/tilt heads, and 3D self-calibrating multilateration
 import numpy as np
 import pytest
 
-from olti_drake.estimation.leastsquares import UnidentifiableError
+from olti_drake.estimation.calibration import UnidentifiableError
 from olti_drake.estimation.multilateration import load_machine_campaign, machine_campaign
 from olti_drake.io.csvio import InputError
 from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d, write_machine_campaign
@@ -297,7 +297,7 @@ def test_3d_result_reads_back_and_is_reported(tmp_path, campaign3d):
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "rep" / "report.html").stat().st_size > 10_000
     # The campaign digest covers the z commands and tools: a campaign that differs only there is refused.
-    from olti_drake.io.campaign_io import campaign_digest
+    from olti_drake.io.csvio import campaign_digest
 
     moved = machine_campaign({**campaign3d[0], "z_cmd_mm": campaign3d[0]["z_cmd_mm"] + 1.0})
     assert campaign_digest(moved)["sha256"] != campaign_digest(machine_campaign(campaign3d[0]))["sha256"]

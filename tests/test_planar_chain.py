@@ -17,7 +17,7 @@ import pytest
 
 from olti_drake.estimation.identification import IdentificationOptions, Identifier
 from olti_drake.estimation.serial_identification import SerialIdentificationOptions, identify_serial
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.io.serial_io import load_robot, read_serial_campaign
 from olti_drake.model.chain import base_parameter_set, load_serial_chain, planar_axis
 from olti_drake.model.scara import JointCommands, forward_kinematics

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from figure_capture import annotations, captured_figures, errorbar, legend_labels, line, suptitle
 
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.cli import main
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid

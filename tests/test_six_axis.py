@@ -228,7 +228,7 @@ def test_small_simulated_campaign_identified_within_its_uncertainty():
     the same stations predicted within 4 of their propagated standard uncertainties (plus the maps'
     interpolation error, ≤ 0.5 µm here)."""
     from olti_drake.estimation.calibration import Calibration
-    from olti_drake.estimation.leastsquares import SolverOptions
+    from olti_drake.estimation.calibration import SolverOptions
     from olti_drake.estimation.serial_plan import reading_uncertainty_mm
     from olti_drake.model.serial import DistanceMeasurement, build_position_model, find_gauge
 

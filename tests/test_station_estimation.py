@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from olti_drake.model.errormap import NoDeviation
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import (MachineScenario, VolumetricError, paper001_budget, simulate_machine_campaign,
                                 square_targets)
 from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, machine_campaign

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from olti_drake.model.scara import DEG, PAPER_L1_MM as L1, PAPER_L2_MM as L2, forward_kinematics
-from olti_drake.model.steering import (beam_command_deg, default_search_positions_mm, fit_reflectors,
+from olti_drake.model.instrument import (beam_command_deg, default_search_positions_mm, fit_reflectors,
                                  rigid_robot_pose, search_residuals, simulate_search)
 
 REFLECTORS = np.array([[700.0, 300.0], [-200.0, -750.0], [650.0, -600.0]])

@@ -211,7 +211,7 @@ def test_prediction_std_matches_the_mc_spread_of_positions(first, mc):
 @pytest.fixture(scope="module")
 def files(setup, tmp_path_factory):
     """A campaign.csv and its error-map result.json in a fresh directory."""
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
     from olti_drake.io.result import write_result
 
     d = tmp_path_factory.mktemp("unc")
@@ -245,7 +245,7 @@ def _values_layout(result: dict) -> dict:
 @pytest.mark.parametrize("method", ["linear", "mc"])
 def test_cli_writes_uncertainty_json(files, method, capsys):
     from olti_drake.cli import main
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
     from olti_drake.estimation.identification import identifier_at_result
 
     d, csv, result = files
@@ -308,7 +308,7 @@ def test_cli_map_figures(files, capsys):
             np.testing.assert_allclose(half, 1e3 * np.array(u["error_map"][axis][f"{block}_deg"]), rtol=1e-6)
         assert not any(lab.startswith("truth") for lab in legend_labels(ax))
     # The named budget is the one propagated, not only the one reported (001 Table 4 differs from 000 Table 2).
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
     from olti_drake.estimation.identification import identifier_at_result
 
     ident, x = identifier_at_result(result, load_campaign(csv))
@@ -362,7 +362,7 @@ def test_mc_trials_are_each_re_solved_to_their_own_minimum(small):
     readings from the batch seeds and solve them from scratch with the identifier's LM. The LM stops at a
     relative cost change of 1e-12 (parameters to ~1e-6 u: measured 3e-6 u); one linearized step instead of
     the re-solve leaves 1e-4..2e-4 u (measured) -- the threshold 3e-5 u lies between."""
-    from olti_drake.io.campaign_io import CampaignData
+    from olti_drake.io.csvio import CampaignData
 
     ident, x, errors = small
     mc = monte_carlo(ident, x, errors, trials=4, seed=3, workers=1)
@@ -424,7 +424,7 @@ def test_monte_carlo_refuses_trials_that_do_not_converge(small):
     """Reading errors of 10 mm (a budget in the wrong unit) drive trials beyond where the chord iteration
     re-solves them: before, their NaN or unconverged rows went into the standard uncertainties silently."""
     from olti_drake.io.budget import Contributor
-    from olti_drake.estimation.leastsquares import FitRefused
+    from olti_drake.estimation.calibration import FitRefused
 
     ident, x, _ = small
     wrong = Budget(name="mm", contributors=[Contributor("u", "", 10.0, "mm", 1.0, "B", "reading")])

@@ -15,7 +15,7 @@ from figure_capture import (annotations, captured_figures, errorbar, legend_labe
 
 from olti_drake.report import validation as v
 from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
-from olti_drake.io.campaign_io import load_campaign
+from olti_drake.io.csvio import load_campaign
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, forward_kinematics
 from olti_drake.sim.scenario import Scenario
 from olti_drake.sim.tracker import LaserTrackerSpec

@@ -277,7 +277,7 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
 
 
 def test_a_non_converged_fit_is_refused(identified):
-    from olti_drake.estimation.leastsquares import FitRefused
+    from olti_drake.estimation.calibration import FitRefused
     from olti_drake.estimation.multilateration import load_machine_campaign
     from olti_drake.estimation.volumetric import VolumetricIdentification, VolumetricOptions, volumetric_campaign
 

@@ -1,6 +1,6 @@
 """The large-problem algebra within the constraints equals the dense reference on small problems.
 
-``leastsquares.Within`` has two paths: dense (explicit null-space basis, eigen-decomposition: the reference)
+``calibration.Within`` has two paths: dense (explicit null-space basis, eigen-decomposition: the reference)
 and large (Householder reflectors, Cholesky, Lanczos, conjugate-gradient LM steps), chosen by the number of
 decision variables (``LARGE_PROBLEM``). Here both run on the same small problems -- random normal matrices
 with gauge rows, the UR5 calibration, the SCARA error-map identification -- and must give the same rank,
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import olti_drake
-from olti_drake.estimation import leastsquares
+from olti_drake.estimation import calibration
 from olti_drake.estimation.calibration import Calibration
-from olti_drake.estimation.leastsquares import SolverOptions, UnidentifiableError, Within
+from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError, Within
 
 
 def _normal(seed, n=40, m=3, rows=150, duplicate=None):
@@ -80,10 +80,10 @@ def ur5_problem():
 
 def _fit_both(monkeypatch, build):
     dense = build().fit()
-    monkeypatch.setattr(leastsquares, "LARGE_PROBLEM", 0)
+    monkeypatch.setattr(calibration, "LARGE_PROBLEM", 0)
     steps = []
-    cg_step = leastsquares.LeastSquaresProgram._cg_step
-    monkeypatch.setattr(leastsquares.LeastSquaresProgram, "_cg_step",
+    cg_step = calibration.LeastSquaresProgram._cg_step
+    monkeypatch.setattr(calibration.LeastSquaresProgram, "_cg_step",
                         lambda self, *a: steps.append(1) or cg_step(self, *a))
     large = build().fit()
     assert steps  # the large path ran: conjugate-gradient steps within the gauge
@@ -105,8 +105,8 @@ def test_unidentifiable_names_agree_in_both_paths(monkeypatch, ur5_problem):
     both paths."""
     meas, _ = ur5_problem
     errors = []
-    for limit in (leastsquares.LARGE_PROBLEM, 0):
-        monkeypatch.setattr(leastsquares, "LARGE_PROBLEM", limit)
+    for limit in (calibration.LARGE_PROBLEM, 0):
+        monkeypatch.setattr(calibration, "LARGE_PROBLEM", limit)
         with pytest.raises(UnidentifiableError) as e:
             Calibration(meas, SolverOptions(), None, "synthetic UR5").fit()
         errors.append(e.value)
@@ -116,7 +116,7 @@ def test_unidentifiable_names_agree_in_both_paths(monkeypatch, ur5_problem):
 
 def test_scara_identification_large_path_equals_dense(monkeypatch):
     from olti_drake.estimation.identification import IdentificationOptions, Identifier
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
 
     data = load_campaign(Path(__file__).resolve().parent.parent / "data" / "paper000" / "campaign.csv")
     dense, large = _fit_both(monkeypatch, lambda: Identifier(data, IdentificationOptions(model="errormap")))
@@ -164,7 +164,7 @@ def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product(interleaved):
     import scipy.sparse as sp
 
     rng = np.random.default_rng(7)
-    rows, n, busy = 3000, leastsquares.SMALL_PROBLEM + 100, 25
+    rows, n, busy = 3000, calibration.SMALL_PROBLEM + 100, 25
     dense = np.zeros((rows, n))
     dense[:, :busy] = rng.normal(size=(rows, busy))
     for k in range(rows):
@@ -175,5 +175,5 @@ def test_normal_matrix_of_a_wide_jacobian_equals_the_dense_product(interleaved):
     w = rng.uniform(0.2, 1.0, rows)
     expect = dense.T @ (w[:, None] * dense)
     J = sp.csr_matrix(dense)
-    assert np.abs(leastsquares._normal_matrix(J, w) - expect).max() <= 1e-12 * np.abs(expect).max()
-    assert leastsquares._NormalOperator(J, w).diagonal() == pytest.approx(np.diag(expect), rel=1e-12)
+    assert np.abs(calibration._normal_matrix(J, w) - expect).max() <= 1e-12 * np.abs(expect).max()
+    assert calibration._NormalOperator(J, w).diagonal() == pytest.approx(np.diag(expect), rel=1e-12)

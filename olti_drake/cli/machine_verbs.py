@@ -91,7 +91,7 @@ def uncertainty_multilateration(args, t0, propagate) -> int:
     from olti_drake.estimation.uncertainty import uncertainty_dict
     from olti_drake.io.budget import ReadingErrors
     from olti_drake.io.budget import budget_or_default
-    from olti_drake.io.campaign_io import check_campaign_matches
+    from olti_drake.io.csvio import check_campaign_matches
     from olti_drake.io.outputs import write_json
     from olti_drake.report.figures import plot_target_uncertainty
 

@@ -13,7 +13,7 @@ def uncertainty(args, propagate) -> int:
                                                           zero_held_uncertainties)
     from olti_drake.estimation.uncertainty import uncertainty_dict
     from olti_drake.io.budget import ReadingErrors, budget_or_default
-    from olti_drake.io.campaign_io import check_campaign_matches
+    from olti_drake.io.csvio import check_campaign_matches
     from olti_drake.io.outputs import write_json
     from olti_drake.io.serial_io import load_serial_result, read_serial_campaign
 

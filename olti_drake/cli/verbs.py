@@ -260,7 +260,7 @@ def cmd_identify(args) -> int:
         if value is not None:
             raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
                              f"--nominal-mm and --grid1-deg/--grid2-deg")
-    from olti_drake.io.campaign_io import load_campaign
+    from olti_drake.io.csvio import load_campaign
     from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
     from olti_drake.io.result import write_result
 
@@ -300,7 +300,7 @@ def _add_force(p):
 
 
 def _add_solver_options(p):
-    """The solver options every identification verb shares (leastsquares.SolverOptions)."""
+    """The solver options every identification verb shares (calibration.SolverOptions)."""
     p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
     p.add_argument("--huber-k", type=cliargs.positive, default=3.0, help="Huber threshold in robust sigmas (default 3)")
     p.add_argument("--outlier-threshold", type=cliargs.positive, default=4.0,
@@ -315,7 +315,7 @@ def cmd_predict(args) -> int:
     if _result_format(args.result) == "olti-volumetric/1":
         from olti_drake.cli.volumetric_verbs import predict
         return predict(args)
-    from olti_drake.io.campaign_io import load_commands
+    from olti_drake.io.csvio import load_commands
     from olti_drake.io.csvio import write_table
     from olti_drake.io.result import load_result
 
@@ -421,7 +421,7 @@ def cmd_uncertainty(args) -> int:
     import numpy as np
 
     from olti_drake.io.budget import budget_or_default
-    from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
+    from olti_drake.io.csvio import check_campaign_matches, load_campaign
     from olti_drake.io.csvio import read_json
     from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
     from olti_drake.io.outputs import write_json

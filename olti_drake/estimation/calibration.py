@@ -5,7 +5,7 @@ station P_j with dead path L0_j) read the same thing: d = ‖p − P_j‖ − d0
 
 * :func:`station_fit`: (P_j, d0_j) from points p taken as known (nominal kinematics, or commands) -- the
   start of the SCARA identification and of the multilateration.
-* :class:`Calibration`: the least-squares program (:class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram`:
+* :class:`Calibration`: the least-squares program (:class:`~olti_drake.estimation.calibration.LeastSquaresProgram`:
   data cost on ``prog``, identifiability, robust loss, covariance, acceptance; Monte Carlo and linear
   propagation in :mod:`olti_drake.estimation.uncertainty`) over any *measurement* object that offers
   ``names``, ``start_vector()``, ``residuals(x) -> (r, sparse dr/dx)``, ``beam_lengths(x)`` and
@@ -14,11 +14,989 @@ station P_j with dead path L0_j) read the same thing: d = ‖p − P_j‖ − d0
   :func:`olti_drake.model.serial.find_gauge`. The SCARA :class:`~olti_drake.estimation.identification.Identifier`
   and the 2D :class:`~olti_drake.estimation.multilateration.Multilateration` are the same program with
   their residuals written in place (batched for the Monte Carlo).
+
+The least-squares program every calibration is (:class:`LeastSquaresProgram` below): Nonlinear least squares on a Drake MathematicalProgram -- the solver machinery the models share.
+
+Paper 000 §3 (Eq. 5, 10) and paper 001 §2.3 (Eq. 2-6) are both "min Σ residual²"
+over named parameters with a gauge. :class:`LeastSquaresProgram` holds one
+Drake decision variable per parameter in :attr:`~LeastSquaresProgram.prog`
+(users may add their own constraints and costs) and solves by
+
+* ``lm`` (default): Levenberg-Marquardt; every step is a MathematicalProgram
+  in the step δ -- the Gauss-Newton quadratic model plus the program's linear
+  constraints and linear/quadratic costs shifted to δ -- solved by the solver
+  Drake chooses (EqConstrainedQP for equality constraints only). Working in δ
+  keeps full precision however large the parameters are.
+* ``nlp``: the whole program -- it already carries the least-squares data
+  cost (:attr:`~LeastSquaresProgram.data_cost`, value ½Σw r² with the analytic
+  gradient Jᵀ(w r)) and the start as its initial guess -- handed to Drake's
+  NLP solver (SNOPT/IPOPT); also takes nonlinear user constraints and costs.
+
+So ``pydrake.solvers.Solve(problem.prog)`` (or any solver's ``Solve`` with its
+options) solves the same problem as :meth:`~LeastSquaresProgram.fit`. Users may
+add decision variables of their own (e.g. a shared offset tied by linear
+constraints): both paths solve for them and report them in ``Fit.extra``.
+LM takes linear constraints and linear/quadratic costs only; with a
+nonlinear one it refuses with one line naming it (use ``solver='nlp'``).
+
+Before solving it checks identifiability (parameters no reading touches, rank
+deficiency within the constraints); after, it propagates the residual variance
+(linear, JCGM 100) and flags outliers. Units are the subclass's (mm, deg).
+
+All the algebra within the constraints (rank, condition number, covariance, and
+the LM steps of large problems) is one factorization, :class:`Within`: dense
+eigen-decomposition up to :data:`LARGE_PROBLEM` decision variables; above it a
+Householder null space of the constraints, a Cholesky factor of the reduced
+normal matrix, Lanczos for its extreme eigenvalues, the standard uncertainties
+from the factor (the full covariance only when read), and LM steps by conjugate
+gradients preconditioned by the identifiability check's factor -- no n³
+eigen-decomposition or n × n products, so ~4 000 unknowns identify in seconds.
 """
 
-import numpy as np
+from dataclasses import dataclass, field
+from typing import List
 
-from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import lapack
+
+from olti_drake.io.budget import ReadingErrors
+from olti_drake.io.errors import InputError
+from olti_drake.threads import single_thread_blas
+
+
+#: Relative eigenvalue below which a parameter combination counts as unidentifiable.
+RANK_TOLERANCE = 1e-12
+#: Up to this many unknowns the normal matrix is formed through a dense J.
+SMALL_PROBLEM = 300
+#: Above this many decision variables the algebra within the constraints is factorized (:class:`Within`, large
+#: path: Cholesky, Lanczos, no eigen-decomposition) and LM steps are conjugate gradients preconditioned by it.
+LARGE_PROBLEM = 500
+#: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
+LANCZOS_TOLERANCE = 1e-7
+#: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
+NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
+#: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
+RESIDUAL_WARNING_RATIO = 3.0
+
+
+class UnidentifiableError(InputError):
+    """The campaign cannot determine the named parameters (listed in :attr:`names`)."""
+
+    def __init__(self, message: str, names=()):
+        super().__init__(message)
+        self.names = list(names)
+
+
+class FitRefused(InputError):
+    """The solution is not one to trust -- not converged, singular or non-finite covariance, or physically
+    impossible parameters. Raised before anything is written; the message is one line."""
+
+
+@dataclass
+class SolverOptions:
+    """How to solve, for every model.
+
+    ``loss``: ``l2`` or ``huber`` (IRLS, threshold ``huber_k`` robust sigmas).
+    ``outlier_threshold``: report readings whose normalized residual exceeds it.
+    ``regularize``: instead of stopping on unidentifiable parameters, add a
+    weak prior pulling them to their initial value (and say so).
+    ``solver``: ``lm`` or ``nlp``.
+    """
+
+    loss: str = "l2"
+    huber_k: float = 3.0
+    outlier_threshold: float = 4.0
+    regularize: bool = False
+    solver: str = "lm"
+    max_iterations: int = 100
+    #: Budget whose predicted reading uncertainty the residual RMS is checked against (None: the model's default).
+    budget: object = None
+
+
+@dataclass
+class Fit:
+    """A solved problem: x, standard uncertainties (k = 1), covariance, residuals, diagnostics."""
+
+    names: List[str]
+    x: np.ndarray
+    std: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    iterations: int
+    condition_number: float
+    solver: str
+    outliers: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    #: By which criterion the solver stopped (the fit is refused when it did not converge).
+    converged_by: str = ""
+    #: Stated doubts that do not refuse the fit (e.g. a residual far above the budget's reading uncertainty).
+    warnings: list = field(default_factory=list)
+    #: The user's own decision variables (added to ``prog``), by name: their solved values.
+    extra: dict = field(default_factory=dict)
+
+
+def _covariance_get(fit):
+    """Fit.covariance: large problems form the (n, n) matrix from the factorization on first use only."""
+    cov = fit.__dict__["_covariance"]
+    if callable(cov):
+        cov = fit.__dict__["_covariance"] = cov()
+    return cov
+
+
+def _covariance_set(fit, value):
+    fit.__dict__["_covariance"] = value
+
+
+# A property over the dataclass field: Fit(..., covariance, ...) and fit.covariance = C still work; a callable
+# given as the covariance is evaluated (once) when the covariance is read.
+Fit.covariance = property(_covariance_get, _covariance_set)
+
+
+class LeastSquaresProgram:
+    """min ½ Σ r_k(x)² over named parameters, on a Drake MathematicalProgram.
+
+    Subclasses call :meth:`_declare` with the parameter names, set :attr:`x0`
+    (the start), add their gauge to :attr:`prog`, and implement
+    :meth:`residuals` and :meth:`reading_label`.
+    """
+
+    #: Appended to a rank-deficiency error: what the user can change.
+    rank_hint = "fix a parameter or add readings"
+    #: Appended to an error about parameters no reading touches.
+    untouched_hint = "add readings that depend on them"
+
+    def _declare(self, names, options: SolverOptions):
+        from pydrake.solvers import MathematicalProgram
+        from pydrake.symbolic import Variable
+
+        self.options = options
+        self.names = list(names)
+        self.prog = MathematicalProgram()
+        self.variables = np.array([Variable(n) for n in self.names])
+        self.prog.AddDecisionVariables(self.variables)
+        self.notes: List[str] = []
+        self._cost_weights = None  # IRLS weights of the data cost (None: all 1)
+        self.data_cost = self.prog.AddCost(self._data_cost_value, self.variables)
+        self.data_cost.evaluator().set_description("data: 1/2 sum of squared residuals (mm^2)")
+        self._set_solver_tolerances()
+
+    def _set_solver_tolerances(self):
+        """Tolerances on :attr:`prog` so that the solver Drake picks (SNOPT) stops at the least-squares minimum to
+        the precision of LM (1e-6 mm / deg and below): SNOPT's default optimality tolerance (1e-6) stops ~1e-5 mm
+        short of it with constraints. Users may override them with their own ``SetSolverOption``."""
+        from pydrake.solvers import SnoptSolver
+
+        # IPOPT keeps its defaults: in Drake it runs an L-BFGS Hessian that does not reach tighter ones.
+        self.prog.SetSolverOption(SnoptSolver.id(), "Major optimality tolerance", NLP_OPTIMALITY_TOLERANCE)
+
+    @property
+    def x0(self) -> np.ndarray:
+        """The start of the solvers (model units); setting it also sets the program's initial guess."""
+        return self._x0
+
+    @x0.setter
+    def x0(self, value):
+        self._x0 = np.asarray(value, dtype=float)
+        self.prog.SetInitialGuess(self.variables, self._x0)
+
+    def _data_cost_value(self, z):
+        """½ Σ w_k r_k(x)² for floats; for AutoDiffXd the same value with gradient Jᵀ(w r) chained with z's."""
+        from pydrake.autodiffutils import AutoDiffXd, ExtractGradient, ExtractValue
+
+        ad = z.dtype == object
+        r, J = self.residuals(ExtractValue(z).ravel() if ad else np.asarray(z, dtype=float))
+        w = np.ones_like(r) if self._cost_weights is None else self._cost_weights
+        f = 0.5 * float(np.sum(w * r * r))
+        return AutoDiffXd(f, (J.T @ (w * r)) @ ExtractGradient(z)) if ad else f
+
+    @property
+    def n_all(self) -> int:
+        """Decision variables of :attr:`prog`: the model's parameters first, then the user's own."""
+        return self.prog.num_vars()
+
+    def _extra_values(self, z) -> dict:
+        extra = self.prog.decision_variables()[len(self.names):]
+        return {v.get_name(): float(z[self.prog.FindDecisionVariableIndex(v)]) for v in extra}
+
+    def _start(self) -> np.ndarray:
+        """The start over all decision variables: x0, then the user's initial guesses (0 where none is set)."""
+        z = np.asarray(self.prog.initial_guess(), dtype=float).copy()
+        z[:len(self.names)] = self.x0
+        return np.where(np.isfinite(z), z, 0.0)
+
+    def _pad(self, J):
+        """The Jacobian over all decision variables (the user's own enter no residual)."""
+        extra = self.n_all - J.shape[1]
+        return sp.hstack([J, sp.csr_matrix((J.shape[0], extra))], format="csr") if extra else J
+
+    def residuals(self, x):
+        """(r (K,), sparse dr/dx (K, n)) at x."""
+        raise NotImplementedError
+
+    def reading_label(self, k: int) -> dict:
+        """What identifies reading k to the user (e.g. its file line)."""
+        return {"row": int(k)}
+
+    def beam_lengths(self, x) -> np.ndarray:
+        """Length of the laser beam of every reading at x, mm (for the budget's cosine error)."""
+        raise NotImplementedError
+
+    def layout(self, v) -> dict:
+        """A parameter-shaped vector (e.g. uncertainties) in the model's result keys and shapes."""
+        raise NotImplementedError
+
+    def implausible(self, x) -> list:
+        """Physically impossible values of a solution x, one phrase each (empty: plausible). Model-specific."""
+        return []
+
+    def default_budget(self):
+        """The budget whose reading uncertainty the residual is compared with when the options name none."""
+        return None
+
+    @property
+    def source(self) -> str:
+        return getattr(getattr(self, "data", None), "source", "") or "campaign"
+
+    def _equality_rows(self):
+        """(A, b) of every linear equality in the program (gauge, fixed values), over all variables."""
+        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint
+
+        rows, rhs = [], []
+        for b in self.prog.GetAllConstraints():
+            e = b.evaluator()
+            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
+                continue
+            A = e.GetDenseA()
+            eq = e.lower_bound() == e.upper_bound()
+            idx = self.prog.FindDecisionVariableIndices(b.variables())
+            full = np.zeros((int(eq.sum()), self.n_all))
+            full[:, idx] = A[eq]
+            rows.append(full)
+            rhs.append(e.lower_bound()[eq])
+        if not rows:
+            return np.zeros((0, self.n_all)), np.zeros(0)
+        return np.vstack(rows), np.concatenate(rhs)
+
+    def reduced_hessian(self, H):
+        """Column-scaled H restricted to the null space of the equality constraints (over all decision
+        variables: an H over the model's parameters only is padded with zeros for the user's own)."""
+        n = self.n_all
+        if H.shape[0] < n:
+            H = np.pad(H, ((0, n - H.shape[0]), (0, n - H.shape[0])))
+        scale = np.sqrt(np.diag(H))
+        A, _ = self._equality_rows()
+        s = np.where(scale > 0, scale, 1.0)
+        N = _null_space(A / s) if A.size else np.eye(len(s))
+        return N.T @ (H / np.outer(s, s)) @ N, N, s
+
+    def check_identifiability(self, x=None) -> float:
+        """Raise :class:`UnidentifiableError` naming what the readings cannot determine; return cond.
+
+        Checks the Jacobian at ``x`` (default the start): parameters no reading
+        touches, then rank and conditioning within the constraints.
+        """
+        x = self.x0 if x is None else x
+        r, J = self.residuals(x)
+        self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
+        H = self._normal(self._pad(J), np.ones(J.shape[0]))
+        prior = self._prior_hessian()
+        if prior.any():  # priors determine too
+            H = H + prior
+        # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
+        untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
+        if untouched:
+            raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
+                                      f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})",
+                                      untouched)
+        within = self.within(H, overwrite=True)
+        names = within.weak_names(self._all_names())
+        if names:
+            lam = within._eigh()[0]
+            weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
+            raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
+                                      f"reading unchanged (rank deficient by {weak}; {self.rank_hint})", names)
+        self._within0 = within  # the large path's LM steps are preconditioned by it
+        low, top = within.extremes()
+        return float(np.sqrt(top / low))
+
+    def _normal(self, J, w) -> np.ndarray:
+        """JᵀWJ dense; small problems keep the last one: the identifiability check's is LM's first, LM's last
+        is the covariance's (the same J object and weights). Large problems overwrite it: not kept."""
+        kept = getattr(self, "_normal_kept", None)
+        if kept is not None and kept[0] is J and np.array_equal(kept[1], w):
+            return kept[2]
+        H = _normal_matrix(J, w)
+        self._normal_kept = (J, w.copy(), H) if self.n_all <= LARGE_PROBLEM else None
+        return H
+
+    def within(self, H, overwrite: bool = False) -> "Within":
+        """H (over the model's parameters or all decision variables) within the program's linear equalities,
+        factorized (:class:`Within`; large path above :data:`LARGE_PROBLEM` variables; ``overwrite``: H may
+        serve as its work space)."""
+        n = self.n_all
+        if H.shape[0] < n:
+            H = np.pad(H, ((0, n - H.shape[0]), (0, n - H.shape[0])))
+        return Within(H, self._equality_rows()[0], large=n > LARGE_PROBLEM, overwrite=overwrite)
+
+    def _all_names(self) -> list:
+        if self.n_all == len(self.names):
+            return list(self.names)
+        return self.names + [v.get_name() for v in self.prog.decision_variables()[len(self.names):]]
+
+    def _regularize(self, error: UnidentifiableError):
+        """Weak prior on the named parameters (1e-6 of a typical reading's weight)."""
+        names = [n for n in error.names if n in self.names]
+        if not names:
+            raise error
+        idx = [self.names.index(n) for n in names]
+        w = 1e-6 * len(self._checked[1])  # a millionth of the readings' weight
+        self.prog.AddQuadraticCost(w * np.eye(len(idx)), -w * self.x0[idx], self.variables[idx], is_convex=True)
+        self.notes.append(f"regularized (weak prior to the start value): {_listing(names)}")
+
+    # -- solve -------------------------------------------------------------------------------
+    def fit(self) -> "Fit":
+        """Check identifiability, solve (LM or NLP), estimate uncertainty, flag outliers."""
+        o = self.options
+        if o.solver not in ("lm", "nlp"):
+            raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
+        if o.loss not in ("l2", "huber"):
+            raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
+        if o.solver == "lm":
+            self.check_lm_program()
+        # One BLAS thread at every size: small algebra gains nothing from threads (5.7 -> 4.4 ms at paper scale),
+        # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
+        # results then also do not depend on the thread count.
+        with single_thread_blas():
+            fit = self._fit()
+        self.accept(fit)
+        fit.warnings.extend(self.residual_warnings(fit))
+        return fit
+
+    # -- acceptance: refuse what is not to be trusted, state what is doubtful ---------------------
+    def accept(self, fit: "Fit") -> None:
+        """Raise :class:`FitRefused` (one line) unless the fit converged, its covariance is finite and
+        positive definite within the gauge, and :meth:`implausible` finds nothing."""
+        where = f"{self.source}: refused, nothing written --"
+        if not fit.converged_by:
+            raise FitRefused(f"{where} the solver did not converge: {self._stop_text()} after {fit.iterations} "
+                             f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um); check the units "
+                             f"(mm), the nominal values and the start")
+        bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~np.isfinite(fit.std))]
+        if bad:
+            raise FitRefused(f"{where} non-finite estimate or uncertainty of {_listing(bad)}")
+        if self._weak:
+            raise FitRefused(f"{where} the covariance is singular within the gauge (condition number "
+                             f"{fit.condition_number:.3g}): {_listing(self._weak)} not determined by the readings "
+                             f"at the solution")
+        problems = self.implausible(fit.x)
+        if problems:
+            raise FitRefused(f"{where} physically impossible solution: {'; '.join(problems)}")
+
+    def _user_costs(self):
+        """The program's costs other than the data cost (which the solvers evaluate themselves)."""
+        data = self.data_cost.evaluator()
+        return [b for b in self.prog.GetAllCosts() if b.evaluator() is not data]
+
+    def check_lm_program(self) -> None:
+        """LM steps take linear constraints and linear/quadratic costs only: name anything else, one line."""
+        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint, LinearCost, QuadraticCost
+
+        bad = [b for b in self.prog.GetAllConstraints()
+               if not isinstance(b.evaluator(), (LinearConstraint, BoundingBoxConstraint))]
+        bad += [b for b in self._user_costs() if not isinstance(b.evaluator(), (LinearCost, QuadraticCost))]
+        if bad:
+            e = bad[0].evaluator()
+            what = f"{type(e).__name__} {e.get_description()!r}" if e.get_description() else type(e).__name__
+            raise InputError(f"the 'lm' solver takes linear constraints and linear/quadratic costs only; the "
+                             f"program has a nonlinear {what} on {', '.join(v.get_name() for v in bad[0].variables())}"
+                             f": use solver='nlp' (or pydrake.solvers.Solve(prog))")
+
+    def _stop_text(self) -> str:
+        stop = getattr(self, "_stop", None)
+        return f"iteration cap {self.options.max_iterations} reached" if stop is None else stop[1]
+
+    def residual_warnings(self, fit: "Fit") -> list:
+        """A warning when the residual RMS exceeds :data:`RESIDUAL_WARNING_RATIO` times the reading
+        uncertainty the budget predicts (RMS over the readings, at each reading's beam length), mm."""
+
+        budget = self.options.budget if self.options.budget is not None else self.default_budget()
+        if budget is None or not len(fit.residuals):
+            return []
+        u = _rms(ReadingErrors(budget).std(self.beam_lengths(fit.x)))
+        rms = _rms(fit.residuals)
+        ratio = rms / max(u, 1e-300)
+        self.residual_ratio = (float(ratio), float(u), getattr(budget, "name", ""))
+        if ratio <= RESIDUAL_WARNING_RATIO:
+            return []
+        return [f"residual RMS {1e3 * rms:.2f} um is {ratio:.1f} x the reading uncertainty {1e3 * u:.2f} um that "
+                f"the budget '{budget.name}' predicts (warning above {RESIDUAL_WARNING_RATIO:g} x): a model error "
+                f"(e.g. a map too coarse), a budget that does not fit the instrument, or readings in other units"]
+
+    def _fit(self) -> "Fit":
+        o = self.options
+        for _ in range(len(self.names)):
+            try:
+                self.check_identifiability()
+                break
+            except UnidentifiableError as e:
+                if not o.regularize:
+                    raise
+                self._regularize(e)
+        self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
+        x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
+        self._within0 = None  # the large path's preconditioner (n x n): done with it
+        return self._finish(x, iterations, weights)
+
+    def _weights(self, r):
+        if self.options.loss == "l2":
+            return np.ones_like(r)
+        sigma = _robust_sigma(r)
+        a = np.abs(r) / (self.options.huber_k * sigma)
+        return np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-300))
+
+    def _user_cost(self, x) -> float:
+        return float(sum(self.prog.EvalBinding(b, x)[0] for b in self._user_costs()))
+
+    def _solve_lm(self):
+        """LM over all decision variables (x = the model's parameters, then the user's own)."""
+        n = len(self.names)
+        x = self._feasible(self._start())
+        checked = getattr(self, "_checked", None)
+        r, J = checked[1:] if checked is not None and np.array_equal(checked[0], x[:n]) else self.residuals(x[:n])
+        J = self._pad(J)
+        lam, steps = 1e-6, 0
+        self._stop = None  # None after the loop: the iteration cap ended it
+        # Large problems with linear equalities and quadratic costs only: steps by conjugate gradients within
+        # the constraints, preconditioned by the factorization of the identifiability check (no n x n work).
+        prior = self.quadratic_costs() if self._steps_by_cg() else None
+        for _ in range(self.options.max_iterations):
+            w = self._weights(r)
+            H = _NormalOperator(J, w) if prior is not None else self._normal(J, w)
+            g = J.T @ (w * r)
+            cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
+            # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
+            tol = 1e-12 * abs(cost)
+            while True:
+                # The user's own variables carry no curvature of the data: damp them by the mean one.
+                D = H.diagonal().copy()
+                D[D == 0] = np.mean(D[D > 0]) if (D > 0).any() else 1.0
+                delta = (self._cg_step(x, H, lam * D, g, prior) if prior is not None
+                         else self._step(x, H + lam * np.diag(D), g))
+                x_new = x + delta
+                r_new, J_new = self.residuals(x_new[:n])
+                J_new = self._pad(J_new)
+                cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
+                # What the quadratic model promised: below rounding level, we are at the minimum.
+                predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
+                if cost_new <= cost or predicted <= tol or lam > 1e12:
+                    break
+                lam *= 8.0
+            if cost_new > cost:
+                # No step lowers the cost: at the minimum if the quadratic model promised nothing more.
+                at_minimum = predicted <= tol + 1e-300
+                self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost") if at_minimum else (
+                    False, f"no step lowers the cost (damping {lam:.0e}) though the model predicts "
+                           f"{predicted / max(abs(cost), 1e-300):.1e} of it")
+                break
+            x, r, J, steps = x_new, r_new, J_new, steps + 1
+            lam = max(lam / 4.0, 1e-9)
+            if cost - cost_new <= tol:
+                self._stop = (True, "the relative cost decrease of the last step is below 1e-12")
+                break
+        self._final = (x, r, J)
+        return x, steps, self._weights(r)
+
+    def _steps_by_cg(self) -> bool:
+        """Large path (:data:`LARGE_PROBLEM`) for LM steps: only linear equalities and quadratic costs on the
+        program, and the identifiability check's factorization at hand."""
+        from pydrake.solvers import BoundingBoxConstraint, LinearConstraint, QuadraticCost
+
+        if self.n_all <= LARGE_PROBLEM or getattr(self, "_within0", None) is None:
+            return False
+        for b in self.prog.GetAllConstraints():
+            e = b.evaluator()
+            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)) or np.any(e.lower_bound() !=
+                                                                                     e.upper_bound()):
+                return False
+        return all(isinstance(b.evaluator(), QuadraticCost) for b in self._user_costs())
+
+    def _cg_step(self, x, H, damping, g, prior):
+        """The LM step of :meth:`_step` for the large path: min ½δᵀ(H + diag(damping) + Q)δ + (g + Qx + q)ᵀδ
+        with A δ = 0 (x is feasible), by preconditioned conjugate gradients on the null space of the scaled
+        constraints (preconditioner: the Cholesky factor of the identifiability check's reduced normal
+        matrix); if they do not converge (a large damping, a far iterate), one factorization of the damped
+        matrix itself."""
+        Q, q = prior
+        has_prior = bool(Q.any())
+        W = self._within0
+        s = W.s
+        grad = g + (Q @ x + q if has_prior else 0.0)
+
+        def apply(z):
+            v = W.to_full(z) / s
+            Hv = H @ v + damping * v + (Q @ v if has_prior else 0.0)
+            return W.to_null(Hv / s)
+
+        z, ok = _pcg(apply, -W.to_null(grad / s), W.solve)
+        if ok:
+            return W.to_full(z) / s
+        Hd = _normal_matrix(H.J, H.w) + np.diag(damping) + Q
+        direct = self.within(Hd)
+        return direct.to_full(direct.solve(-direct.to_null(grad / direct.s))) / direct.s
+
+    def _feasible(self, x):
+        """x moved onto the program's constraints by the least change (mm, deg) when it violates them -- e.g.
+        a user variable tied to parameters, or a bound the start lies outside; LM's steps then keep it feasible
+        (from an infeasible point a step that must also restore feasibility may raise the cost, and LM would
+        stop there)."""
+        constraints = self.prog.GetAllConstraints()
+        if not constraints or self.prog.CheckSatisfied(constraints, x, 1e-9):
+            return x
+        return x + self._step(x, np.eye(len(x)), np.zeros(len(x)))
+
+    def _step(self, x, Hd, g):
+        """Solve the LM step program: min ½δᵀHdδ + gᵀδ + user costs, s.t. the program's constraints at x + δ.
+        The step program is built once for the program's bindings (:class:`_StepProgram`) and updated per step."""
+        from pydrake.solvers import Solve
+
+        key = (self.n_all, len(self.prog.GetAllConstraints()), len(self.prog.GetAllCosts()))
+        cached = getattr(self, "_step_program", None)
+        step = None if cached is None or cached.key != key else cached.at(x, Hd, g)
+        if step is None:
+            cached = self._step_program = _StepProgram(self.prog, self.n_all, self.data_cost.evaluator(), key)
+            step = cached.at(x, Hd, g)
+        step, d = step
+        result = Solve(step)
+        if not result.is_success():
+            # EqConstrainedQP can refuse a nearly singular KKT system at the optimum: retry interior-point.
+            from pydrake.solvers import ClarabelSolver
+            result = ClarabelSolver().Solve(step)
+        if not result.is_success():
+            raise InputError(f"the constraints added to the program cannot be satisfied "
+                             f"({result.get_solver_id().name()}: {result.get_solution_result()})")
+        return result.get_x_val()  # = GetSolution(d): δ is the step program's only variables, in order
+
+    def _solve_nlp(self):
+        """The program itself (data cost, user variables, constraints, costs) by the solver Drake picks;
+        Huber loss: three IRLS rounds re-weighting the data cost."""
+        from pydrake.solvers import Solve, SolutionResult
+
+        z = self._start()
+        all_vars = self.prog.decision_variables()
+        rounds = 3 if self.options.loss == "huber" else 1
+        self._cost_weights = np.ones(len(self.residuals(self.x0)[0]))
+        try:
+            for _ in range(rounds):  # IRLS: re-weight, re-solve
+                result = Solve(self.prog, z)
+                if result.get_solution_result() == SolutionResult.kSolverSpecificError:
+                    result = self._resolve_at_default_tolerance(result, all_vars)
+                if not result.is_success():
+                    raise InputError(f"NLP solver {result.get_solver_id().name()} failed: "
+                                     f"{result.get_solution_result()}")
+                z = result.GetSolution(all_vars)
+                self._cost_weights = self._weights(self.residuals(z[:len(self.names)])[0])
+            weights = self._cost_weights
+        finally:
+            self._cost_weights = None  # prog's data cost is the plain least squares again
+        self._solver_used = f"nlp: {result.get_solver_id().name()}"
+        self._stop = (True, f"{result.get_solver_id().name()} reports {result.get_solution_result().name}")
+        return z, rounds, weights
+
+    def _resolve_at_default_tolerance(self, result, all_vars):
+        """SNOPT may end "cannot improve the current point" (info 41) at the tight optimality tolerance of
+        :meth:`_set_solver_tolerances`, depending on the BLAS kernels (seen with OPENBLAS_CORETYPE=Sandybridge
+        on a constrained problem): re-solve once from that point at SNOPT's default tolerance (1e-6), whose
+        success is then SNOPT's own verdict; any other failure stays a failure."""
+        from pydrake.solvers import SnoptSolver, Solve, SolverOptions as DrakeSolverOptions
+
+        if result.get_solver_id() != SnoptSolver.id():
+            return result
+        options = DrakeSolverOptions()
+        options.SetOption(SnoptSolver.id(), "Major optimality tolerance", 1e-6)
+        retry = Solve(self.prog, result.GetSolution(all_vars), options)
+        if retry.is_success():
+            self.notes.append("SNOPT could not improve its point at the tight optimality tolerance; re-solved "
+                              "from it at its default tolerance (1e-6)")
+        return retry
+
+    def quadratic_costs(self):
+        """(Q, b) of the program's quadratic costs ½xᵀQx + bᵀx (priors, regularization), all variables."""
+        from pydrake.solvers import QuadraticCost
+
+        Q, q = np.zeros((self.n_all, self.n_all)), np.zeros(self.n_all)
+        for b in self._user_costs():
+            if isinstance(b.evaluator(), QuadraticCost):
+                idx = self.prog.FindDecisionVariableIndices(b.variables())
+                Q[np.ix_(idx, idx)] += b.evaluator().Q()
+                q[idx] += b.evaluator().b()
+        return Q, q
+
+    def _prior_hessian(self) -> np.ndarray:
+        return self.quadratic_costs()[0]
+
+    def _finish(self, z, iterations, weights) -> "Fit":
+        n = len(self.names)
+        final = getattr(self, "_final", None)
+        r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
+        J = self._pad(J)
+        H = self._normal(J, weights)
+        # Priors (user costs, regularization) inform the estimate: include them in the covariance.
+        prior = self._prior_hessian()
+        within = self.within(H + prior) if prior.any() else None
+        data = self.within(H, overwrite=True)
+        within = within or data
+        cond = data.condition()
+        self._stop = getattr(self, "_stop", (True, "solved"))
+        self._weak = within.weak_names(self._all_names())  # what the covariance (with priors) cannot determine
+        dof = max(len(r) - within.dim, 1)
+        sigma2 = np.sum(weights * r * r) / dof
+        if within.large:  # the variances from the factor; the (n, n) matrix only when read
+            var = within.inverse_diagonal()[:n] * sigma2
+            cov_x = lambda: within.inverse()[:n, :n] * sigma2  # noqa: E731
+        else:
+            cov_x = (within.inverse() * sigma2)[:n, :n]
+            var = np.diag(cov_x)
+        zr = r / _robust_sigma(r)
+        order = np.argsort(-np.abs(zr))
+        out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
+               for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
+        stop = self._stop
+        return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
+                   f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
+                   stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
+
+
+# -- the algebra within the constraints ------------------------------------------------------------
+class Within:
+    """A normal matrix H (n, n) within the program's linear equalities A x = b, factorized once.
+
+    M = Nᵀ (H / s sᵀ) N with s = √diag H (1 where 0) and N an orthonormal basis of the null space of A / s
+    (the scaled coordinates y = s x); rank, condition number, covariance (N/s) M⁻¹ (N/s)ᵀ and steps within
+    the constraints all come from it.
+
+    * dense (``large`` False, the small problems): N explicit (SVD of A / s), M's eigen-decomposition --
+      the reference, exactly what the program always did;
+    * large: N kept as the Householder reflectors of (A / s)ᵀ (pivoted QR: m constraints, O(n m) storage),
+      M = (Qᵀ H_s Q)[r:, r:] by applying them to both sides (O(n² m), no n³ product), a Cholesky factor
+      U of M (M = UᵀU), the extreme eigenvalues by Lanczos (ARPACK) on M and on M⁻¹ through U, the
+      standard uncertainties from the rows of N U⁻¹ (one triangular inverse; the full covariance only when
+      asked for). Eigen-decomposition only to name what is not identifiable, on the refusal's path.
+    """
+
+    def __init__(self, H, A, large: bool, overwrite: bool = False):
+        """``overwrite``: H (dense) may be used as work space."""
+        H = H.toarray() if sp.issparse(H) else np.asarray(H, dtype=float)
+        d = np.diag(H)
+        self.s = np.where(d > 0, np.sqrt(np.maximum(d, 0)), 1.0)
+        self.large = large
+        self.n = len(self.s)
+        As = A / self.s if A.size else np.zeros((0, self.n))
+        self._U = self._K = self._lam = self._vec = self._N = self._extremes = None
+        if not large:
+            self._N = _null_space(As) if As.size else np.eye(self.n)
+            self.M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
+            return
+        self._householder(As)
+        Hs = H if overwrite else H.copy()
+        Hs /= self.s[:, None]
+        Hs /= self.s[None, :]
+        # Hs is symmetric: its transpose is the same numbers in Fortran order, which LAPACK overwrites in place.
+        QHQ = self._apply_q(self._apply_q(Hs.T, "L", "T", overwrite=True), "R", "N", overwrite=True)
+        self.M = np.asfortranarray(QHQ[self.r:, self.r:])
+        U, info = lapack.dpotrf(self.M, lower=0, clean=1)
+        self._U = U if info == 0 and np.all(np.isfinite(U)) else None
+
+    @property
+    def dim(self) -> int:
+        """Dimension of the null space (the free parameter combinations)."""
+        return self.M.shape[0]
+
+    # -- the null-space basis ------------------------------------------------------------------
+    def _householder(self, As):
+        """Pivoted QR of (A / s)ᵀ: the first r reflectors span the constraints' rows (r their rank)."""
+        self.r = 0
+        if not As.size:
+            return
+        qr, _, tau, _, _ = lapack.dgeqp3(np.asarray(As.T, order="F"))
+        diag = np.abs(np.diag(qr))
+        self.r = int(np.sum(diag > 1e-12 * max(diag.max(initial=0.0), 1e-300)))
+        # The reflectors touch only the first r coordinates and those the constraints involve (a gauge row
+        # names a few parameters): Q is the identity elsewhere, so it is applied to those rows only.
+        below = np.tril(qr[:, :self.r], -1)
+        self._rows = np.union1d(np.arange(self.r), np.flatnonzero(np.any(below != 0, axis=1)))
+        self._qr, self._tau = np.asfortranarray(qr[self._rows, :self.r]), tau[:self.r].copy()
+
+    def _apply_q(self, C, side: str, trans: str, overwrite: bool = False):
+        """Q C, Qᵀ C (side L) or C Q, C Qᵀ (side R) with Q = [constraint rows | null-space basis N]; C itself
+        is changed only with ``overwrite``."""
+        C = np.asarray(C, dtype=float, order="F") if overwrite else np.array(C, dtype=float, order="F")
+        if self.r == 0:
+            return C
+        rows = self._rows
+        part = np.asfortranarray(C[rows, :] if side == "L" else C[:, rows])
+        out, _, info = lapack.dormqr(side, trans, self._qr, self._tau, part, 64 * max(part.shape), overwrite_c=1)
+        if side == "L":
+            C[rows, :] = out
+        else:
+            C[:, rows] = out
+        return C
+
+    def basis(self) -> np.ndarray:
+        """N (n, dim) explicit (dense path: as built; large: Q's last columns)."""
+        if self._N is None:
+            E = np.zeros((self.n, self.dim))
+            E[self.r:] = np.eye(self.dim)
+            self._N = self._apply_q(E, "L", "N", overwrite=True)
+        return self._N
+
+    def to_full(self, z) -> np.ndarray:
+        """N z (z over the null space, (dim,) or (dim, k)) in the scaled coordinates."""
+        if not self.large:
+            return self._N @ z
+        Z = np.zeros((self.n,) + np.shape(z)[1:], order="F")
+        Z[self.r:] = z
+        return self._apply_q(Z.reshape(self.n, -1), "L", "N", overwrite=True).reshape(Z.shape)
+
+    def to_null(self, y) -> np.ndarray:
+        """Nᵀ y (y in the scaled coordinates, (n,) or (n, k))."""
+        if not self.large:
+            return self._N.T @ y
+        return self._apply_q(np.reshape(y, (self.n, -1)), "L", "T")[self.r:].reshape((self.dim,) + np.shape(y)[1:])
+
+    # -- rank and conditioning -----------------------------------------------------------------
+    def _eigh(self):
+        if self._lam is None:
+            self._lam, self._vec = np.linalg.eigh(self.M)
+        return self._lam, self._vec
+
+    def extremes(self):
+        """(smallest, largest) eigenvalue of M (the smallest 0 when M is not positive definite: large path);
+        computed once."""
+        if self._extremes is None:
+            self._extremes = self._compute_extremes()
+        return self._extremes
+
+    def _compute_extremes(self):
+        if not self.large or self.dim < 10:  # (ARPACK needs more dimensions than eigenvalues asked for)
+            lam = self._eigh()[0]
+            return lam[0], lam[-1]
+        from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
+
+        v0 = np.ones(self.dim)
+        try:
+            top = eigsh(self.M, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE, return_eigenvectors=False)[0]
+            if self._U is None:
+                return 0.0, top
+            inv = LinearOperator((self.dim, self.dim), matvec=self.solve, dtype=float)
+            low = 1.0 / eigsh(inv, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE,
+                             return_eigenvectors=False)[0]
+        except ArpackNoConvergence:  # rare: the dense decomposition decides
+            lam = self._eigh()[0]
+            return lam[0], lam[-1]
+        return low, top
+
+    def deficient(self) -> bool:
+        low, top = self.extremes()
+        return bool(low < RANK_TOLERANCE * top) or not np.isfinite(top)
+
+    def condition(self) -> float:
+        """√(λ_max / λ_min) of M (the conditioning within the constraints), inf when rank deficient."""
+        low, top = self.extremes()
+        return float(np.sqrt(top / low)) if low > RANK_TOLERANCE * top else float("inf")
+
+    def weak_names(self, names) -> list:
+        """What M cannot determine: the parameters in its near-null space (none when positive definite)."""
+        if not np.all(np.isfinite(self.M)):
+            return list(names)
+        if self.large and not self.deficient():
+            return []
+        lam, vec = self._eigh()
+        weak = lam < RANK_TOLERANCE * lam[-1]
+        if not weak.any():
+            return []
+        # Each parameter's share of the near-null space: the row norms of its orthonormal basis -- the same
+        # whatever basis the (near-degenerate) eigenvectors happen to take, so both paths name the same.
+        mag = np.linalg.norm(self.basis() @ vec[:, np.flatnonzero(weak)], axis=1)
+        return [names[i] for i in np.flatnonzero(mag > 0.1 * mag.max())]
+
+    # -- solves and covariance -----------------------------------------------------------------
+    def solve(self, z) -> np.ndarray:
+        """M⁻¹ z (over the null space)."""
+        if not self.large:
+            return np.linalg.solve(self.M, z)
+        x, _ = lapack.dpotrs(self._U, np.reshape(z, (self.dim, -1)), lower=0)
+        return x.reshape(np.shape(z))
+
+    def _factor_rows(self) -> np.ndarray:
+        """K = (N U⁻¹) / s (n, dim): the covariance within the constraints is K Kᵀ (large path)."""
+        if self._K is None:
+            Uinv, _ = lapack.dtrtri(self._U, lower=0)
+            self._K = self.to_full(Uinv) / self.s[:, None]
+        return self._K
+
+    def inverse_diagonal(self) -> np.ndarray:
+        """diag((N/s) M⁻¹ (N/s)ᵀ): the variances within the constraints per unit σ²."""
+        if not self.large:
+            return np.diag(self.inverse())
+        K = self._factor_rows()
+        return np.einsum("ij,ij->i", K, K)
+
+    def inverse(self) -> np.ndarray:
+        """(N/s) M⁻¹ (N/s)ᵀ (n, n): the covariance within the constraints per unit σ²."""
+        if not self.large:
+            Ns = self._N / self.s[:, None]
+            return Ns @ np.linalg.solve(self.M, Ns.T)
+        K = self._factor_rows()
+        return K @ K.T
+
+
+# -- helpers -------------------------------------------------------------------------------------
+class _StepProgram:
+    """The LM step as a Drake program in the step δ = e − x: the Gauss-Newton model ½δᵀHdδ + gᵀδ, src's linear
+    constraints and linear/quadratic costs shifted to δ (all costs but ``skip``: the data cost, which the
+    model replaces). Built once per set of bindings; :meth:`at` updates its coefficients and bounds for
+    the next x (Drake's UpdateCoefficients, set_bounds) instead of building a program per step."""
+
+    def __init__(self, src, n, skip, key):
+        from pydrake.solvers import (BoundingBoxConstraint, LinearConstraint, LinearCost, MathematicalProgram,
+                                     QuadraticCost)
+
+        self.key, self.prog = key, MathematicalProgram()
+        self.d = d = self.prog.NewContinuousVariables(n, "delta")
+        self.model = self.prog.AddQuadraticCost(np.eye(n), np.zeros(n), d, is_convex=True)
+        self.constraints, self.costs = [], []
+        for b in src.GetAllConstraints():
+            e = b.evaluator()
+            idx = src.FindDecisionVariableIndices(b.variables())
+            if not isinstance(e, (LinearConstraint, BoundingBoxConstraint)):
+                raise InputError(f"constraint {type(e).__name__} is not linear: use the 'nlp' solver")
+            A = e.GetDenseA()
+            eq = e.lower_bound() == e.upper_bound()
+            # Equalities stay equalities, so Drake can pick its exact EqConstrainedQP solver.
+            shifted = [(mask, self.prog.AddLinearEqualityConstraint(A[mask], np.zeros(mask.sum()), d[idx])
+                        if equal else self.prog.AddLinearConstraint(A[mask], np.zeros(mask.sum()),
+                                                                    np.zeros(mask.sum()), d[idx]))
+                       for mask, equal in ((eq, True), (~eq, False)) if mask.any()]
+            self.constraints.append((e, A, eq, idx, shifted))
+        for b in src.GetAllCosts():
+            e = b.evaluator()
+            if e is skip:
+                continue
+            idx = src.FindDecisionVariableIndices(b.variables())
+            if isinstance(e, QuadraticCost):
+                self.costs.append((e, idx, self.prog.AddQuadraticCost(e.Q(), e.b(), d[idx], is_convex=True)))
+            elif isinstance(e, LinearCost):
+                self.costs.append((e, idx, self.prog.AddLinearCost(e.a(), 0.0, d[idx])))
+            else:
+                raise InputError(f"cost {type(e).__name__} is not linear or quadratic: use the 'nlp' solver")
+
+    def at(self, x, Hd, g):
+        """(program, δ variables) of the step at x; None when a constraint's coefficients (or which of its rows
+        are equalities) changed since it was built: then build anew."""
+        from pydrake.solvers import QuadraticCost
+
+        self.model.evaluator().UpdateCoefficients(Hd, g, 0.0, True)
+        for e, A, eq, idx, shifted in self.constraints:
+            if not (np.array_equal(e.GetDenseA(), A) and np.array_equal(e.lower_bound() == e.upper_bound(), eq)):
+                return None
+            shift = A @ x[idx]
+            lo, hi = e.lower_bound() - shift, e.upper_bound() - shift
+            for mask, binding in shifted:
+                binding.evaluator().set_bounds(lo[mask], hi[mask])
+        for e, idx, binding in self.costs:
+            if isinstance(e, QuadraticCost):
+                Q = e.Q()
+                binding.evaluator().UpdateCoefficients(Q, Q @ x[idx] + e.b(), 0.0, True)
+            else:
+                binding.evaluator().UpdateCoefficients(e.a(), 0.0)
+        return self.prog, self.d
+
+
+class _NormalOperator:
+    """JᵀWJ as an operator (large path): products and the diagonal without forming the matrix."""
+
+    def __init__(self, J, w):
+        self.J, self.w = J.tocsr(), w
+        self.JT = self.J.T.tocsr()
+
+    def diagonal(self) -> np.ndarray:
+        rows = np.repeat(self.w, np.diff(self.J.indptr))
+        return np.bincount(self.J.indices, weights=rows * self.J.data ** 2, minlength=self.J.shape[1])
+
+    def __matmul__(self, v):
+        return self.JT @ (self.w * (self.J @ v))
+
+
+def _pcg(apply, b, precondition, rtol=1e-10, max_iterations=100):
+    """Preconditioned conjugate gradients for apply(x) = b (symmetric positive definite): (x, converged)."""
+    x = np.zeros_like(b)
+    norm_b = np.linalg.norm(b)
+    if norm_b == 0:
+        return x, True
+    res = b.copy()
+    z = precondition(res)
+    p, rz = z.copy(), res @ z
+    for _ in range(max_iterations):
+        Ap = apply(p)
+        alpha = rz / (p @ Ap)
+        x += alpha * p
+        res -= alpha * Ap
+        if np.linalg.norm(res) <= rtol * norm_b:
+            return x, True
+        z = precondition(res)
+        rz, rz_old = res @ z, rz
+        p = z + (rz / rz_old) * p
+    return x, False
+
+
+def _normal_matrix(J, w) -> np.ndarray:
+    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there). Wide: the columns
+    that many rows touch (geometry, stations) as a dense block by BLAS, only the rest (map nodes, a few per
+    row) by a sparse product -- which would otherwise spend most of its time on the busy columns."""
+    if J.shape[1] <= SMALL_PROBLEM:
+        Jd = J.toarray()
+        return Jd.T @ (w[:, None] * Jd)
+    J = J.tocsr()
+    busy = np.bincount(J.indices, minlength=J.shape[1]) > J.shape[0] // 20
+    if not busy.any() or busy.all():
+        return (J.T @ sp.diags(w) @ J).toarray()
+    dense, rest = np.flatnonzero(busy), np.flatnonzero(~busy)
+    Jd = J[:, dense].toarray()
+    WJd = w[:, None] * Jd
+    Js = J[:, rest].tocsr()
+    WJs = Js.copy()
+    WJs.data *= np.repeat(w, np.diff(Js.indptr))
+    H = np.empty((J.shape[1], J.shape[1]))
+    # The quiet columns are one block (the maps between geometry and stations): slices, not a gather of n².
+    span = slice(rest[0], rest[-1] + 1)
+    block = (span, span) if rest[-1] - rest[0] + 1 == len(rest) else np.ix_(rest, rest)
+    H[block] = (Js.T.tocsr() @ WJs).toarray()
+    cross = np.asarray(Js.T @ WJd)
+    H[rest[:, None], dense] = cross
+    H[dense[:, None], rest] = cross.T
+    H[dense[:, None], dense] = Jd.T @ WJd
+    return H
+
+
+def _rms(v) -> float:
+    return float(np.sqrt(np.mean(np.square(v)))) if len(v) else 0.0
+
+
+def _null_space(A, rtol=1e-12):
+    u, s, vt = np.linalg.svd(A)
+    rank = int(np.sum(s > rtol * max(s.max(), 1e-300)))
+    return vt[rank:].T
+
+
+def _robust_sigma(r) -> float:
+    """1.4826 × median absolute deviation: the residual scale, blind to a few gross outliers."""
+    s = 1.4826 * np.median(np.abs(r - np.median(r)))
+    return float(s) if s > 0 else float(np.sqrt(np.mean(r * r)) + 1e-300)
+
+
+def _listing(names, most=8) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def distance_rows(p, pcols, dpx, dpy, P, d0, station, readings, station_col: int, dead_path_col: int):

@@ -44,7 +44,7 @@ joint angle equals the wanted one -- the layout of a bidirectional pitch-error
 compensation table.
 
 Proof by simulation (:func:`compare_compensation`): the commands run through
-the simulated truth robot (:class:`~olti_drake.model.truth.TrueRobot`, the numpy
+the simulated truth robot (:class:`~olti_drake.model.scara.TrueRobot`, the numpy
 twin of the Drake diagram; :func:`olti_drake.sim.compensation_check.drake_end_effector` runs the same commands
 through ``ErrorMapJoint`` and the ``MultibodyPlant``).
 """

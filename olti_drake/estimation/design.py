@@ -44,7 +44,7 @@ from typing import Callable, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from olti_drake.io.budget import Budget
-from olti_drake.io.campaign_io import CampaignData
+from olti_drake.io.csvio import CampaignData
 from olti_drake.io.csvio import InputError, read_yaml, unit_bound
 from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid

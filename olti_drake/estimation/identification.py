@@ -12,7 +12,7 @@ residuals and analytic Jacobians of :mod:`olti_drake.model.scara`.
 constraint. Add your own constraints and costs to it before
 :meth:`Identifier.solve`. The solvers (LM steps as Drake programs, or a Drake
 NLP solver), the identifiability check and the uncertainty are the shared
-machinery of :mod:`olti_drake.estimation.leastsquares`.
+machinery of :mod:`olti_drake.estimation.calibration`.
 
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
@@ -25,11 +25,11 @@ from typing import List, Optional
 
 import numpy as np
 
-from olti_drake.io.campaign_io import CampaignData
+from olti_drake.io.csvio import CampaignData
 from olti_drake.io.csvio import InputError, check_spread, unit_bound
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
-from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
+from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
 from olti_drake.estimation.calibration import distance_rows, station_fit
 
 
@@ -74,7 +74,7 @@ class Identification:
     n_readings: int = 0
     converged_by: str = ""
     warnings: list = field(default_factory=list)
-    #: The campaign identified from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    #: The campaign identified from: {"readings": N, "sha256": ...} (:func:`csvio.campaign_digest`).
     campaign: dict = field(default_factory=dict)
     #: Error-map models: the under-resolution check (:meth:`Identifier.resolution_check`), None if not possible.
     resolution: Optional[dict] = None
@@ -164,7 +164,7 @@ class Identifier(LeastSquaresProgram):
 
     def solve(self) -> "Identification":
         """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
-        from olti_drake.io.campaign_io import campaign_digest
+        from olti_drake.io.csvio import campaign_digest
 
         f = self.fit()
         model, P, d0 = self.split(f.x)
@@ -185,7 +185,7 @@ class Identifier(LeastSquaresProgram):
         changes within two node spacings -- then the map may miss as much between its own nodes, and readings
         between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
         """
-        from olti_drake.estimation.leastsquares import RESIDUAL_WARNING_RATIO, _rms
+        from olti_drake.estimation.calibration import RESIDUAL_WARNING_RATIO, _rms
         from olti_drake.io.budget import ReadingErrors
 
         c = self.data.commands

@@ -37,7 +37,7 @@ from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_
                     read_table)
 from olti_drake.model.scara import rows_to_csr
 from olti_drake.estimation.calibration import distance_rows_nd, station_fit  # noqa: F401 (station_fit re-exported)
-from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError
 from olti_drake.threads import single_thread_blas
 
 FORMAT = "olti-multilateration/1"
@@ -174,7 +174,7 @@ class MultilaterationResult:
     gauge: str
     commands_mm: np.ndarray = field(default=None)
     gauge_kind: str = "best-fit"
-    #: The campaign solved from: {"readings": N, "sha256": ...} (:func:`campaign_io.campaign_digest`).
+    #: The campaign solved from: {"readings": N, "sha256": ...} (:func:`csvio.campaign_digest`).
     campaign: dict = field(default_factory=dict)
     #: Tool index of every target and the nominal tool offsets used (3D campaigns), mm.
     tools: Optional[np.ndarray] = None
@@ -475,7 +475,7 @@ class Multilateration(LeastSquaresProgram):
         stations: N_i − 6 degrees of freedom) the residuals alone estimate the
         reading noise poorly; without one, the residual-based propagation.
         """
-        from olti_drake.io.campaign_io import campaign_digest
+        from olti_drake.io.csvio import campaign_digest
 
         self._solve_budget = budget
         # One BLAS thread: on the shared 2-core machine OpenBLAS threads made the 1820-unknown 3D solve

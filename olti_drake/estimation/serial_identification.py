@@ -30,7 +30,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from olti_drake.estimation.calibration import Calibration, station_fit
-from olti_drake.estimation.leastsquares import SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
 from olti_drake.io.csvio import InputError
 from olti_drake.model.chain import planar_axis
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
@@ -197,7 +197,7 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
     """Identify the model ``options.model`` of ``chain`` from ``campaign`` (io.serial_io.SerialCampaign).
 
     Raises (one line) before solving when the campaign cannot identify a parameter (named), unless
-    ``options.regularize``; refuses a fit that did not converge (leastsquares.FitRefused). When parameters
+    ``options.regularize``; refuses a fit that did not converge (calibration.FitRefused). When parameters
     were left out because the start's tool point lies on a joint axis and the fitted tool point does not
     (:data:`TOOL_RESTART_MM`), the model is rebuilt around the fitted tool point and identified again, and
     the notes say so."""

@@ -26,7 +26,7 @@ def calibration_at_result(result, campaign):
 
     ``result``: :class:`~olti_drake.io.serial_io.SerialResult`; ``campaign``:
     :class:`~olti_drake.io.serial_io.SerialCampaign` (the one the result came from)."""
-    from olti_drake.estimation.leastsquares import SolverOptions
+    from olti_drake.estimation.calibration import SolverOptions
     from olti_drake.estimation.serial_identification import SerialCalibration
     from olti_drake.model.chain import planar_axis
     from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, find_gauge

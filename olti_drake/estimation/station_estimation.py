@@ -13,7 +13,7 @@ carries the interferometer -- needs two rough values:
 Both are simulated as the operator performs them, on a true
 :class:`RotaryStation` and the true machine
 (:class:`~olti_drake.model.machine.VolumetricError`), with the readings of
-:func:`~olti_drake.model.interferometer.simulate_readings` (projection on the beam,
+:func:`~olti_drake.model.instrument.simulate_readings` (projection on the beam,
 cosine error, beam loss, λ/64, budget noise of 001 Table 4).
 
 * :func:`estimate_rotation_centre` (Fig. 6): the cat's eye near the axis, the
@@ -45,7 +45,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from olti_drake.io.budget import Budget
-from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
+from olti_drake.model.instrument import InterferometerOptions, simulate_readings
 
 #: Encoder pulses per revolution of the rotary table RT158A (001 Table 2).
 ENCODER_PULSES = 655360

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.io.budget import Budget, ReadingErrors
-from olti_drake.estimation.leastsquares import FitRefused
+from olti_drake.estimation.calibration import FitRefused
 from olti_drake.io.csvio import InputError
 from olti_drake.threads import single_thread_blas
 
@@ -66,7 +66,7 @@ def _solution_map(ident, x):
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
     """Covariance (n, n) of the parameters by linear propagation (JCGM 100; 000 §5 Remark, 001 §4.4).
 
-    ``ident``: any :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram`
+    ``ident``: any :class:`~olti_drake.estimation.calibration.LeastSquaresProgram`
     (SCARA identification or multilateration).
 
     x = argmin ½‖r(x) − d‖² within the constraints gives dx/dd = B Jᵀ, so
@@ -170,7 +170,7 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
                 progress: Optional[Callable[[int, int], None]] = None, coverage: float = 0.95) -> MonteCarlo:
     """JCGM 101 Monte Carlo of a least-squares estimate (000 §5; 001 §4.4).
 
-    ``ident``: any :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram` with
+    ``ident``: any :class:`~olti_drake.estimation.calibration.LeastSquaresProgram` with
     batched residuals ``residual_rows(X (T, n), readings (K,) or (T, K)) ->
     (r (T, K), cols (K, m), vals (T, K, m))`` -- the SCARA
     :class:`~olti_drake.estimation.identification.Identifier` or the

@@ -21,7 +21,7 @@ of :data:`GAUGE_CONDITIONS` (the fixed B-spline coefficients are no unknowns):
 the frame is the machine's own, origin at tool 0's point at the travel start,
 x along X's reference straight line, y in the plane of X's and Y's lines.
 
-Solved by :class:`~olti_drake.estimation.leastsquares.LeastSquaresProgram`
+Solved by :class:`~olti_drake.estimation.calibration.LeastSquaresProgram`
 (LM, Drake programs; or NLP), refused when not converged; standard
 uncertainties (k = 1) by linear propagation of the reading uncertainty of a
 budget (JCGM 100; default 001 Table 4) through the identification, for every
@@ -35,9 +35,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.estimation.calibration import station_fit
-from olti_drake.estimation.leastsquares import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError
 from olti_drake.estimation.multilateration import MachineCampaign
-from olti_drake.io.campaign_io import campaign_digest
+from olti_drake.io.csvio import campaign_digest
 from olti_drake.io.csvio import InputError
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, MachineConfig, VolumetricModel,
                                            motion_names, motion_role, motion_unit, observability)

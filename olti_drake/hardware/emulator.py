@@ -40,7 +40,7 @@ import numpy as np
 
 from olti_drake.model.errormap import approach_directions
 from olti_drake.sim.scenario import SEED_STREAMS, Faults, Scenario, load_scenario, stream_rng  # Faults: re-exported
-from olti_drake.model.interferometer import beam_geometry, simulate_readings
+from olti_drake.model.instrument import beam_geometry, simulate_readings
 from olti_drake.hardware.protocol import (PROTOCOL_VERSION, SCARA_LAYOUT, Axis, AxisLayout, ChecksumError, Frame,
                        FrameParser, NakError, Responder, alm_fields, decode_alrm, decode_movj, decode_wait,
                        dis_fields, encode, nak_fields, pong_fields, position_fields)

@@ -37,7 +37,7 @@ from olti_drake.hardware.protocol import (NJ_PROTOCOL_VERSION, PAN_TILT_LAYOUT, 
                                           position_fields)
 from olti_drake.model.aiming3d import PanTiltHeads, harmonic_head_error, head_readings
 from olti_drake.model.chain import UNLIMITED_RANGE_DEG, load_serial_chain
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.serial import synthetic_truth
 from olti_drake.sim.scenario import stream_rng, stream_seed
 

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from olti_drake.io.budget import Budget
-from olti_drake.model.interferometer import InterferometerOptions, quantize
+from olti_drake.model.instrument import InterferometerOptions, quantize
 from olti_drake.model.chain import DEG, SerialChain
 
 #: Cat's-eye acceptance half-angle: beyond it the return beam is lost, deg.
@@ -116,7 +116,7 @@ class BeamReadings:
 
 
 def beam_geometry_3d(origin_mm, u, target_mm) -> Tuple[np.ndarray, np.ndarray]:
-    """(along, miss) mm: (T − o)·u and |(T − o) × u| — interferometer.beam_geometry in 3D."""
+    """(along, miss) mm: (T − o)·u and |(T − o) × u| — instrument.beam_geometry in 3D."""
     rel = np.asarray(target_mm, float) - np.asarray(origin_mm, float)
     along = np.einsum("mc,mc->m", rel, u)
     return along, np.linalg.norm(rel - along[:, None] * u, axis=1)
@@ -138,7 +138,7 @@ def read_beam(origin_mm, u, target_mm, catseye_axis, dead_path_mm, options: Inte
     2D model) of the element the moving axes carry, ``pose_noise_on`` = "target" (a cat's eye on a
     robot's tool) or "origin" (a laser on the robot, a head on a rotary table; "" = none) —
     and ``reading`` (along the beam); then λ/``resolution_divisor`` quantization, as switched in
-    ``options`` (interferometer.py's model, 000 §5). Invalid when the miss exceeds
+    ``options`` (instrument.py's model, 000 §5). Invalid when the miss exceeds
     ``options.acceptance_mm`` or the viewing angle exceeds ±``MAX_VIEWING_DEG`` (``beam_loss``).
     """
     u = _unit(np.atleast_2d(u))

@@ -10,7 +10,7 @@ Units: mm (µm in the error fields, as "thousandths of the command unit" of
 * :func:`simulate_machine_campaign` -- every station position j, every target
   i: the rotary table turns the beam toward the *command* target from the
   *estimated* station (Eq. 1 of 001); the reading is the interferometer model
-  of :mod:`olti_drake.model.interferometer` (cosine error, beam loss, λ/64, budget
+  of :mod:`olti_drake.model.instrument` (cosine error, beam loss, λ/64, budget
   noise: 001 Table 4).
 * :func:`simulate_machine_campaign_3d` -- the same campaign in 3D (formats.md
   "Machine tool in 3D"): pan/tilt heads on the table aimed at the *commanded*
@@ -27,7 +27,7 @@ import numpy as np
 
 from olti_drake.io.csvio import write_table
 from olti_drake.model.errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
-from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
+from olti_drake.model.instrument import InterferometerOptions, simulate_readings
 
 Deviation = Union[HarmonicDeviation, NoDeviation]
 
@@ -185,7 +185,7 @@ def simulate_machine_campaign(scenario: MachineScenario, budget=None):
     The numpy twin of the Drake diagram (:mod:`olti_drake.sim.machine_station`):
     the same :func:`machine_run`, the rotary table aiming by Eq. (1) of 001
     from the estimated station, the interferometer model of
-    :func:`~olti_drake.model.interferometer.simulate_readings`. Columns follow
+    :func:`~olti_drake.model.instrument.simulate_readings`. Columns follow
     formats.md (station, target, x_cmd_mm, y_cmd_mm, displacement_mm, valid).
     """
     rng = np.random.default_rng(scenario.seed)

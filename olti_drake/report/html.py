@@ -92,7 +92,7 @@ def read_truth(path) -> dict:
 def _truth_robot(truth: dict, truth_path):
     """(TrueRobot, nominal (L1, L2) mm, how) from a truth.json (result format, simulation truth)."""
     from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM
-    from olti_drake.model.truth import TrueRobot
+    from olti_drake.model.scara import TrueRobot
     from olti_drake.sim.scenario import MapTable
 
     plain = (truth.get("truth") or {}).get("robot")
@@ -168,7 +168,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     budget_note = campaign_note = ""
     if campaign_path is not None:
         from olti_drake.io.budget import default_budget
-        from olti_drake.io.campaign_io import check_campaign_matches, load_campaign
+        from olti_drake.io.csvio import check_campaign_matches, load_campaign
         from olti_drake.estimation.identification import identifier_at_result
         from olti_drake.estimation.uncertainty import linear_covariance
         from olti_drake.io.budget import ReadingErrors
@@ -407,7 +407,7 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
     if campaign_path is not None:
         from olti_drake.estimation.multilateration import load_machine_campaign
 
-        from olti_drake.io.campaign_io import check_campaign_matches
+        from olti_drake.io.csvio import check_campaign_matches
 
         data = load_machine_campaign(campaign_path)
         campaign_note = check_campaign_matches(raw, data, result_path)

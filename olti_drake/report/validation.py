@@ -28,7 +28,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from olti_drake.estimation.compensation import register  # noqa: F401 (re-exported)
-from olti_drake.io.campaign_io import CampaignData
+from olti_drake.io.csvio import CampaignData
 from olti_drake.model.scara import (PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, forward_kinematics,
                          inverse_kinematics)
 from olti_drake.sim.tracker import LaserTrackerSpec, measure_positions, path_commands
@@ -166,7 +166,7 @@ def random_commands(n: int, seed, theta1_range=PAPER_THETA1_RANGE, theta2_range=
 def measure(truth_robot, commands: JointCommands, spec: Optional[LaserTrackerSpec] = None, seed=0) -> np.ndarray:
     """Simulated laser-tracker readings (N, 2) mm of the robot's actual positions (000 §4.3).
 
-    ``truth_robot``: a :class:`~olti_drake.model.truth.TrueRobot`; ``spec``: the
+    ``truth_robot``: a :class:`~olti_drake.model.scara.TrueRobot`; ``spec``: the
     tracker (default: AT960-XR of 000 §4.3); ``seed`` for the tracker noise.
     """
     p = truth_robot.end_effector(commands.theta1_deg, commands.theta2_deg, commands.dir1, commands.dir2)

@@ -282,7 +282,7 @@ def volumetric_report(page, raw, result_path, campaign_path, k):
     if campaign_path is not None:
         from olti_drake.estimation.multilateration import load_machine_campaign
         from olti_drake.estimation.volumetric import volumetric_campaign
-        from olti_drake.io.campaign_io import check_campaign_matches
+        from olti_drake.io.csvio import check_campaign_matches
 
         data = volumetric_campaign(load_machine_campaign(campaign_path))
         note = check_campaign_matches(raw, data, result_path)

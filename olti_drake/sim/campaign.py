@@ -19,11 +19,11 @@ import numpy as np
 
 from olti_drake.io.csvio import write_table
 from olti_drake.model.errormap import approach_directions, sample_map
-from olti_drake.model.interferometer import beam_geometry, simulate_readings
+from olti_drake.model.instrument import beam_geometry, simulate_readings
 from olti_drake.model.plan import Plan
 from olti_drake.sim.scenario import SEED_STREAMS, ExactEstimate, PerturbedEstimate, Scenario, as_plain
 from olti_drake.sim.scenario import stream_rng, stream_seed  # stream_seed re-exported (machine_station)
-from olti_drake.model.steering import (SearchData, beam_command_deg, default_search_positions_mm, fit_reflectors,
+from olti_drake.model.instrument import (SearchData, beam_command_deg, default_search_positions_mm, fit_reflectors,
                        simulate_search)
 
 #: Keys of the independent random streams derived from the scenario seed (sim.scenario.SEED_STREAMS).

@@ -40,7 +40,7 @@ import numpy as np
 
 from olti_drake.io.csvio import InputError
 from olti_drake.model import aiming3d as a3
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import (Machine3DRun, Machine3DScenario, _default_heads, machine3d_truth, machine_run_3d,
                                       paper001_budget, write_machine_campaign)
 from olti_drake.sim.scenario import stream_seed

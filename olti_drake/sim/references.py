@@ -36,7 +36,7 @@ from typing import Tuple
 
 import numpy as np
 
-from olti_drake.model.interferometer import InterferometerOptions, beam_geometry, quantize
+from olti_drake.model.instrument import InterferometerOptions, beam_geometry, quantize
 from olti_drake.estimation.multilateration import align_to_commands
 
 #: 001 §3.2: the machine's temperature during the experiment, °C.

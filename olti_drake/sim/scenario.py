@@ -21,10 +21,10 @@ import numpy as np
 
 from olti_drake.io.csvio import InputError, read_yaml
 from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, NoDeviation
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM
 from olti_drake.model.plan import BidirectionalGrid, Plan, load_plan
-from olti_drake.model.truth import TrueRobot
+from olti_drake.model.scara import TrueRobot
 
 
 #: Every random source of a scenario, by name, and its stream key under the scenario ``seed``: each

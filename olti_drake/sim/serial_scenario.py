@@ -28,7 +28,7 @@ from typing import List, Optional, Union
 import numpy as np
 
 from olti_drake.io.csvio import InputError, read_yaml
-from olti_drake.model.interferometer import InterferometerOptions
+from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"

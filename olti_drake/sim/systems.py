@@ -26,8 +26,8 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from olti_drake.io.budget import Budget
 from olti_drake.model.errormap import ErrorMap, approach_directions
-from olti_drake.model.interferometer import InterferometerOptions, simulate_readings
-from olti_drake.model.steering import beam_command_deg
+from olti_drake.model.instrument import InterferometerOptions, simulate_readings
+from olti_drake.model.instrument import beam_command_deg
 
 M_TO_MM = 1e3
 
@@ -326,7 +326,7 @@ def KinematicLaserInterferometer_(T):
         converts with ``Diagram.ToAutoDiffXd()`` and a reading is differentiable with respect to q
         and what feeds it (the map nodes of :class:`ErrorMapJoint`; the dead paths, a Parameter).
 
-        The reading's value is :func:`~olti_drake.model.interferometer.simulate_readings` of the
+        The reading's value is :func:`~olti_drake.model.instrument.simulate_readings` of the
         float pose (noise, quantization, cosine error as the options say), so it equals the
         geometry station's; its derivatives are those of the exact optical length (the beam
         projection ``(P - o)·u`` with the cosine error, ``‖P - o‖`` without) minus d0_j: noise and
