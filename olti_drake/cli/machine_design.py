@@ -4,8 +4,6 @@ handling and printing only; the method is :mod:`olti_drake.estimation.machine_de
 import os
 import time
 
-import numpy as np
-
 
 def design(args) -> int:
     """Heads for a 3D multilateration campaign of the result's targets: candidates on a grid in the 3D regions,
@@ -39,17 +37,7 @@ def design(args) -> int:
           f"(JCGM 100), budget {budget.name!r}")
     print(f"  targets: {targets.what}; cost: {args.criterion} target u")
     print(f"  candidates: {len(cand)} on a {args.step_mm:g} mm grid in {args.regions}")
-    for label, c in (("current (result)", current), (f"designed ({n} stations)", doc["designed"])):
-        if c is None:
-            continue
-        if np.isfinite(c["cost_mm"]):
-            print(f"  {label:24s} max u {1e3 * c['max_u_mm']:8.3f} um, mean u {1e3 * c['mean_u_mm']:8.3f} um")
-        else:
-            print(f"  {label:24s} the multilateration cannot solve from these stations")
-        print("    at " + ", ".join("(" + ", ".join(f"{v:.0f}" for v in s) + ")" for s in c["stations_mm"]) + " mm")
-    if doc["improvement"] is not None:
-        print(f"  improvement ({args.criterion} u, current / designed): {doc['improvement']:.2f}x")
-    print(f"  {d.evaluations} layouts evaluated from {args.starts} start(s), seed {args.seed}, "
-          f"{doc['elapsed_s']:.1f} s")
-    print(f"wrote {args.out}")
+    from olti_drake.cli.serial_design import print_layouts
+
+    print_layouts(doc, current, n, d.evaluations, args, "the multilateration cannot solve from these stations", 3)
     return 0

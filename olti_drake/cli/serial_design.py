@@ -57,17 +57,22 @@ def design(args) -> int:
     print(f"  plan: {plan_name}; {len(plan)} poses; cost: {args.criterion} predicted tool-point u over "
           f"{args.workspace_poses} workspace poses")
     print(f"  candidates: {len(cand)} on a {args.step_mm:g} mm grid, {doc['candidates']['feasible']} see enough poses")
+    print_layouts(doc, current, n, d.evaluations, args, "the campaign cannot identify the model from these stations")
+    return 0
+
+
+def print_layouts(doc: dict, current, n: int, evaluations: int, args, unsolvable: str, digits: int = 2) -> None:
+    """The current and designed layouts' costs and positions, the improvement, the search (um, mm)."""
     for label, c in (("current (result)", current), (f"designed ({n} stations)", doc["designed"])):
         if c is None:
             continue
         if np.isfinite(c["cost_mm"]):
-            print(f"  {label:24s} max u {1e3 * c['max_u_mm']:8.2f} um, mean u {1e3 * c['mean_u_mm']:8.2f} um")
+            print(f"  {label:24s} max u {1e3 * c['max_u_mm']:8.{digits}f} um, "
+                  f"mean u {1e3 * c['mean_u_mm']:8.{digits}f} um")
         else:
-            print(f"  {label:24s} the campaign cannot identify the model from these stations")
+            print(f"  {label:24s} {unsolvable}")
         print("    at " + ", ".join("(" + ", ".join(f"{v:.0f}" for v in s) + ")" for s in c["stations_mm"]) + " mm")
     if doc["improvement"] is not None:
         print(f"  improvement ({args.criterion} u, current / designed): {doc['improvement']:.2f}x")
-    print(f"  {d.evaluations} layouts evaluated from {args.starts} start(s), seed {args.seed}, "
-          f"{doc['elapsed_s']:.1f} s")
+    print(f"  {evaluations} layouts evaluated from {args.starts} start(s), seed {args.seed}, {doc['elapsed_s']:.1f} s")
     print(f"wrote {args.out}")
-    return 0

@@ -15,7 +15,6 @@ Units: mm and degrees at the API.
   origin, the end effector p. The machine tool's rotary-table steering (001 Eq. 1) is here too.
 """
 
-from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Optional

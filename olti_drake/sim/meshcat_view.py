@@ -116,7 +116,33 @@ class BeamView(LeafSystem):
         self._meshcat.SetTransform(self.halo_path, RigidTransform(b))
 
 
-class ErrorVectors(LeafSystem):
+class SegmentLog:
+    """Error-vector segments kept in a LeafSystem's Context (abstract state ``self._state``: {kind: RecordLog of
+    (start, end) in m}) and drawn chunk by chunk (a new row re-sends only its chunk); the views' shared part."""
+
+    def _segments(self, context) -> dict:
+        return context.get_abstract_state(self._state).get_value()
+
+    def GetSegments(self, root_context, kind: str) -> np.ndarray:
+        """(n, 2, 3) segments (start, end; m) of ``kind`` kept in ``root_context``."""
+        return np.array(list(self._segments(self.GetMyContextFromRoot(root_context))[kind])).reshape(-1, 2, 3)
+
+    def Count(self, root_context) -> int:
+        """Error vectors (forward + reverse) kept in ``root_context``: one per measured row."""
+        segments = self._segments(self.GetMyContextFromRoot(root_context))
+        return len(segments["forward"]) + len(segments["reverse"])
+
+    def _draw_segments(self, context, rgba: dict) -> None:
+        for kind, segments in self._segments(context).items():
+            if not segments:
+                continue
+            first = (len(segments) - 1) // CHUNK * CHUNK
+            chunk = np.array(segments[first:], dtype=float)
+            self._meshcat.SetLineSegments(f"{self.path}/{kind}/{first // CHUNK:03d}", chunk[:, 0].T.copy(),
+                                          chunk[:, 1].T.copy(), 2.0, rgba[kind])
+
+
+class ErrorVectors(SegmentLog, LeafSystem):
     """Positioning error vectors of the measured rows, magnified (000 Fig. 11 style).
 
     Inputs ``joint_command`` (4, rad/m: the commanded angles), ``direction``
@@ -151,18 +177,6 @@ class ErrorVectors(LeafSystem):
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_s, offset_s, self._add)
         self.DeclarePeriodicPublishEvent(period_s, (offset_s + 0.25 * period_s) % period_s, self._draw)
 
-    def _segments(self, context) -> dict:
-        return context.get_abstract_state(self._state).get_value()
-
-    def GetSegments(self, root_context, kind: str) -> np.ndarray:
-        """(n, 2, 3) segments (start, end; m) of ``kind`` kept in ``root_context``."""
-        return np.array(list(self._segments(self.GetMyContextFromRoot(root_context))[kind])).reshape(-1, 2, 3)
-
-    def Count(self, root_context) -> int:
-        """Error vectors (forward + reverse) kept in ``root_context``: one per measured row."""
-        segments = self._segments(self.GetMyContextFromRoot(root_context))
-        return len(segments["forward"]) + len(segments["reverse"])
-
     def _add(self, context, state):
         if self.get_input_port(2).Eval(context)[0] < 0.5:
             return
@@ -185,14 +199,7 @@ class ErrorVectors(LeafSystem):
         segments[kind] = segments[kind].appended((tuple(command), tuple(end)))
 
     def _draw(self, context):
-        rgba = {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA, "predicted": PREDICTED_RGBA}
-        for kind, segments in self._segments(context).items():
-            if not segments:
-                continue
-            first = (len(segments) - 1) // CHUNK * CHUNK
-            chunk = np.array(segments[first:], dtype=float)
-            self._meshcat.SetLineSegments(f"{self.path}/{kind}/{first // CHUNK:03d}", chunk[:, 0].T.copy(),
-                                          chunk[:, 1].T.copy(), 2.0, rgba[kind])
+        self._draw_segments(context, {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA, "predicted": PREDICTED_RGBA})
 
 
 def add_campaign_view(builder, meshcat, setup, station, sequencer, steering, error_scale: float = 500.0,

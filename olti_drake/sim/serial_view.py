@@ -22,7 +22,7 @@ from pydrake.geometry import Cylinder, Rgba, Sphere
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from olti_drake.sim.meshcat_view import (BEAM_RADIUS_M, BEAM_RGBA, CHUNK, FORWARD_RGBA, LOST_RGBA, REVERSE_RGBA,
+from olti_drake.sim.meshcat_view import (BEAM_RADIUS_M, BEAM_RGBA, FORWARD_RGBA, LOST_RGBA, REVERSE_RGBA, SegmentLog,
                                          start_meshcat)
 from olti_drake.sim.systems import RecordLog, set_default_name
 
@@ -49,7 +49,7 @@ class ChainToPlantPositions(LeafSystem):
         output.SetFromVector(q)
 
 
-class SerialCampaignView(LeafSystem):
+class SerialCampaignView(SegmentLog, LeafSystem):
     """Stations, beam and error vectors of an N-joint campaign (module docstring).
 
     Inputs ``joint_command`` (N, rad), ``true_position`` (N, rad: actual angles), ``direction`` (N, ±1),
@@ -75,18 +75,6 @@ class SerialCampaignView(LeafSystem):
         for j, p in enumerate(self._stations):
             meshcat.SetObject(f"{prefix}/stations/{j}", Sphere(0.03), STATION_RGBA)
             meshcat.SetTransform(f"{prefix}/stations/{j}", RigidTransform(p))
-
-    def _segments(self, context) -> dict:
-        return context.get_abstract_state(self._state).get_value()
-
-    def GetSegments(self, root_context, kind: str) -> np.ndarray:
-        """(n, 2, 3) error segments (start, end; m) of ``kind`` ('forward', 'reverse') in ``root_context``."""
-        return np.array(list(self._segments(self.GetMyContextFromRoot(root_context))[kind])).reshape(-1, 2, 3)
-
-    def Count(self, root_context) -> int:
-        """Error vectors kept in ``root_context``: one per measured row."""
-        s = self._segments(self.GetMyContextFromRoot(root_context))
-        return len(s["forward"]) + len(s["reverse"])
 
     def _points(self, context):
         cmd = np.degrees(self.GetInputPort("joint_command").Eval(context))
@@ -116,14 +104,7 @@ class SerialCampaignView(LeafSystem):
                 self._meshcat.SetObject(self.beam_path, Cylinder(BEAM_RADIUS_M, length),
                                         BEAM_RGBA if valid else LOST_RGBA)
                 self._meshcat.SetTransform(self.beam_path, RigidTransform(R, (a + b) / 2))
-        rgba = {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA}
-        for kind, segments in self._segments(context).items():
-            if not segments:
-                continue
-            first = (len(segments) - 1) // CHUNK * CHUNK
-            chunk = np.array(segments[first:], dtype=float)
-            self._meshcat.SetLineSegments(f"{self.path}/{kind}/{first // CHUNK:03d}", chunk[:, 0].T.copy(),
-                                          chunk[:, 1].T.copy(), 2.0, rgba[kind])
+        self._draw_segments(context, {"forward": FORWARD_RGBA, "reverse": REVERSE_RGBA})
 
 
 class _ToolPoint:
