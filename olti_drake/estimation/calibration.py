@@ -476,7 +476,10 @@ class LeastSquaresProgram:
             g = J.T @ (w * r)
             cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
             # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
-            tol = 1e-12 * abs(cost)
+            # Exact readings (a synthetic campaign) leave a cost at the rounding floor of the residuals
+            # themselves, eps times the coordinates' size: below it no step can show a decrease.
+            floor = 4.0 * np.finfo(float).eps * max(1.0, float(np.max(np.abs(x)))) * float(np.sum(w * np.abs(r)))
+            tol = max(1e-12 * abs(cost), floor)
             while True:
                 # The user's own variables carry no curvature of the data: damp them by the mean one.
                 D = H.diagonal().copy()
@@ -495,7 +498,8 @@ class LeastSquaresProgram:
             if cost_new > cost:
                 # No step lowers the cost: at the minimum if the quadratic model promised nothing more.
                 at_minimum = predicted <= tol + 1e-300
-                self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost") if at_minimum else (
+                self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost (or the rounding "
+                                    "floor of exact readings)") if at_minimum else (
                     False, f"no step lowers the cost (damping {lam:.0e}) though the model predicts "
                            f"{predicted / max(abs(cost), 1e-300):.1e} of it")
                 break
