@@ -99,6 +99,18 @@ def default_knot_spacing(commands_mm) -> float:
     return float(np.ceil(spacing * 10.0 - 1e-9) / 10.0)
 
 
+def start_tool_offsets(data: MachineCampaign) -> np.ndarray:
+    """(M, 3) mm: tool offsets relative to tool 0 by the 3D self-calibrating multilateration of the same campaign
+    (001 Eq. 2-6, tools estimated from the readings): the start when ``--tool-offsets-mm`` is not given."""
+    from olti_drake.estimation.multilateration import multilaterate
+
+    try:
+        return np.asarray(multilaterate(data).tool_offsets_mm, float)
+    except InputError as e:
+        raise InputError(f"{data.source}: the campaign uses {data.n_tools} tools and no --tool-offsets-mm was given; "
+                         f"estimating them by multilateration failed: {e}") from None
+
+
 def machine_config(data: MachineCampaign, options: VolumetricOptions) -> MachineConfig:
     """The machine of the campaign: travel = the commanded range per axis, the options' tools and knots."""
     c = data.commands_mm
@@ -109,10 +121,7 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
                                       f"identifiable", list(motion_names(a)))
     tools = options.tool_offsets_mm
     if tools is None:
-        if data.n_tools > 1:
-            raise InputError(f"{data.source}: the campaign uses {data.n_tools} tools (column 'tool'): give their "
-                             f"offsets with --tool-offsets-mm 'x,y,z;x,y,z;...' (mm, from the spindle reference point)")
-        tools = [[0.0, 0.0, 0.0]]
+        tools = [[0.0, 0.0, 0.0]] if data.n_tools == 1 else start_tool_offsets(data)
     tools = np.asarray(tools, float)
     if tools.ndim != 2 or tools.shape[1] != 3 or len(tools) != data.n_tools:
         raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but the campaign uses tool indices "
@@ -219,6 +228,10 @@ class VolumetricIdentification(LeastSquaresProgram):
         self.x0 = np.concatenate([np.zeros(self.n_model), stations0.ravel(), dead0])
         self.gauge = GAUGE
         self.notes.extend(f"{n}: {why}" for n, why in self.held.items())
+        if o.tool_offsets_mm is None and data.n_tools > 1:
+            self.notes.append("tool offsets not given (--tool-offsets-mm): started from the 3D multilateration's "
+                              "estimate relative to tool 0: " + "; ".join(
+                                  ",".join(f"{v:.4f}" for v in t) for t in self.config.tools) + " mm")
 
     def _check_counts(self):
         d = self.data
