@@ -359,6 +359,18 @@ def _mesh_found(uri: str, folder: Path, package_map) -> bool:
 
 
 # --------------------------------------------------------------- Drake oracle
+def _posed(chain: SerialChain, theta_deg):
+    """Yield (k, the nominal plant's context with the chain's joints at row k of ``theta_deg`` (M, N) deg);
+    joints off the chain stay at their defaults. One context, re-posed: use it before the next row."""
+    plant = chain.plant
+    context = plant.CreateDefaultContext()
+    joints = [plant.GetJointByName(name) for name in chain.joint_names]
+    for k, row in enumerate(np.atleast_2d(np.asarray(theta_deg, dtype=float)) * DEG):
+        for joint, angle in zip(joints, row):
+            joint.set_angle(context, angle)
+        yield k, context
+
+
 def drake_kinematics(chain: SerialChain, theta_deg, tool_offset_mm=(0.0, 0.0, 0.0),
                      jacobian: bool = True):
     """The same tool point and joint-angle Jacobian from the Drake plant, one pose at a time.
@@ -371,18 +383,14 @@ def drake_kinematics(chain: SerialChain, theta_deg, tool_offset_mm=(0.0, 0.0, 0.
     from pydrake.multibody.tree import JacobianWrtVariable
 
     plant = chain.plant
-    context = plant.CreateDefaultContext()
-    joints = [plant.GetJointByName(name) for name in chain.joint_names]
-    starts = [j.position_start() for j in joints]
+    starts = [plant.GetJointByName(name).position_start() for name in chain.joint_names]
     frame = plant.get_frame(chain.tool_frame_index)
     world = plant.world_frame()
     point = np.asarray(tool_offset_mm, float).reshape(3, 1) / 1000.0
-    th = np.atleast_2d(np.asarray(theta_deg, dtype=float)) * DEG
-    positions = np.empty((th.shape[0], 3))
-    jac = np.empty((th.shape[0], 3, len(joints))) if jacobian else None
-    for k, row in enumerate(th):
-        for joint, angle in zip(joints, row):
-            joint.set_angle(context, angle)
+    m = np.atleast_2d(theta_deg).shape[0]
+    positions = np.empty((m, 3))
+    jac = np.empty((m, 3, chain.n_joints)) if jacobian else None
+    for k, context in _posed(chain, theta_deg):
         positions[k] = plant.CalcPointsPositions(context, frame, point, world)[:, 0] * 1000.0
         if jacobian:
             full = plant.CalcJacobianTranslationalVelocity(
@@ -403,18 +411,13 @@ def gravity_torques(chain: SerialChain, theta_deg, payload_kg: float = 0.0, tool
     from pydrake.multibody.tree import JacobianWrtVariable
 
     plant = chain.plant
-    context = plant.CreateDefaultContext()
-    joints = [plant.GetJointByName(name) for name in chain.joint_names]
-    vstarts = [j.velocity_start() for j in joints]
+    vstarts = [plant.GetJointByName(name).velocity_start() for name in chain.joint_names]
     frame = plant.get_frame(chain.tool_frame_index)
     world = plant.world_frame()
     point = np.asarray(tool_offset_mm, float).reshape(3, 1) / 1000.0
     weight = np.array([0.0, 0.0, -9.81 * payload_kg])
-    th = np.atleast_2d(np.asarray(theta_deg, dtype=float)) * DEG
-    out = np.empty(th.shape)
-    for k, row in enumerate(th):
-        for joint, angle in zip(joints, row):
-            joint.set_angle(context, angle)
+    out = np.empty(np.atleast_2d(theta_deg).shape)
+    for k, context in _posed(chain, theta_deg):
         tau = plant.CalcGravityGeneralizedForces(context)
         out[k] = tau[vstarts]
         if payload_kg:
