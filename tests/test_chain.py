@@ -219,7 +219,11 @@ def test_unreadable_model_is_one_line(tmp_path):
                    '<parent link="a"/><child link="missing"/></joint></robot>')
     with pytest.raises(ValueError, match="robot model .*bad.urdf: ") as info:
         load_serial_chain(bad, "a")
-    assert "\n" not in str(info.value)
+    assert "\n" not in str(info.value) and "error:" not in str(info.value).lower()  # Drake's own prefix dropped
+    xacro = tmp_path / "arm.urdf.xacro"
+    xacro.write_text('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><link name="a"/></robot>')
+    with pytest.raises(ValueError, match=r"a xacro file; expand it first \(xacro arm.urdf.xacro > robot.urdf\)"):
+        load_serial_chain(xacro, "a")
 
 
 # -------------------------------------------------------------------- base set

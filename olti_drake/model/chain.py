@@ -215,6 +215,9 @@ def load_serial_chain(path, tool_frame: str) -> SerialChain:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"robot model {path}: file not found")
+    if path.name.endswith(".xacro"):  # ROS macro files are not robot descriptions until expanded
+        raise ValueError(f"robot model {path}: a xacro file; expand it first (xacro {path.name} > robot.urdf) and "
+                         f"give the URDF")
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
     try:
@@ -243,8 +246,16 @@ def load_serial_chain(path, tool_frame: str) -> SerialChain:
 
 
 def _first_line(exc) -> str:
+    """The first non-empty line of Drake's message without its own ``error:`` (the CLI puts one first):
+    ``FILE:LINE: error: text`` -> ``line LINE: text`` (the file is named by the caller), ``error: text`` -> text."""
+    import re
+
     lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    return lines[0] if lines else type(exc).__name__
+    first = lines[0] if lines else type(exc).__name__
+    located = re.match(r"^.*?:(\d+): error: (.*)$", first)
+    if located:
+        return f"line {located.group(1)}: {located.group(2)}"
+    return first[len("error:"):].strip() if first.lower().startswith("error:") else first
 
 
 def _pose_mm(transform) -> np.ndarray:
