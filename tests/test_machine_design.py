@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from olti_drake.cli.verbs import main
 from olti_drake.estimation.machine_design import (MachineStationInformation, check_design_space,
                                                   design_machine_stations)
 from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, machine_campaign
 from olti_drake.io.budget import ReadingErrors, default_budget
 from olti_drake.io.csvio import InputError
 from olti_drake.model.machine import write_machine_campaign
+from tests.test_cli_outputs import _olti
 
 STATIONS = np.array([[-300, -200, 0], [700, -250, 50], [600, 600, 300], [-200, 500, 400], [200, 150, 900.]])
 DEAD_PATHS = np.array([0.3, 1.2, -0.4, 2.0, 0.7])
@@ -94,15 +94,6 @@ def test_degenerate_design_spaces_are_refused_by_name(solved):
     flat[:, 2] = 0.0
     with pytest.raises(InputError, match="targets lie in one plane"):
         MachineStationInformation(flat, flat, "best-fit", ReadingErrors(default_budget("machine")))
-
-
-def _olti(capsys, *argv):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_olti_design_on_a_3d_multilateration_result(tmp_path, capsys):

@@ -43,6 +43,12 @@ def simulate_campaign(k, path, n=300, seed=1):
     """A 3D distance campaign of the truth: the 8 travel corners and n random commands, each with every one of
     k tools, read from every station with the 001 Table 4 noise. Returns (config, truth)."""
     cfg, truth = truth_machine(k)
+    write_campaign(cfg, truth, k, path, n, seed)
+    return cfg, truth
+
+
+def write_campaign(cfg, truth, k, path, n, seed):
+    """Write the campaign of ``simulate_campaign`` for any config and truth (seeded)."""
     rng = np.random.default_rng(seed)
     lo, hi = (np.array([cfg.travel_mm[a][e] for a in AXES]) for e in (0, 1))
     corners = [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
@@ -53,7 +59,6 @@ def simulate_campaign(k, path, n=300, seed=1):
     i, j = np.repeat(np.arange(len(cmd)), len(STATIONS)), np.tile(np.arange(len(STATIONS)), len(cmd))
     write_machine_campaign({"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
                             "z_cmd_mm": cmd[i, 2], "tool": tool[i], "displacement_mm": reading.ravel()}, path)
-    return cfg, truth
 
 
 def _olti(capsys, *argv):

@@ -10,16 +10,13 @@ import numpy as np
 import pytest
 
 from olti_drake.cli.verbs import main
-from olti_drake.io.budget import ReadingErrors, default_budget
 from olti_drake.io.volumetric_io import load_volumetric_result
 from olti_drake.model.machine import write_machine_campaign
-from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, synthetic_truth,
-                                           tool_positions)
+from olti_drake.model.volumetric3d import ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, synthetic_truth
 from olti_drake.report.volumetric_report import grid_pitch_mm, volumetric_figures
 
-TOOLS = ((0.0, 0.0, 100.0), (150.0, 0.0, 100.0), (0.0, 150.0, 140.0))
-STATIONS = np.array([[-300, -200, 0], [700, -250, 50], [600, 600, 300], [-200, 500, 400], [200, 150, 900.]])
-DEAD_PATHS = np.array([0.3, 1.2, -0.4, 2.0, 0.7])
+from tests.test_volumetric_cli import DEAD_PATHS, STATIONS, _olti, write_campaign
+from tests.test_volumetric_cli import NOMINAL_TOOLS as TOOLS
 
 
 def simulate(path, k, n=150, seed=1):
@@ -27,25 +24,7 @@ def simulate(path, k, n=150, seed=1):
     five stations, the 001 Table 4 noise."""
     cfg = MachineConfig(tool_offsets_mm=TOOLS[:k], knot_spacing_mm=100.0)
     truth = synthetic_truth(cfg, 3)
-    rng = np.random.default_rng(seed)
-    lo, hi = (np.array([cfg.travel_mm[a][e] for a in AXES]) for e in (0, 1))
-    corners = [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-    c = np.vstack([corners, rng.uniform(lo, hi, (n, 3))])
-    cmd, tool = np.tile(c, (k, 1)), np.repeat(np.arange(k), len(c))
-    D = np.linalg.norm(tool_positions(cfg, truth, cmd, tool)[:, None] - STATIONS[None], axis=-1)
-    reading = D - DEAD_PATHS + ReadingErrors(default_budget("machine")).draw(rng, D.ravel(), 1)[0].reshape(D.shape)
-    i, j = np.repeat(np.arange(len(cmd)), len(STATIONS)), np.tile(np.arange(len(STATIONS)), len(cmd))
-    write_machine_campaign({"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
-                            "z_cmd_mm": cmd[i, 2], "tool": tool[i], "displacement_mm": reading.ravel()}, path)
-
-
-def _olti(capsys, *argv):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
+    write_campaign(cfg, truth, k, path, n, seed)
 
 
 @pytest.fixture(scope="module")
