@@ -94,8 +94,12 @@ def test_user_variable_same_answer_in_both_paths(data):
         ident = _ident(data, "dh", solver=solver)
         _shared_offset(ident)
         out[solver] = ident.fit()
-    assert np.abs(out["lm"].x - out["nlp"].x).max() < TOL
-    assert out["lm"].extra["offset_mm"] == pytest.approx(out["nlp"].extra["offset_mm"], abs=TOL)
+    # The dh model leaves mm residuals on this campaign (u ~ 1 mm): both solvers' stopping tests allow
+    # ~1e-5 u (the relative cost tolerance 1e-12); they must agree far below u.
+    lm, nlp = out["lm"], out["nlp"]
+    assert np.all(np.abs(lm.x - nlp.x) <= 1e-4 * lm.std + TOL)
+    i = lm.names.index("d0_0_mm")
+    assert lm.extra["offset_mm"] == pytest.approx(nlp.extra["offset_mm"], abs=1e-4 * lm.std[i] + TOL)
     assert out["lm"].extra["offset_mm"] == pytest.approx(out["lm"].x[out["lm"].names.index("d0_0_mm")], abs=1e-9)
 
 

@@ -74,6 +74,12 @@ SMALL_PROBLEM = 300
 LARGE_PROBLEM = 500
 #: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
 LANCZOS_TOLERANCE = 1e-7
+#: Above this many decision variables one factorization of the normal matrix costs seconds: the identifiability
+#: check's rank and variance work runs in a thread beside LM (LAPACK releases the GIL), and the covariance
+#: reuses the check's factorization when the normal matrix at the solution differs from the start's by at
+#: most :data:`REUSE_TOLERANCE` in its metric -- every variance is then within that factor of the solution's.
+REUSE_ABOVE = 2000
+REUSE_TOLERANCE = 0.02
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
@@ -290,11 +296,14 @@ class LeastSquaresProgram:
         N = _null_space(A / s) if A.size else np.eye(len(s))
         return N.T @ (H / np.outer(s, s)) @ N, N, s
 
-    def check_identifiability(self, x=None) -> float:
+    def check_identifiability(self, x=None, defer: bool = False):
         """Raise :class:`UnidentifiableError` naming what the readings cannot determine; return cond.
 
         Checks the Jacobian at ``x`` (default the start): parameters no reading
-        touches, then rank and conditioning within the constraints.
+        touches, then rank and conditioning within the constraints. ``defer`` (large problems, from
+        :meth:`fit`): when the Cholesky factorization succeeds, the rank and condition (Lanczos) and the
+        variances are computed in a thread beside the solver, and :meth:`_confirm_identifiable` raises the same
+        error after it (before anything is accepted); returns None then.
         """
         x = self.x0 if x is None else x
         r, J = self.residuals(x)
@@ -306,19 +315,41 @@ class LeastSquaresProgram:
         # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
         if untouched:
-            raise UnidentifiableError(f"not identifiable: {_listing(untouched)} -- no valid reading touches "
-                                      f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})",
-                                      untouched)
+            raise self._explain(UnidentifiableError(
+                f"not identifiable: {_listing(untouched)} -- no valid reading touches "
+                f"{'it' if len(untouched) == 1 else 'them'} ({self.untouched_hint})", untouched))
         within = self.within(H, overwrite=True)
-        names = within.weak_names(self._all_names())
-        if names:
-            lam = within._eigh()[0]
-            weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
-            raise UnidentifiableError(f"not identifiable: {_listing(names)} -- a combination of them leaves every "
-                                      f"reading unchanged (rank deficient by {weak}; {self.rank_hint})", names)
         self._within0 = within  # the large path's LM steps are preconditioned by it
+        self._deferred = defer and within.large and within.factorized
+        if self._deferred:
+            within.start_background()
+            return None
+        self._raise_if_weak(within)
         low, top = within.extremes()
         return float(np.sqrt(top / low))
+
+    def _raise_if_weak(self, within: "Within") -> None:
+        names = within.weak_names(self._all_names())
+        if names:
+            self._within0 = None
+            lam = within._eigh()[0]
+            weak = int(np.sum(lam < RANK_TOLERANCE * lam[-1]))
+            raise self._explain(UnidentifiableError(
+                f"not identifiable: {_listing(names)} -- a combination of them leaves every reading unchanged "
+                f"(rank deficient by {weak}; {self.rank_hint})", names))
+
+    def _explain(self, error: UnidentifiableError) -> UnidentifiableError:
+        """Hook: a model may add where in the campaign the named parameters' readings are."""
+        return error
+
+    def _confirm_identifiable(self, wait: bool = True) -> None:
+        """The deferred part of :meth:`check_identifiability`: raise its error once the thread has decided
+        (``wait`` False: only if it already has -- polled by LM, so a deficient problem stops early)."""
+        within = getattr(self, "_within0", None)
+        if not getattr(self, "_deferred", False) or within is None or not (wait or within.background_done()):
+            return
+        self._deferred = False
+        self._raise_if_weak(within)
 
     def _normal(self, J, w) -> np.ndarray:
         """JᵀWJ dense; small problems keep the last one: the identifiability check's is LM's first, LM's last
@@ -435,18 +466,24 @@ class LeastSquaresProgram:
 
     def _fit(self) -> "Fit":
         o = self.options
-        for _ in range(len(self.names)):
-            try:
-                self.check_identifiability()
-                break
-            except UnidentifiableError as e:
-                if not o.regularize:
-                    raise
-                self._regularize(e)
         self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
-        x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
-        self._within0 = None  # the large path's preconditioner (n x n): done with it
-        return self._finish(x, iterations, weights)
+        defer = o.solver == "lm" and self.n_all > REUSE_ABOVE
+        try:
+            for _ in range(len(self.names)):
+                try:
+                    self.check_identifiability(defer=defer)
+                    x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
+                    self._confirm_identifiable()
+                    break
+                except UnidentifiableError as e:
+                    if not o.regularize:
+                        raise
+                    self._regularize(e)
+            return self._finish(x, iterations, weights)
+        finally:
+            within, self._within0 = getattr(self, "_within0", None), None  # (n x n): done with it
+            if within is not None:
+                within.wait()
 
     def _weights(self, r):
         if self.options.loss == "l2":
@@ -471,10 +508,12 @@ class LeastSquaresProgram:
         # the constraints, preconditioned by the factorization of the identifiability check (no n x n work).
         prior = self.quadratic_costs() if self._steps_by_cg() else None
         for _ in range(self.options.max_iterations):
+            self._confirm_identifiable(wait=False)
             w = self._weights(r)
             H = _NormalOperator(J, w) if prior is not None else self._normal(J, w)
             g = J.T @ (w * r)
-            cost = 0.5 * np.sum(w * r * r) + self._user_cost(x)
+            user = self._user_cost(x)
+            cost = 0.5 * np.sum(w * r * r) + user
             # Quadratic user costs carry no constant term, so the cost may be negative: tolerances on |cost|.
             # Exact readings (a synthetic campaign) leave a cost at the rounding floor of the residuals
             # themselves, eps times the coordinates' size: below it no step can show a decrease.
@@ -486,16 +525,22 @@ class LeastSquaresProgram:
                 D[D == 0] = np.mean(D[D > 0]) if (D > 0).any() else 1.0
                 delta = (self._cg_step(x, H, lam * D, g, prior) if prior is not None
                          else self._step(x, H + lam * np.diag(D), g))
+                # What the quadratic model promises: below 1e-12 of the cost we are at the minimum, known before
+                # evaluating the step (at large scale an evaluation is a third of the fit's time). Not at the
+                # rounding floor of exact readings: there the step is still taken, and judged by its cost.
+                # (The user's costs are linear or quadratic: their change is exact.)
                 x_new = x + delta
+                user_new = self._user_cost(x_new)
+                predicted = -(g @ delta + 0.5 * delta @ (H @ delta)) + user - user_new
+                if predicted <= 1e-12 * abs(cost):
+                    break
                 r_new, J_new = self.residuals(x_new[:n])
                 J_new = self._pad(J_new)
-                cost_new = 0.5 * np.sum(w * r_new * r_new) + self._user_cost(x_new)
-                # What the quadratic model promised: below rounding level, we are at the minimum.
-                predicted = -(g @ delta + 0.5 * delta @ (H @ delta))
+                cost_new = 0.5 * np.sum(w * r_new * r_new) + user_new
                 if cost_new <= cost or predicted <= tol or lam > 1e12:
                     break
                 lam *= 8.0
-            if cost_new > cost:
+            if predicted <= 1e-12 * abs(cost) or cost_new > cost:
                 # No step lowers the cost: at the minimum if the quadratic model promised nothing more.
                 at_minimum = predicted <= tol + 1e-300
                 self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost (or the rounding "
@@ -644,12 +689,14 @@ class LeastSquaresProgram:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
         J = self._pad(J)
-        H = self._normal(J, weights)
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
-        within = self.within(H + prior) if prior.any() else None
-        data = self.within(H, overwrite=True)
-        within = within or data
+        within = data = self._start_factor(J, weights, prior)
+        if within is None:
+            H = self._normal(J, weights)
+            within = self.within(H + prior) if prior.any() else None
+            data = self.within(H, overwrite=True)
+            within = within or data
         cond = data.condition()
         self._stop = getattr(self, "_stop", (True, "solved"))
         self._weak = within.weak_names(self._all_names())  # what the covariance (with priors) cannot determine
@@ -669,6 +716,26 @@ class LeastSquaresProgram:
         return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
                    stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
+
+
+    def _start_factor(self, J, w, prior):
+        """The identifiability check's factorization (at the start), when it may serve the covariance at the
+        solution: above :data:`REUSE_ABOVE` variables, no priors, and the normal matrices at the start and the
+        solution differing by at most :data:`REUSE_TOLERANCE` in its metric (:meth:`Within.metric_change`):
+        every variance is then within that factor of the solution's. None otherwise (refactorize)."""
+        within, checked = getattr(self, "_within0", None), getattr(self, "_checked", None)
+        if within is None or checked is None or self.n_all <= REUSE_ABOVE or not within.factorized or prior.any():
+            return None
+        J0 = self._pad(checked[2])
+        eps = within.metric_change(J0, np.ones(J0.shape[0]), J, w)
+        if not eps <= REUSE_TOLERANCE:
+            return None
+        stated = _round_up(eps)
+        self.notes.append(f"standard uncertainties and condition number from the identifiability check's "
+                          f"factorization at the start: the normal matrices at the start and at the solution differ "
+                          f"by {stated:.2g} in its metric (estimated), so every variance is within that factor of "
+                          f"the solution's (u within {50 * stated:.2g} %)")
+        return within
 
 
 # -- the algebra within the constraints ------------------------------------------------------------
@@ -696,7 +763,7 @@ class Within:
         self.large = large
         self.n = len(self.s)
         As = A / self.s if A.size else np.zeros((0, self.n))
-        self._U = self._K = self._lam = self._vec = self._N = self._extremes = None
+        self._U = self._K = self._lam = self._vec = self._N = self._extremes = self._diag = None
         if not large:
             self._N = _null_space(As) if As.size else np.eye(self.n)
             self.M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
@@ -715,6 +782,67 @@ class Within:
     def dim(self) -> int:
         """Dimension of the null space (the free parameter combinations)."""
         return self.M.shape[0]
+
+    @property
+    def factorized(self) -> bool:
+        """Large path with a Cholesky factor of M (M numerically positive definite)."""
+        return self._U is not None
+
+    # -- reporting work beside the solver --------------------------------------------------------
+    def start_background(self) -> None:
+        """Compute the extreme eigenvalues and the variances in a thread (large path, factorized): LAPACK
+        and the BLAS release the GIL, so on a second core this runs beside the solver's evaluations. The
+        accessors wait for it; the results are the same numbers as computed in line."""
+        import threading
+
+        def work():
+            try:
+                self._extremes = self._compute_extremes()
+                self._diag = self._row_norms()
+            except BaseException as e:  # re-raised by wait(), in the caller's thread
+                self._job_error = e
+
+        self._job_error = None
+        self._job = threading.Thread(target=work, name="olti-within", daemon=True)
+        self._job.start()
+
+    def background_done(self) -> bool:
+        job = getattr(self, "_job", None)
+        return job is None or not job.is_alive()
+
+    def wait(self) -> None:
+        """Wait for :meth:`start_background`'s thread; raise what it raised."""
+        job = getattr(self, "_job", None)
+        if job is None:
+            return
+        job.join()
+        self._job = None
+        if self._job_error is not None:
+            raise self._job_error
+
+    def metric_change(self, J0, w0, J1, w1, block: int = 4, iterations: int = 10, seed: int = 0) -> float:
+        """‖F‖₂ estimated, F = U⁻ᵀ Nᵀ S⁻¹ (J1ᵀW1J1 − J0ᵀW0J0) S⁻¹ N U⁻¹: how far the normal matrix of (J1, w1)
+        is from this one (of J0, w0) in its own metric. M1 = Uᵀ(I + F)U, so M1⁻¹ lies between M⁻¹/(1 + ‖F‖)
+        and M⁻¹/(1 − ‖F‖): every variance, and the condition number's square, within that factor. Block power
+        iteration (``block`` seeded vectors, Rayleigh-Ritz), stopped when the estimate changes by < 5 %."""
+        J0, J1 = J0.tocsr(), J1.tocsr()
+        s = self.s[:, None]
+
+        def apply(V):
+            Z = self.to_full(lapack.dtrtrs(self._U, V)[0]) / s
+            D = J1.T @ (w1[:, None] * (J1 @ Z)) - J0.T @ (w0[:, None] * (J0 @ Z))
+            return lapack.dtrtrs(self._U, self.to_null(np.asarray(D) / s), trans=1)[0]
+
+        V = np.linalg.qr(np.random.default_rng(seed).normal(size=(self.dim, min(block, self.dim))))[0]
+        estimate = 0.0
+        for _ in range(iterations):
+            W = apply(V)
+            new = float(np.abs(np.linalg.eigvalsh(0.5 * (V.T @ W + W.T @ V))).max())
+            V = np.linalg.qr(W)[0]
+            if abs(new - estimate) <= 0.05 * new:
+                return new
+            estimate = new
+        return estimate
 
     # -- the null-space basis ------------------------------------------------------------------
     def _householder(self, As):
@@ -777,6 +905,7 @@ class Within:
     def extremes(self):
         """(smallest, largest) eigenvalue of M (the smallest 0 when M is not positive definite: large path);
         computed once."""
+        self.wait()
         if self._extremes is None:
             self._extremes = self._compute_extremes()
         return self._extremes
@@ -843,8 +972,27 @@ class Within:
         """diag((N/s) M⁻¹ (N/s)ᵀ): the variances within the constraints per unit σ²."""
         if not self.large:
             return np.diag(self.inverse())
-        K = self._factor_rows()
-        return np.einsum("ij,ij->i", K, K)
+        self.wait()
+        if self._diag is None:
+            self._diag = self._row_norms()
+        return self._diag
+
+    def _row_norms(self) -> np.ndarray:
+        """diag(K Kᵀ), K = (N U⁻¹) / s, without forming K (large path): the reflectors touch only the rows
+        ``_rows``, so every other row of N is a unit row and K's row is a row of U⁻¹; the few rows the
+        constraints involve are formed from Q's (|rows|, |rows|) block."""
+        Uinv, _ = lapack.dtrtri(self._U, lower=0)
+        d = np.zeros(self.n)
+        d[self.r:] = np.einsum("ij,ij->i", Uinv, Uinv)
+        if self.r:
+            rows = self._rows
+            E = np.zeros((self.n, len(rows)), order="F")
+            E[rows, np.arange(len(rows))] = 1.0
+            Q_rows = self._apply_q(E, "L", "N", overwrite=True)[rows]  # Q[rows, rows]
+            free = rows >= self.r
+            K_rows = Q_rows[:, free] @ Uinv[rows[free] - self.r]
+            d[rows] = np.einsum("ij,ij->i", K_rows, K_rows)
+        return d / self.s ** 2
 
     def inverse(self) -> np.ndarray:
         """(N/s) M⁻¹ (N/s)ᵀ (n, n): the covariance within the constraints per unit σ²."""
@@ -981,6 +1129,14 @@ def _normal_matrix(J, w) -> np.ndarray:
     H[dense[:, None], rest] = cross.T
     H[dense[:, None], dense] = Jd.T @ WJd
     return H
+
+
+def _round_up(v: float, digits: int = 2) -> float:
+    """v > 0 rounded up to ``digits`` significant digits (a stated bound is not understated by rounding)."""
+    if not v > 0:
+        return 0.0
+    e = 10.0 ** (np.floor(np.log10(v)) - digits + 1)
+    return float(np.ceil(v / e - 1e-9) * e)
 
 
 def _rms(v) -> float:

@@ -265,16 +265,11 @@ class Identifier(LeastSquaresProgram):
         r, _, _ = self.residual_rows(np.asarray(x)[None])
         return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
-    def check_identifiability(self, x=None) -> float:
-        """As :meth:`LeastSquaresProgram.check_identifiability`; a map node no reading touches is also
-        named by the campaign lines that command that axis near it (often one mistyped angle)."""
-        try:
-            return super().check_identifiability(x)
-        except UnidentifiableError as e:
-            where = self._node_readings(e.names[0]) if e.names else ""
-            if not where:
-                raise
-            raise UnidentifiableError(f"{e}; {where}", e.names) from None
+    def _explain(self, error: UnidentifiableError) -> UnidentifiableError:
+        """A map node no reading touches is also named by the campaign lines that command that axis near it
+        (often one mistyped angle)."""
+        where = self._node_readings(error.names[0]) if error.names else ""
+        return UnidentifiableError(f"{error}; {where}", error.names) if where else error
 
     def _node_readings(self, name: str) -> str:
         """Where the readings near a map-node parameter's node are (file lines, directions), or ''."""
