@@ -763,10 +763,11 @@ class Within:
         self.large = large
         self.n = len(self.s)
         As = A / self.s if A.size else np.zeros((0, self.n))
-        self._U = self._K = self._lam = self._vec = self._N = self._extremes = self._diag = None
+        self._U = self._K = self._lam = self._vec = self._N = self._extremes = self._diag = self._M = None
         if not large:
             self._N = _null_space(As) if As.size else np.eye(self.n)
-            self.M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
+            self._M = self._N.T @ (H / np.outer(self.s, self.s)) @ self._N
+            self._dim, self._finite = self._M.shape[0], bool(np.all(np.isfinite(self._M)))
             return
         self._householder(As)
         Hs = H if overwrite else H.copy()
@@ -774,14 +775,36 @@ class Within:
         Hs /= self.s[None, :]
         # Hs is symmetric: its transpose is the same numbers in Fortran order, which LAPACK overwrites in place.
         QHQ = self._apply_q(self._apply_q(Hs.T, "L", "T", overwrite=True), "R", "N", overwrite=True)
-        self.M = np.asfortranarray(QHQ[self.r:, self.r:])
-        U, info = lapack.dpotrf(self.M, lower=0, clean=1)
-        self._U = U if info == 0 and np.all(np.isfinite(U)) else None
+        # At thousands of unknowns every n x n array costs a pass and fresh pages: M = QHQ[r:, r:] is moved to
+        # the front of the same memory and factorized in place -- U in its upper triangle, M's strict lower
+        # triangle kept (its diagonal saved) for the products with M and the refusal's eigen-decomposition.
+        M = _leading_block(QHQ, self.r)
+        self._dim, self._finite = M.shape[0], bool(np.all(np.isfinite(M)))
+        self._M_diag = np.diag(M).copy()
+        packed, info = lapack.dpotrf(M, lower=0, clean=0, overwrite_a=1)
+        self._packed = packed
+        self._diag_fix = self._M_diag - np.diag(packed)  # dsymv on the lower triangle sees U's diagonal
+        self._U = packed if info == 0 and self._finite and np.all(np.isfinite(np.diag(packed))) else None
 
     @property
     def dim(self) -> int:
         """Dimension of the null space (the free parameter combinations)."""
-        return self.M.shape[0]
+        return self._dim
+
+    @property
+    def M(self) -> np.ndarray:
+        """Nᵀ (H / s sᵀ) N (dim, dim); on the large path rebuilt on demand from the factor's memory (the
+        refusal's eigen-decomposition, tests) -- the factor uses only its upper triangle."""
+        if self._M is None:
+            lower = np.tril(self._packed, -1)
+            self._M = lower + lower.T + np.diag(self._M_diag)
+        return self._M
+
+    def _times_M(self, v) -> np.ndarray:
+        """M v (large path) from the lower triangle kept beside the factor."""
+        from scipy.linalg import blas
+
+        return blas.dsymv(1.0, self._packed, v, lower=1) + self._diag_fix * v
 
     @property
     def factorized(self) -> bool:
@@ -820,11 +843,12 @@ class Within:
         if self._job_error is not None:
             raise self._job_error
 
-    def metric_change(self, J0, w0, J1, w1, block: int = 4, iterations: int = 10, seed: int = 0) -> float:
+    def metric_change(self, J0, w0, J1, w1, block: int = 6, iterations: int = 12, seed: int = 0) -> float:
         """‖F‖₂ estimated, F = U⁻ᵀ Nᵀ S⁻¹ (J1ᵀW1J1 − J0ᵀW0J0) S⁻¹ N U⁻¹: how far the normal matrix of (J1, w1)
         is from this one (of J0, w0) in its own metric. M1 = Uᵀ(I + F)U, so M1⁻¹ lies between M⁻¹/(1 + ‖F‖)
         and M⁻¹/(1 − ‖F‖): every variance, and the condition number's square, within that factor. Block power
-        iteration (``block`` seeded vectors, Rayleigh-Ritz), stopped when the estimate changes by < 5 %."""
+        iteration (``block`` seeded vectors, Rayleigh-Ritz: a Ritz value, never above ‖F‖), stopped when the
+        estimate changed by < 2 % twice in a row (once can be a slow climb)."""
         J0, J1 = J0.tocsr(), J1.tocsr()
         s = self.s[:, None]
 
@@ -834,14 +858,15 @@ class Within:
             return lapack.dtrtrs(self._U, self.to_null(np.asarray(D) / s), trans=1)[0]
 
         V = np.linalg.qr(np.random.default_rng(seed).normal(size=(self.dim, min(block, self.dim))))[0]
-        estimate = 0.0
+        estimate, settled = 0.0, 0
         for _ in range(iterations):
             W = apply(V)
             new = float(np.abs(np.linalg.eigvalsh(0.5 * (V.T @ W + W.T @ V))).max())
             V = np.linalg.qr(W)[0]
-            if abs(new - estimate) <= 0.05 * new:
-                return new
-            estimate = new
+            settled = settled + 1 if abs(new - estimate) <= 0.02 * new else 0
+            estimate = max(estimate, new)
+            if settled == 2:
+                break
         return estimate
 
     # -- the null-space basis ------------------------------------------------------------------
@@ -918,7 +943,8 @@ class Within:
 
         v0 = np.ones(self.dim)
         try:
-            top = eigsh(self.M, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE, return_eigenvectors=False)[0]
+            M = LinearOperator((self.dim, self.dim), matvec=self._times_M, dtype=float)
+            top = eigsh(M, k=1, which="LA", v0=v0, tol=LANCZOS_TOLERANCE, return_eigenvectors=False)[0]
             if self._U is None:
                 return 0.0, top
             inv = LinearOperator((self.dim, self.dim), matvec=self.solve, dtype=float)
@@ -940,7 +966,7 @@ class Within:
 
     def weak_names(self, names) -> list:
         """What M cannot determine: the parameters in its near-null space (none when positive definite)."""
-        if not np.all(np.isfinite(self.M)):
+        if not self._finite:
             return list(names)
         if self.large and not self.deficient():
             return []
@@ -964,8 +990,7 @@ class Within:
     def _factor_rows(self) -> np.ndarray:
         """K = (N U⁻¹) / s (n, dim): the covariance within the constraints is K Kᵀ (large path)."""
         if self._K is None:
-            Uinv, _ = lapack.dtrtri(self._U, lower=0)
-            self._K = self.to_full(Uinv) / self.s[:, None]
+            self._K = self.to_full(self._inverse_factor()) / self.s[:, None]
         return self._K
 
     def inverse_diagonal(self) -> np.ndarray:
@@ -981,7 +1006,7 @@ class Within:
         """diag(K Kᵀ), K = (N U⁻¹) / s, without forming K (large path): the reflectors touch only the rows
         ``_rows``, so every other row of N is a unit row and K's row is a row of U⁻¹; the few rows the
         constraints involve are formed from Q's (|rows|, |rows|) block."""
-        Uinv, _ = lapack.dtrtri(self._U, lower=0)
+        Uinv = self._inverse_factor()
         d = np.zeros(self.n)
         d[self.r:] = np.einsum("ij,ij->i", Uinv, Uinv)
         if self.r:
@@ -993,6 +1018,13 @@ class Within:
             K_rows = Q_rows[:, free] @ Uinv[rows[free] - self.r]
             d[rows] = np.einsum("ij,ij->i", K_rows, K_rows)
         return d / self.s ** 2
+
+    def _inverse_factor(self) -> np.ndarray:
+        """U⁻¹ (dim, dim), upper triangular (the factor's memory holds M below the diagonal: cleared)."""
+        Uinv, _ = lapack.dtrtri(self._U, lower=0)
+        for j in range(self.dim - 1):  # column by column: contiguous in Fortran order, no index arrays
+            Uinv[j + 1:, j] = 0.0
+        return Uinv
 
     def inverse(self) -> np.ndarray:
         """(N/s) M⁻¹ (N/s)ᵀ (n, n): the covariance within the constraints per unit σ²."""
@@ -1073,8 +1105,8 @@ class _NormalOperator:
         self.JT = self.J.T.tocsr()
 
     def diagonal(self) -> np.ndarray:
-        rows = np.repeat(self.w, np.diff(self.J.indptr))
-        return np.bincount(self.J.indices, weights=rows * self.J.data ** 2, minlength=self.J.shape[1])
+        JT = self.JT  # Σ_k w_k J_ki²: a product of Jᵀ's squares (sharing its index arrays) with w
+        return sp.csr_matrix((JT.data ** 2, JT.indices, JT.indptr), shape=JT.shape) @ self.w
 
     def __matmul__(self, v):
         return self.JT @ (self.w * (self.J @ v))
@@ -1103,32 +1135,47 @@ def _pcg(apply, b, precondition, rtol=1e-10, max_iterations=100):
 
 
 def _normal_matrix(J, w) -> np.ndarray:
-    """Dense JᵀWJ; through a dense J when it is narrow (sparse products cost more there). Wide: the columns
-    that many rows touch (geometry, stations) as a dense block by BLAS, only the rest (map nodes, a few per
-    row) by a sparse product -- which would otherwise spend most of its time on the busy columns."""
+    """Dense JᵀWJ (w ≥ 0); through a dense J when it is narrow (sparse products cost more there). Wide: the
+    columns that many rows touch (geometry, stations) as a dense block by BLAS; the rest (map nodes, a few per
+    row) by a sparse product written straight into the result (one n x n array: at thousands of unknowns
+    every extra one costs a pass and fresh pages) -- a sparse product would otherwise spend most of its time
+    on the busy columns."""
     if J.shape[1] <= SMALL_PROBLEM:
         Jd = J.toarray()
         return Jd.T @ (w[:, None] * Jd)
     J = J.tocsr()
-    busy = np.bincount(J.indices, minlength=J.shape[1]) > J.shape[0] // 20
+    n = J.shape[1]
+    busy = np.bincount(J.indices, minlength=n) > J.shape[0] // 20
     if not busy.any() or busy.all():
         return (J.T @ sp.diags(w) @ J).toarray()
-    dense, rest = np.flatnonzero(busy), np.flatnonzero(~busy)
-    Jd = J[:, dense].toarray()
-    WJd = w[:, None] * Jd
-    Js = J[:, rest].tocsr()
-    WJs = Js.copy()
-    WJs.data *= np.repeat(w, np.diff(Js.indptr))
-    H = np.empty((J.shape[1], J.shape[1]))
-    # The quiet columns are one block (the maps between geometry and stations): slices, not a gather of n².
-    span = slice(rest[0], rest[-1] + 1)
-    block = (span, span) if rest[-1] - rest[0] + 1 == len(rest) else np.ix_(rest, rest)
-    H[block] = (Js.T.tocsr() @ WJs).toarray()
-    cross = np.asarray(Js.T @ WJd)
-    H[rest[:, None], dense] = cross
-    H[dense[:, None], rest] = cross.T
-    H[dense[:, None], dense] = Jd.T @ WJd
+    dense = np.flatnonzero(busy)
+    quiet = J.copy()
+    quiet.data = quiet.data * np.repeat(np.sqrt(w), np.diff(J.indptr))  # √W J
+    Jd = quiet[:, dense].toarray()
+    quiet.data[busy[quiet.indices]] = 0.0  # the busy columns' entries out: the quiet ones keep their indices
+    quiet.eliminate_zeros()
+    H = np.zeros((n, n))
+    (quiet.T.tocsr() @ quiet).toarray(out=H)  # (busy rows and columns stay 0)
+    cross = np.asarray(quiet.T @ Jd)  # (n, busy): the quiet rows; the busy rows are 0 here ...
+    cross[dense] = Jd.T @ Jd  # ... and take the busy block
+    H[:, dense] = cross
+    H[dense, :] = cross.T
     return H
+
+
+def _leading_block(A, r: int) -> np.ndarray:
+    """A[r:, r:] of a Fortran-ordered square A, moved to the front of A's own memory (A is destroyed): the
+    block as a Fortran-contiguous view, without a second n x n array. Column j moves down to offset j·m; the
+    source lies at or after the destination, so copying forward never overwrites what is still to be read."""
+    n = A.shape[0]
+    if r == 0:
+        return A
+    m = n - r
+    flat = A.reshape(-1, order="F")
+    for j in range(m):
+        src = (r + j) * n + r
+        flat[j * m:(j + 1) * m] = flat[src:src + m]
+    return flat[:m * m].reshape((m, m), order="F")
 
 
 def _round_up(v: float, digits: int = 2) -> float:
