@@ -235,15 +235,18 @@ def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> Ser
              f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
     if campaign.dirs is None and options.model == "errormap":
         notes.append("one-directional campaign (no dir columns): single-branch maps, no backlash identified")
+    # fit() checks identifiability first (one factorization: at thousands of unknowns the check's own is reused
+    # by the solver and the covariance); what it cannot see is named, or regularized and fitted again.
     for _ in range(len(cal.names)):
         try:
-            cal.check_identifiability()
+            fit = cal.fit()
             break
         except UnidentifiableError as e:
             if not options.regularize or not e.names:
                 raise InputError(f"{campaign.source}: {e}") from None
             notes.append(_regularize(cal, [n for n in e.names if n in cal.names]))
-    fit = cal.fit()
+    else:  # (each round adds priors to what was named: all are determined long before this)
+        raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
     return SerialIdentification(meas, fit, cal.gauge, notes)
 
 
