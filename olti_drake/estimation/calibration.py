@@ -310,7 +310,7 @@ class LeastSquaresProgram:
         self._checked = (x, r, J)  # the solver starts from the same point: reuse the evaluation
         H = self._normal(self._pad(J), np.ones(J.shape[0]))
         prior = self._prior_hessian()
-        if prior.any():  # priors determine too
+        if prior is not None:  # priors determine too
             H = H + prior
         # The user's own variables need no reading: their constraints tie them (the rank check below sees it).
         untouched = [self.names[i] for i in np.flatnonzero(np.diag(H)[:len(self.names)] == 0)]
@@ -506,7 +506,9 @@ class LeastSquaresProgram:
         self._stop = None  # None after the loop: the iteration cap ended it
         # Large problems with linear equalities and quadratic costs only: steps by conjugate gradients within
         # the constraints, preconditioned by the factorization of the identifiability check (no n x n work).
-        prior = self.quadratic_costs() if self._steps_by_cg() else None
+        prior = None
+        if self._steps_by_cg():
+            prior = (None, None) if self._prior_hessian() is None else self.quadratic_costs()
         for _ in range(self.options.max_iterations):
             self._confirm_identifiable(wait=False)
             w = self._weights(r)
@@ -576,8 +578,8 @@ class LeastSquaresProgram:
         constraints (preconditioner: the Cholesky factor of the identifiability check's reduced normal
         matrix); if they do not converge (a large damping, a far iterate), one factorization of the damped
         matrix itself."""
-        Q, q = prior
-        has_prior = bool(Q.any())
+        Q, q = prior  # (None, None) without quadratic costs
+        has_prior = Q is not None
         W = self._within0
         s = W.s
         grad = g + (Q @ x + q if has_prior else 0.0)
@@ -590,7 +592,7 @@ class LeastSquaresProgram:
         z, ok = _pcg(apply, -W.to_null(grad / s), W.solve)
         if ok:
             return W.to_full(z) / s
-        Hd = _normal_matrix(H.J, H.w) + np.diag(damping) + Q
+        Hd = _normal_matrix(H.J, H.w) + np.diag(damping) + (Q if has_prior else 0.0)
         direct = self.within(Hd)
         return direct.to_full(direct.solve(-direct.to_null(grad / direct.s))) / direct.s
 
@@ -681,7 +683,13 @@ class LeastSquaresProgram:
                 q[idx] += b.evaluator().b()
         return Q, q
 
-    def _prior_hessian(self) -> np.ndarray:
+    def _prior_hessian(self):
+        """Q of :meth:`quadratic_costs`, or None when the program has no quadratic cost (no n x n zeros to form
+        and scan at thousands of unknowns)."""
+        from pydrake.solvers import QuadraticCost
+
+        if not any(isinstance(b.evaluator(), QuadraticCost) for b in self._user_costs()):
+            return None
         return self.quadratic_costs()[0]
 
     def _finish(self, z, iterations, weights) -> "Fit":
@@ -694,7 +702,7 @@ class LeastSquaresProgram:
         within = data = self._start_factor(J, weights, prior)
         if within is None:
             H = self._normal(J, weights)
-            within = self.within(H + prior) if prior.any() else None
+            within = self.within(H + prior) if prior is not None else None
             data = self.within(H, overwrite=True)
             within = within or data
         cond = data.condition()
@@ -724,7 +732,8 @@ class LeastSquaresProgram:
         solution differing by at most :data:`REUSE_TOLERANCE` in its metric (:meth:`Within.metric_change`):
         every variance is then within that factor of the solution's. None otherwise (refactorize)."""
         within, checked = getattr(self, "_within0", None), getattr(self, "_checked", None)
-        if within is None or checked is None or self.n_all <= REUSE_ABOVE or not within.factorized or prior.any():
+        if (within is None or checked is None or self.n_all <= REUSE_ABOVE or not within.factorized
+                or prior is not None):
             return None
         J0 = self._pad(checked[2])
         eps = within.metric_change(J0, np.ones(J0.shape[0]), J, w)
@@ -984,6 +993,10 @@ class Within:
         """M⁻¹ z (over the null space)."""
         if not self.large:
             return np.linalg.solve(self.M, z)
+        if np.ndim(z) == 1:  # two triangular solves by BLAS: unlike LAPACK's dpotrs they release the GIL, so
+            from scipy.linalg import blas  # the helper thread's Lanczos and the solver do not wait on each other
+
+            return blas.dtrsv(self._U, blas.dtrsv(self._U, np.asarray(z, float), trans=1), trans=0)
         x, _ = lapack.dpotrs(self._U, np.reshape(z, (self.dim, -1)), lower=0)
         return x.reshape(np.shape(z))
 
@@ -1006,16 +1019,22 @@ class Within:
         """diag(K Kᵀ), K = (N U⁻¹) / s, without forming K (large path): the reflectors touch only the rows
         ``_rows``, so every other row of N is a unit row and K's row is a row of U⁻¹; the few rows the
         constraints involve are formed from Q's (|rows|, |rows|) block."""
-        Uinv = self._inverse_factor()
+        Uinv, _ = lapack.dtrtri(self._U, lower=0)  # (below the diagonal: M's numbers, never read here)
         d = np.zeros(self.n)
-        d[self.r:] = np.einsum("ij,ij->i", Uinv, Uinv)
+        tail = d[self.r:]
+        for j in range(self.dim):  # Σ_{j ≥ i} U⁻¹_ij², column by column over the upper triangle (contiguous)
+            col = Uinv[:j + 1, j]
+            tail[:j + 1] += col * col
         if self.r:
             rows = self._rows
             E = np.zeros((self.n, len(rows)), order="F")
             E[rows, np.arange(len(rows))] = 1.0
             Q_rows = self._apply_q(E, "L", "N", overwrite=True)[rows]  # Q[rows, rows]
             free = rows >= self.r
-            K_rows = Q_rows[:, free] @ Uinv[rows[free] - self.r]
+            at = rows[free] - self.r
+            R = Uinv[at]  # those rows of U⁻¹, without what lies below the diagonal
+            R[np.arange(self.dim)[None, :] < at[:, None]] = 0.0
+            K_rows = Q_rows[:, free] @ R
             d[rows] = np.einsum("ij,ij->i", K_rows, K_rows)
         return d / self.s ** 2
 
