@@ -100,27 +100,102 @@ class SerialCalibration(Calibration):
         return out
 
 
-def start_stations(model, campaign, planar=None) -> tuple:
+#: A planar robot's station counts as off the robot's plane when fitting its height lowers the RMS of its
+#: start fit to the nominal tool points at least this many times: distances then see the out-of-plane
+#: parameters at first order, and the campaign is identified in 3D (not the planar reduction).
+OFF_PLANE_RMS_RATIO = 2.0
+#: ... and its fitted height is at least this (mm): exact readings leave both fits at rounding level.
+OFF_PLANE_MIN_MM = 1.0
+
+
+def start_stations(model, campaign, planar=None, heights=None) -> tuple:
     """Stations (Nt, 3) and dead paths (Nt,) mm fitted to the nominal tool points (station_fit).
 
     ``planar``: the root axis normal to a planar robot's plane: each station is fitted in the plane
-    (2D, 000 Eq. (5)) and placed at the tool points' height along the axis (held there)."""
+    (2D, 000 Eq. (5)) and placed at the tool points' height along the axis (held there). ``heights``:
+    (axis, plane level, {station: (P (3,), d0)}) of :func:`off_plane_stations`, used as they are."""
+    if heights is not None:
+        fits = heights[2]
+        return (np.array([fits[j][0] for j in np.unique(campaign.station)]),
+                np.array([fits[j][1] for j in np.unique(campaign.station)]))
     p = model.positions(campaign.commands, campaign.dirs)
     free = [c for c in range(3) if c != planar]
-    labels = np.unique(campaign.station)
     P, d0 = [], []
-    for j in labels:
+    for j in np.unique(campaign.station):
         sel = campaign.station == j
-        try:
-            Pf, d0j = station_fit(p[sel][:, free], campaign.displacement_mm[sel])
-        except ValueError as e:
-            raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}") \
-                from None
+        Pf, d0j = _station_start(campaign, j, p[sel][:, free], campaign.displacement_mm[sel])
         Pj = np.full(3, p[sel][:, planar].mean() if planar is not None else 0.0)
         Pj[free] = Pf
         P.append(Pj)
         d0.append(d0j)
     return np.array(P), np.array(d0)
+
+
+def _station_start(campaign, j, points, readings):
+    try:
+        return station_fit(points, readings)
+    except ValueError as e:
+        raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}") from None
+
+
+def off_plane_stations(chain, campaign, tool_offset_mm, axis: int):
+    """A planar robot (tool points in the plane normal to root axis ``axis``) measured from stations off that
+    plane (a tracer on the floor below a SCARA's working plane): (axis, the plane's level along it mm,
+    {station: (P (3,) mm, d0 mm)}) with
+    each station's height fitted beside its in-plane position and dead path (d + d0 = √(ρ² + h²)), when any
+    station is off the plane (:data:`OFF_PLANE_RMS_RATIO`); None when all lie in it (the planar problem).
+
+    Distances cannot tell a station above the plane from its mirror image below: off-plane stations are
+    placed below (the side a floor-standing instrument is on); the robot's fit is the same either way."""
+    p = chain.positions(campaign.commands, chain.nominal_parameters(tool_offset_mm))
+    free = [c for c in range(3) if c != axis]
+    level = float(p[:, axis].mean())
+    fits, off = {}, False
+    for j in np.unique(campaign.station):
+        sel = campaign.station == j
+        q, d = p[sel][:, free], campaign.displacement_mm[sel]
+        P2, d02 = _station_start(campaign, j, q, d)
+        rms_flat = _rms_height(q, d, P2, 0.0, d02)
+        P2h, h, d0h = _height_fit(q, d, P2)
+        rms_high = _rms_height(q, d, P2h, h, d0h)
+        Pj = np.full(3, level)
+        if rms_flat > OFF_PLANE_RMS_RATIO * rms_high and h > OFF_PLANE_MIN_MM:
+            off = True
+            Pj[free], Pj[axis], d0j = P2h, level - h, d0h
+        else:
+            Pj[free], d0j = P2, d02
+        fits[j] = (Pj, d0j)
+    return (axis, level, fits) if off else None
+
+
+def _rms_height(q, d, P2, h, d0) -> float:
+    return float(np.sqrt(np.mean((np.sqrt(np.sum((q - P2) ** 2, axis=1) + h * h) - d0 - d) ** 2)))
+
+
+def _height_fit(q, d, P2):
+    """(P (2,), h ≥ 0, d0) of d = √(|q − P|² + h²) − d0 for in-plane points q (K, 2), mm: Gauss-Newton from
+    the in-plane fit with heights of ¼ to 2 median in-plane distances (h = 0 is a stationary point: no
+    step leaves it), the best kept."""
+    rho = np.median(np.linalg.norm(q - P2, axis=1))
+    best = None
+    for h0 in (0.25, 0.5, 1.0, 2.0):
+        z = np.concatenate([P2, [h0 * rho], [0.0]])
+        z[3] = np.mean(np.sqrt(np.sum((q - z[:2]) ** 2, axis=1) + z[2] ** 2) - d)
+        for _ in range(50):
+            diff = q - z[:2]
+            dist = np.sqrt(np.sum(diff ** 2, axis=1) + z[2] ** 2)
+            J = np.column_stack([-diff / dist[:, None], z[2] / dist, -np.ones(len(d))])
+            step = np.linalg.lstsq(J, -(dist - z[3] - d), rcond=None)[0]
+            z = z + step
+            if np.max(np.abs(step)) < 1e-9:
+                break
+        cost = _rms_height(q, d, z[:2], z[2], z[3])
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, z.copy())
+    if best is None:  # (no start converged: the station stays in the plane)
+        return P2, 0.0, float(np.mean(np.linalg.norm(q - P2, axis=1) - d))
+    z = best[1]
+    return z[:2], abs(float(z[2])), float(z[3])
 
 
 def start_frame(model, campaign) -> np.ndarray:
@@ -146,9 +221,14 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions):
     A distance campaign of a planar robot (:func:`~olti_drake.model.chain.planar_axis`: the SCARA of
     000 as ``models/scara.sdf`` to its ``beam`` frame) is the planar problem: the out-of-plane
     parameters dropped by name (``base_parameter_set(planar=...)``), the stations 2D in the plane at
-    the tool point's held height."""
+    the tool point's held height -- unless its stations stand off that plane (:func:`off_plane_stations`):
+    then the 3D problem, the stations started at their fitted heights. Returns (measurement, notes)."""
     planar = (planar_axis(chain, chain.nominal_parameters(options.tool_offset_mm))
               if campaign.kind == "distance" else None)
+    heights = (off_plane_stations(chain, campaign, options.tool_offset_mm, planar) if planar is not None
+               else None)
+    if heights is not None:  # stations off the plane see the robot in 3D: no planar reduction
+        planar = None
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
                                  grid_step_deg=options.grid_step_deg, grids=options.grids,
                                  tool_offset_mm=options.tool_offset_mm, compliance=options.compliance,
@@ -157,12 +237,18 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions):
         raise InputError(f"{campaign.source}: --drift needs a distance campaign with a 'time_s' column (the time of "
                          f"every reading, s)")
     if campaign.kind == "distance":
-        P, d0 = start_stations(model, campaign, planar)
+        P, d0 = start_stations(model, campaign, planar, heights)
+        notes = [] if heights is None else [
+            f"a planar robot measured from stations off its plane (their depths below it fitted at the start: "
+            f"{', '.join(f'{heights[1] - z:.0f}' for z in P[:, heights[0]])} mm): identified in 3D, the "
+            f"out-of-plane parameters seen through the beams' slope; distances cannot tell a station from its "
+            f"mirror image above the plane (placed below)"]
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
                                    campaign.displacement_mm, P, d0,
-                                   time_h=campaign.time_s / 3600.0 if options.drift else None, held_axis=planar)
+                                   time_h=campaign.time_s / 3600.0 if options.drift else None,
+                                   held_axis=planar), notes
     return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
-                            start_frame(model, campaign))
+                            start_frame(model, campaign)), []
 
 
 def prior_weight(name: str) -> float:
@@ -222,7 +308,7 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
 
 
 def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> SerialIdentification:
-    meas = build_problem(chain, campaign, options)
+    meas, notes = build_problem(chain, campaign, options)
     try:
         gauge = find_gauge(meas)
     except ValueError as e:
@@ -231,8 +317,8 @@ def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> Ser
                            regularize=False, solver=options.solver, max_iterations=options.max_iterations,
                            budget=options.budget)
     cal = SerialCalibration(meas, solver, gauge, campaign.source, campaign.line)
-    notes = [f"dropped from the model: {len(meas.model.dropped)} parameter(s) the readings cannot separate "
-             f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
+    notes += [f"dropped from the model: {len(meas.model.dropped)} parameter(s) the readings cannot separate "
+              f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
     if campaign.dirs is None and options.model == "errormap":
         notes.append("one-directional campaign (no dir columns): single-branch maps, no backlash identified")
     # fit() checks identifiability first (one factorization: at thousands of unknowns the check's own is reused

@@ -50,7 +50,8 @@ def calibration_at_result(result, campaign):
                                    time_h=campaign.time_s / 3600.0 if drift else None,
                                    drift_mm_per_h=data.get("drift_mm_per_h"),
                                    drift_reference_h=data.get("drift_reference_h"),
-                                   held_axis=planar_axis(model.chain, model.chain_params))  # as build_problem
+                                   held_axis=(planar_axis(model.chain, model.chain_params) if model.planar_reduced
+                                              else None))  # as build_problem
     else:
         if result.tracker_frame is None:
             raise InputError(f"{campaign.source}: a point (tracker) campaign, but the result was identified from "

@@ -256,6 +256,8 @@ class SerialPositionModel:
             names += m.names()
         self.names = tuple(names)
         self.dropped = tuple(dropped)
+        #: Built with a planar robot's reduction (readings in its plane: out-of-plane parameters held).
+        self.planar_reduced = any(why.startswith("out of the plane") for _, why in self.dropped)
 
     @property
     def n_params(self) -> int:
@@ -867,7 +869,7 @@ def _candidates(reduced, probe):
     return order
 
 
-def _greedy_rows(null, candidates, tol=1e-6):
+def _greedy_rows(null, candidates, tol=1e-2):
     """The candidates, in order, each of which fixes a null direction the earlier ones left."""
     chosen, fixed = [], np.zeros((0, null.shape[1]))
     if null.size == 0:
@@ -937,7 +939,9 @@ def _rigid_motion(p, dp) -> str:
     sol = np.linalg.lstsq(basis.reshape(3 * m, 6), dp.ravel(), rcond=None)[0]
     w, v = sol[:3], sol[3:]
     reach = np.abs(p).max()
-    if np.linalg.norm(w) * reach < 1e-6 * np.linalg.norm(v):
+    # (A translation seen at a slightly tilted pose -- a planar robot's identified result -- carries a rotation
+    # of the tilt's order: still a translation.)
+    if np.linalg.norm(w) * reach < 1e-2 * np.linalg.norm(v):
         return f"translation along {_direction_words(v)}"
     through = np.cross(w, v) / (w @ w)
     through[np.abs(through) < 1e-6 * reach] = 0.0
