@@ -69,6 +69,9 @@ class SerialIdentification:
     fit: object
     gauge: str
     notes: list = field(default_factory=list)
+    #: A planar robot's stations off its plane (labels), and those of them placed above it (:func:`_choose_sides`).
+    off_plane: tuple = ()
+    above: tuple = ()
 
     @property
     def model(self):
@@ -138,19 +141,20 @@ def _station_start(campaign, j, points, readings):
         raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}") from None
 
 
-def off_plane_stations(chain, campaign, tool_offset_mm, axis: int):
+def off_plane_stations(chain, campaign, tool_offset_mm, axis: int, above=()):
     """A planar robot (tool points in the plane normal to root axis ``axis``) measured from stations off that
     plane (a tracer on the floor below a SCARA's working plane): (axis, the plane's level along it mm,
-    {station: (P (3,) mm, d0 mm)}) with
+    {station: (P (3,) mm, d0 mm)}, the labels of the stations off the plane) with
     each station's height fitted beside its in-plane position and dead path (d + d0 = √(ρ² + h²)), when any
     station is off the plane (:data:`OFF_PLANE_RMS_RATIO`); None when all lie in it (the planar problem).
 
     Distances cannot tell a station above the plane from its mirror image below: off-plane stations are
-    placed below (the side a floor-standing instrument is on); the robot's fit is the same either way."""
+    placed below (the side a floor-standing instrument is on), those labelled in ``above`` above; the mirror
+    of all of them together is the same fit (:func:`_choose_sides` picks the sides against each other)."""
     p = chain.positions(campaign.commands, chain.nominal_parameters(tool_offset_mm))
     free = [c for c in range(3) if c != axis]
     level = float(p[:, axis].mean())
-    fits, off = {}, False
+    fits, off = {}, []
     for j in np.unique(campaign.station):
         sel = campaign.station == j
         q, d = p[sel][:, free], campaign.displacement_mm[sel]
@@ -160,12 +164,12 @@ def off_plane_stations(chain, campaign, tool_offset_mm, axis: int):
         rms_high = _rms_height(q, d, P2h, h, d0h)
         Pj = np.full(3, level)
         if rms_flat > OFF_PLANE_RMS_RATIO * rms_high and h > OFF_PLANE_MIN_MM:
-            off = True
-            Pj[free], Pj[axis], d0j = P2h, level - h, d0h
+            off.append(int(j))
+            Pj[free], Pj[axis], d0j = P2h, level + (h if j in above else -h), d0h
         else:
             Pj[free], d0j = P2, d02
         fits[j] = (Pj, d0j)
-    return (axis, level, fits) if off else None
+    return (axis, level, fits, tuple(off)) if off else None
 
 
 def _rms_height(q, d, P2, h, d0) -> float:
@@ -215,17 +219,18 @@ def start_frame(model, campaign) -> np.ndarray:
     return np.concatenate([t, angles])
 
 
-def build_problem(chain, campaign, options: SerialIdentificationOptions):
+def build_problem(chain, campaign, options: SerialIdentificationOptions, above=()):
     """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame).
 
     A distance campaign of a planar robot (:func:`~olti_drake.model.chain.planar_axis`: the SCARA of
     000 as ``models/scara.sdf`` to its ``beam`` frame) is the planar problem: the out-of-plane
     parameters dropped by name (``base_parameter_set(planar=...)``), the stations 2D in the plane at
     the tool point's held height -- unless its stations stand off that plane (:func:`off_plane_stations`):
-    then the 3D problem, the stations started at their fitted heights. Returns (measurement, notes)."""
+    then the 3D problem, the stations started at their fitted heights (``above``: those placed above the plane).
+    Returns (measurement, notes, labels of the stations off the plane)."""
     planar = (planar_axis(chain, chain.nominal_parameters(options.tool_offset_mm))
               if campaign.kind == "distance" else None)
-    heights = (off_plane_stations(chain, campaign, options.tool_offset_mm, planar) if planar is not None
+    heights = (off_plane_stations(chain, campaign, options.tool_offset_mm, planar, above) if planar is not None
                else None)
     if heights is not None:  # stations off the plane see the robot in 3D: no planar reduction
         planar = None
@@ -239,16 +244,16 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions):
     if campaign.kind == "distance":
         P, d0 = start_stations(model, campaign, planar, heights)
         notes = [] if heights is None else [
-            f"a planar robot measured from stations off its plane (their depths below it fitted at the start: "
-            f"{', '.join(f'{heights[1] - z:.0f}' for z in P[:, heights[0]])} mm): identified in 3D, the "
-            f"out-of-plane parameters seen through the beams' slope; distances cannot tell a station from its "
-            f"mirror image above the plane (placed below)"]
+            f"a planar robot measured from stations off its plane (their heights above it fitted at the start: "
+            f"{', '.join(f'{z - heights[1]:.0f}' for z in P[:, heights[0]])} mm): identified in 3D, the "
+            f"out-of-plane parameters seen through the beams' slope; the mirror image of all the stations "
+            f"together fits the same (the first is placed below)"]
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
                                    campaign.displacement_mm, P, d0,
                                    time_h=campaign.time_s / 3600.0 if options.drift else None,
-                                   held_axis=planar), notes
+                                   held_axis=planar), notes, (() if heights is None else heights[3])
     return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
-                            start_frame(model, campaign)), []
+                            start_frame(model, campaign)), [], ()
 
 
 def prior_weight(name: str) -> float:
@@ -287,7 +292,7 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
     were left out because the start's tool point lies on a joint axis and the fitted tool point does not
     (:data:`TOOL_RESTART_MM`), the model is rebuilt around the fitted tool point and identified again, and
     the notes say so."""
-    ident = _identify_once(chain, campaign, options)
+    ident = _choose_sides(chain, campaign, options, _identify_once(chain, campaign, options))
     unseen = _unseen_at_start(ident.model)
     if not unseen:
         return ident
@@ -297,7 +302,7 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
     if moved < TOOL_RESTART_MM:
         return ident
     again = dataclasses.replace(options, tool_offset_mm=tuple(tool))
-    second = _identify_once(chain, campaign, again)
+    second = _identify_once(chain, campaign, again, ident.above)
     if len(_unseen_at_start(second.model)) >= len(unseen):
         return ident
     second.notes.insert(0, f"the tool point was fitted at ({tool[0]:.3f}, {tool[1]:.3f}, {tool[2]:.3f}) mm in the "
@@ -307,8 +312,35 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
     return second
 
 
-def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> SerialIdentification:
-    meas, notes = build_problem(chain, campaign, options)
+def _choose_sides(chain, campaign, options, ident: SerialIdentification) -> SerialIdentification:
+    """The sides of a planar robot's stations off its plane, against each other. Distances cannot tell the
+    mirror image of all stations together, but one station's side against another's they see through the
+    robot's out-of-plane errors (a tilt brings the tool point nearer to a station above and farther from one
+    below). Local search: every off-plane station but the first is tried on the other side and left there
+    when the fit's cost drops by more than 1e-3 of itself, in passes until none moves (an identification per
+    try)."""
+    best, above = ident, frozenset()
+    for _ in range(len(ident.off_plane)):
+        moved = False
+        for j in ident.off_plane[1:]:
+            sides = above ^ {j}
+            try:
+                trial = _identify_once(chain, campaign, options, tuple(sorted(sides)))
+            except InputError:  # (refused on that side: not a better one)
+                continue
+            if np.sum(trial.fit.residuals ** 2) < (1 - 1e-3) * np.sum(best.fit.residuals ** 2):
+                best, above, moved = trial, sides, True
+        if not moved:
+            break
+    if len(ident.off_plane) > 1:
+        best.notes.append(f"stations off the plane, sides chosen by the fit's cost (each but station "
+                          f"{ident.off_plane[0]} tried on the other side): "
+                          + ", ".join(f"{j} {'above' if j in above else 'below'}" for j in ident.off_plane))
+    return best
+
+
+def _identify_once(chain, campaign, options: SerialIdentificationOptions, above=()) -> SerialIdentification:
+    meas, notes, off_plane = build_problem(chain, campaign, options, above)
     try:
         gauge = find_gauge(meas)
     except ValueError as e:
@@ -333,7 +365,7 @@ def _identify_once(chain, campaign, options: SerialIdentificationOptions) -> Ser
             notes.append(_regularize(cal, [n for n in e.names if n in cal.names]))
     else:  # (each round adds priors to what was named: all are determined long before this)
         raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
-    return SerialIdentification(meas, fit, cal.gauge, notes)
+    return SerialIdentification(meas, fit, cal.gauge, notes, off_plane, tuple(above))
 
 
 def summary(ident: SerialIdentification) -> str:
