@@ -725,7 +725,6 @@ class LeastSquaresProgram:
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
                    stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
 
-
     def _start_factor(self, J, w, prior):
         """The identifiability check's factorization (at the start), when it may serve the covariance at the
         solution: above :data:`REUSE_ABOVE` variables, no priors, and the normal matrices at the start and the
