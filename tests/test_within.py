@@ -259,3 +259,23 @@ def test_the_start_factorization_serves_the_covariance_within_its_stated_bound(m
     refactored = Calibration(meas, SolverOptions(), gauge, "UR5").fit()
     assert not any("identifiability check's factorization" in n for n in refactored.notes)
     assert refactored.std == pytest.approx(dense.std, rel=1e-6, abs=1e-12)
+
+
+def test_single_precision_variances_agree_with_double_or_are_redone(monkeypatch, ur5_problem):
+    """Above REUSE_ABOVE the variances come from a single-precision U⁻¹ checked on sampled rows: they agree
+    with the double-precision ones to INVERSE_RTOL; a tolerance no single-precision inverse meets sends them
+    back to double precision (equal to the dense path)."""
+    meas, gauge = ur5_problem
+    cal = Calibration(meas, SolverOptions(), gauge, "UR5")
+    r, J = cal.residuals(cal.x0)
+    H = cal._normal(cal._pad(J), np.ones(len(r)))
+    A = cal._equality_rows()[0]
+    exact = Within(H.copy(), A, large=True).inverse_diagonal()
+    monkeypatch.setattr(calibration, "REUSE_ABOVE", 0)
+    single = Within(H.copy(), A, large=True)
+    assert single._row_norms_agree(single._inverse_row_norms(np.float32))
+    assert single.inverse_diagonal() == pytest.approx(exact, rel=calibration.INVERSE_RTOL, abs=1e-300)
+    monkeypatch.setattr(calibration, "INVERSE_RTOL", 1e-15)
+    redone = Within(H.copy(), A, large=True)
+    assert not redone._row_norms_agree(redone._inverse_row_norms(np.float32))
+    assert redone.inverse_diagonal() == pytest.approx(exact, rel=1e-9, abs=1e-300)

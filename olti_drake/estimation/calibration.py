@@ -80,6 +80,9 @@ LANCZOS_TOLERANCE = 1e-7
 #: most :data:`REUSE_TOLERANCE` in its metric -- every variance is then within that factor of the solution's.
 REUSE_ABOVE = 2000
 REUSE_TOLERANCE = 0.02
+#: The variances on the large path come from U⁻¹ computed in single precision (half the time of double at
+#: thousands of unknowns) when sampled rows agree with double precision to this relative accuracy; else double.
+INVERSE_RTOL = 1e-5
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
@@ -1018,24 +1021,51 @@ class Within:
         """diag(K Kᵀ), K = (N U⁻¹) / s, without forming K (large path): the reflectors touch only the rows
         ``_rows``, so every other row of N is a unit row and K's row is a row of U⁻¹; the few rows the
         constraints involve are formed from Q's (|rows|, |rows|) block."""
-        Uinv, _ = lapack.dtrtri(self._U, lower=0)  # (below the diagonal: M's numbers, never read here)
+        single = self.dim > REUSE_ABOVE  # (thousands of unknowns: see INVERSE_RTOL)
+        tail = self._inverse_row_norms(np.float32 if single else np.float64)
+        if single and not self._row_norms_agree(tail):
+            tail = self._inverse_row_norms(np.float64)
         d = np.zeros(self.n)
-        tail = d[self.r:]
-        for j in range(self.dim):  # Σ_{j ≥ i} U⁻¹_ij², column by column over the upper triangle (contiguous)
-            col = Uinv[:j + 1, j]
-            tail[:j + 1] += col * col
+        d[self.r:] = tail
         if self.r:
             rows = self._rows
             E = np.zeros((self.n, len(rows)), order="F")
             E[rows, np.arange(len(rows))] = 1.0
             Q_rows = self._apply_q(E, "L", "N", overwrite=True)[rows]  # Q[rows, rows]
             free = rows >= self.r
-            at = rows[free] - self.r
-            R = Uinv[at]  # those rows of U⁻¹, without what lies below the diagonal
-            R[np.arange(self.dim)[None, :] < at[:, None]] = 0.0
+            R = np.array([self._inverse_row(i) for i in rows[free] - self.r]).reshape(-1, self.dim)
             K_rows = Q_rows[:, free] @ R
             d[rows] = np.einsum("ij,ij->i", K_rows, K_rows)
         return d / self.s ** 2
+
+    def _inverse_row_norms(self, dtype) -> np.ndarray:
+        """Σ_{j ≥ i} U⁻¹_ij² (dim,), U⁻¹ by LAPACK's triangular inverse in ``dtype``, summed in float64 column
+        by column over the upper triangle (contiguous; below the diagonal lie M's numbers, never read)."""
+        trtri = lapack.strtri if dtype == np.float32 else lapack.dtrtri
+        Uinv, _ = trtri(np.asfortranarray(self._U, dtype=dtype), lower=0)
+        out = np.zeros(self.dim)
+        for j in range(self.dim):
+            col = Uinv[:j + 1, j].astype(float)
+            out[:j + 1] += col * col
+        return out
+
+    def _row_norms_agree(self, norms, rows: int = 8) -> bool:
+        """``norms`` (of a single-precision inverse) within :data:`INVERSE_RTOL` of the double-precision ones at
+        ``rows`` rows spread over U⁻¹ (:meth:`_inverse_row`)."""
+        for i in np.unique(np.linspace(0, self.dim - 1, rows).astype(int)):
+            y = self._inverse_row(i)
+            exact = float(y @ y)
+            if not abs(norms[i] - exact) <= INVERSE_RTOL * exact:
+                return False
+        return True
+
+    def _inverse_row(self, i: int) -> np.ndarray:
+        """Row i of U⁻¹ in double precision: the solution of Uᵀ y = e_i (zero before i)."""
+        from scipy.linalg import blas
+
+        e = np.zeros(self.dim)
+        e[i] = 1.0
+        return blas.dtrsv(self._U, e, trans=1)
 
     def _inverse_factor(self) -> np.ndarray:
         """U⁻¹ (dim, dim), upper triangular (the factor's memory holds M below the diagonal: cleared)."""
