@@ -18,12 +18,12 @@ default), at three scales:
 within the gauge), LM, the fit's acceptance and the covariance (standard uncertainties of every parameter;
 the full covariance matrix is formed only when asked for, and is not asked for here), the faster of two
 runs. Ours runs its BLAS on one thread; above ``calibration.REUSE_ABOVE`` unknowns (the 1 deg scale) one
-helper thread computes the check's rank and condition (Lanczos) and the variances (triangular inverse)
-beside LM, and the covariance reuses the check's factorization when the normal matrix at the solution is
-within ``REUSE_TOLERANCE`` of it in its metric (estimated; the fit's notes state the bound, printed below).
-The normal matrix of the 1 deg problem fills to 97 % under fill-reducing orderings (SuperLU's MMD and
-COLAMD), so its factorization is dense: one Cholesky of it is the floor of the check and the covariance,
-which scipy does not compute. The baseline is
+helper thread computes the check's rank and condition (Lanczos) and the variances (triangular inverse in
+single precision, checked against double on sampled rows) beside LM, and the covariance reuses the check's
+factorization when the normal matrix at the solution is within ``REUSE_TOLERANCE`` of it in its metric
+(estimated; the fit's notes state the bound, printed below). The normal matrix of the 1 deg problem fills
+to 97 % under fill-reducing orderings (SuperLU's MMD and COLAMD), so its factorization is dense: one
+Cholesky of it is the floor of the check and the covariance, which scipy does not compute. The baseline is
 ``scipy.optimize.least_squares`` with its best variant for sparse problems (``method='trf'``,
 ``tr_solver='lsmr'``, ``x_scale='jac'``, default tolerances) on the same residuals and the same analytic
 sparse Jacobian, the gauge eliminated exactly (``bench_identify.gauge_elimination``), from the same start,

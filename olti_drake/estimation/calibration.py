@@ -824,8 +824,8 @@ class Within:
 
     # -- reporting work beside the solver --------------------------------------------------------
     def start_background(self) -> None:
-        """Compute the extreme eigenvalues and the variances in a thread (large path, factorized): LAPACK
-        and the BLAS release the GIL, so on a second core this runs beside the solver's evaluations. The
+        """Compute the extreme eigenvalues and the variances in a thread (large path, factorized): the long
+        LAPACK calls release the GIL, so on a second core this runs beside the solver's evaluations. The
         accessors wait for it; the results are the same numbers as computed in line."""
         import threading
 

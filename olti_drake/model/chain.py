@@ -484,10 +484,14 @@ def planar_axis(chain: SerialChain, params=None, *, n_poses: int = 40, seed: int
     return int(flat[0]) if flat.size == 1 else None
 
 
+#: How :func:`planar_reason` begins: what marks a parameter the planar reduction held (results keep the reason).
+PLANAR_REASON = "out of the plane"
+
+
 def planar_reason(axis: int) -> str:
     """Why a planar robot's readings cannot see a parameter that moves the tool point out of its plane."""
     name = "xyz"[axis]
-    return (f"out of the plane: a planar robot (every joint axis along {name}) keeps the tool point at one {name}, "
+    return (f"{PLANAR_REASON}: a planar robot (every joint axis along {name}) keeps the tool point at one {name}, "
             f"and readings in that plane see this parameter only at second order (cosine) or as a combination of "
             f"the in-plane ones; held at its start value")
 

@@ -37,8 +37,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, approach_directions
-from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, TOOL_NAMES, UNLIMITED_RANGE_DEG,
-                    SerialChain, base_parameter_set, _axis_rotation, _cross)
+from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, PLANAR_REASON, TOOL_NAMES,
+                                    UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, _axis_rotation, _cross)
 
 MODEL_KINDS = ("dh", "errormap")
 #: Relative singular value below which a parameter combination counts as unseen (gauge analysis).
@@ -257,7 +257,7 @@ class SerialPositionModel:
         self.names = tuple(names)
         self.dropped = tuple(dropped)
         #: Built with a planar robot's reduction (readings in its plane: out-of-plane parameters held).
-        self.planar_reduced = any(why.startswith("out of the plane") for _, why in self.dropped)
+        self.planar_reduced = any(why.startswith(PLANAR_REASON) for _, why in self.dropped)
 
     @property
     def n_params(self) -> int:
@@ -870,7 +870,9 @@ def _candidates(reduced, probe):
 
 
 def _greedy_rows(null, candidates, tol=1e-2):
-    """The candidates, in order, each of which fixes a null direction the earlier ones left."""
+    """The candidates, in order, each of which fixes a null direction the earlier ones left -- by at least
+    ``tol`` of the null basis's largest entry: a row of tiny weight would hold its direction only through
+    that weight (seen at an identified, slightly tilted planar robot: J2_dx_mm held the translation along z)."""
     chosen, fixed = [], np.zeros((0, null.shape[1]))
     if null.size == 0:
         return chosen
