@@ -279,3 +279,12 @@ def test_single_precision_variances_agree_with_double_or_are_redone(monkeypatch,
     redone = Within(H.copy(), A, large=True)
     assert not redone._row_norms_agree(redone._inverse_row_norms(np.float32))
     assert redone.inverse_diagonal() == pytest.approx(exact, rel=1e-9, abs=1e-300)
+
+
+def test_the_nlp_solver_reaches_the_lm_solution_of_a_six_axis_error_map(ur5_problem):
+    """solver='nlp' (SNOPT through Drake's Solve of the whole program) on the UR5 error-map problem: it ran into
+    SNOPT's default iteration limit before; with the program's limit it converges to LM's solution."""
+    meas, gauge = ur5_problem
+    lm = Calibration(meas, SolverOptions(), gauge, "UR5").fit()
+    nlp = Calibration(meas, SolverOptions(solver="nlp"), gauge, "UR5").fit()
+    assert nlp.converged_by and np.all(np.abs(nlp.x - lm.x) <= 1e-3 * lm.std + 1e-9)

@@ -85,6 +85,8 @@ REUSE_TOLERANCE = 0.02
 INVERSE_RTOL = 1e-5
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
+#: SNOPT's major-iteration limit set on the program (its own default, 1000, stops short on six-axis maps).
+NLP_MAJOR_ITERATIONS = 5000
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
 RESIDUAL_WARNING_RATIO = 3.0
 
@@ -198,6 +200,10 @@ class LeastSquaresProgram:
 
         # IPOPT keeps its defaults: in Drake it runs an L-BFGS Hessian that does not reach tighter ones.
         self.prog.SetSolverOption(SnoptSolver.id(), "Major optimality tolerance", NLP_OPTIMALITY_TOLERANCE)
+        # SNOPT's default limit (1000 major iterations) ends a six-axis error-map problem (hundreds of unknowns in
+        # mm and deg) before its minimum: its quasi-Newton Hessian needs a few thousand steps there.
+        self.prog.SetSolverOption(SnoptSolver.id(), "Major iterations limit", NLP_MAJOR_ITERATIONS)
+        self.prog.SetSolverOption(SnoptSolver.id(), "Iterations limit", 100 * NLP_MAJOR_ITERATIONS)
 
     @property
     def x0(self) -> np.ndarray:
