@@ -32,7 +32,7 @@ import numpy as np
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
 from olti_drake.io.csvio import InputError
-from olti_drake.model.chain import planar_axis
+from olti_drake.model.chain import planar_axis, planar_normal
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
@@ -141,35 +141,37 @@ def _station_start(campaign, j, points, readings):
         raise InputError(f"{campaign.source}: station {j}: the nominal tool points of its readings: {e}") from None
 
 
-def off_plane_stations(chain, campaign, tool_offset_mm, axis: int, above=()):
-    """A planar robot (tool points in the plane normal to root axis ``axis``) measured from stations off that
-    plane (a tracer on the floor below a SCARA's working plane): (axis, the plane's level along it mm,
-    {station: (P (3,) mm, d0 mm)}, the labels of the stations off the plane) with
-    each station's height fitted beside its in-plane position and dead path (d + d0 = √(ρ² + h²)), when any
-    station is off the plane (:data:`OFF_PLANE_RMS_RATIO`); None when all lie in it (the planar problem).
+def off_plane_stations(chain, campaign, tool_offset_mm, normal, above=()):
+    """A planar robot (tool points in the plane of unit ``normal``, (3,)) measured from stations off that
+    plane (a tracer on the floor below a SCARA's working plane): (normal, the plane's level along it mm,
+    {station: (P (3,) mm, d0 mm)}, the labels of the stations off the plane) with each station's height
+    fitted beside its in-plane position and dead path (d + d0 = √(ρ² + h²)), when any station is off the
+    plane (:data:`OFF_PLANE_RMS_RATIO`); None when all lie in it (the planar problem).
 
     Distances cannot tell a station above the plane from its mirror image below: off-plane stations are
-    placed below (the side a floor-standing instrument is on), those labelled in ``above`` above; the mirror
-    of all of them together is the same fit (:func:`_choose_sides` picks the sides against each other)."""
+    placed below (against the normal), those labelled in ``above`` above; the mirror of all of them together
+    is the same fit (:func:`_choose_sides` picks the sides against each other)."""
+    n = np.asarray(normal, float)
+    # In-plane axes: the root axes other than the normal's when it is one (the same numbers as the planar
+    # problem's in-plane coordinates), else an orthonormal pair.
+    E = np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2] if np.count_nonzero(n) > 1 else \
+        np.eye(3)[:, [c for c in range(3) if n[c] == 0]]
     p = chain.positions(campaign.commands, chain.nominal_parameters(tool_offset_mm))
-    free = [c for c in range(3) if c != axis]
-    level = float(p[:, axis].mean())
+    level = float(np.mean(p @ n))
     fits, off = {}, []
     for j in np.unique(campaign.station):
         sel = campaign.station == j
-        q, d = p[sel][:, free], campaign.displacement_mm[sel]
+        q, d = p[sel] @ E, campaign.displacement_mm[sel]
         P2, d02 = _station_start(campaign, j, q, d)
         rms_flat = _rms_height(q, d, P2, 0.0, d02)
         P2h, h, d0h = _height_fit(q, d, P2)
         rms_high = _rms_height(q, d, P2h, h, d0h)
-        Pj = np.full(3, level)
         if rms_flat > OFF_PLANE_RMS_RATIO * rms_high and h > OFF_PLANE_MIN_MM:
             off.append(int(j))
-            Pj[free], Pj[axis], d0j = P2h, level + (h if j in above else -h), d0h
+            fits[j] = (E @ P2h + (level + (h if j in above else -h)) * n, d0h)
         else:
-            Pj[free], d0j = P2, d02
-        fits[j] = (Pj, d0j)
-    return (axis, level, fits, tuple(off)) if off else None
+            fits[j] = (E @ P2 + level * n, d02)
+    return (n, level, fits, tuple(off)) if off else None
 
 
 def _rms_height(q, d, P2, h, d0) -> float:
@@ -228,10 +230,12 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
     the tool point's held height -- unless its stations stand off that plane (:func:`off_plane_stations`):
     then the 3D problem, the stations started at their fitted heights (``above``: those placed above the plane).
     Returns (measurement, notes, labels of the stations off the plane)."""
-    planar = (planar_axis(chain, chain.nominal_parameters(options.tool_offset_mm))
-              if campaign.kind == "distance" else None)
-    heights = (off_plane_stations(chain, campaign, options.tool_offset_mm, planar, above) if planar is not None
-               else None)
+    nominal = chain.nominal_parameters(options.tool_offset_mm)
+    planar = planar_axis(chain, nominal) if campaign.kind == "distance" else None
+    normal = None
+    if campaign.kind == "distance":  # a planar robot's plane, along a root axis or not
+        normal = np.eye(3)[planar] if planar is not None else planar_normal(chain, nominal)
+    heights = off_plane_stations(chain, campaign, options.tool_offset_mm, normal, above) if normal is not None else None
     if heights is not None:  # stations off the plane see the robot in 3D: no planar reduction
         planar = None
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
@@ -245,7 +249,7 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
         P, d0 = start_stations(model, campaign, planar, heights)
         notes = [] if heights is None else [
             f"a planar robot measured from stations off its plane (their heights above it fitted at the start: "
-            f"{', '.join(f'{z - heights[1]:.0f}' for z in P[:, heights[0]])} mm): identified in 3D, the "
+            f"{', '.join(f'{z - heights[1]:.0f}' for z in P @ heights[0])} mm): identified in 3D, the "
             f"out-of-plane parameters seen through the beams' slope; the mirror image of all the stations "
             f"together fits the same (the first is placed below)"]
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,

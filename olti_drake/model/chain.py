@@ -484,6 +484,21 @@ def planar_axis(chain: SerialChain, params=None, *, n_poses: int = 40, seed: int
     return int(flat[0]) if flat.size == 1 else None
 
 
+def planar_normal(chain: SerialChain, params=None, *, n_poses: int = 40, seed: int = 0):
+    """The unit normal (3,) of the plane the tool point never leaves, whatever its direction (a SCARA whose
+    model file tilts its base), or None: the smallest singular value of the centred tool points of ``n_poses``
+    seeded random poses below :data:`PLANAR_RTOL` of the reach. :func:`planar_axis` is the root-axis case."""
+    p = chain.positions(chain.random_angles(n_poses, seed), params)
+    reach = max(float(np.abs(p).max()), 1.0)
+    _, sv, vt = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)
+    if sv[-1] >= PLANAR_RTOL * reach * np.sqrt(len(p)) or sv[-2] < PLANAR_RTOL * reach * np.sqrt(len(p)):
+        return None
+    n = vt[-1] / np.linalg.norm(vt[-1])
+    # Oriented up the root z (then along its largest component): "below the plane" is then the floor's side.
+    lead = 2 if abs(n[2]) > 1e-12 else int(np.argmax(np.abs(n)))
+    return n if n[lead] > 0 else -n
+
+
 #: How :func:`planar_reason` begins: what marks a parameter the planar reduction held (results keep the reason).
 PLANAR_REASON = "out of the plane"
 
