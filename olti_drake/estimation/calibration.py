@@ -517,7 +517,7 @@ class LeastSquaresProgram:
         # the constraints, preconditioned by the factorization of the identifiability check (no n x n work).
         prior = None
         if self._steps_by_cg():
-            prior = (None, None) if self._prior_hessian() is None else self.quadratic_costs()
+            prior = self.quadratic_costs() if self._has_quadratic_costs() else (None, None)
         for _ in range(self.options.max_iterations):
             self._confirm_identifiable(wait=False)
             w = self._weights(r)
@@ -692,14 +692,15 @@ class LeastSquaresProgram:
                 q[idx] += b.evaluator().b()
         return Q, q
 
+    def _has_quadratic_costs(self) -> bool:
+        from pydrake.solvers import QuadraticCost
+
+        return any(isinstance(b.evaluator(), QuadraticCost) for b in self._user_costs())
+
     def _prior_hessian(self):
         """Q of :meth:`quadratic_costs`, or None when the program has no quadratic cost (no n x n zeros to form
         and scan at thousands of unknowns)."""
-        from pydrake.solvers import QuadraticCost
-
-        if not any(isinstance(b.evaluator(), QuadraticCost) for b in self._user_costs()):
-            return None
-        return self.quadratic_costs()[0]
+        return self.quadratic_costs()[0] if self._has_quadratic_costs() else None
 
     def _finish(self, z, iterations, weights) -> "Fit":
         n = len(self.names)
