@@ -288,3 +288,23 @@ def test_the_nlp_solver_reaches_the_lm_solution_of_a_six_axis_error_map(ur5_prob
     lm = Calibration(meas, SolverOptions(), gauge, "UR5").fit()
     nlp = Calibration(meas, SolverOptions(solver="nlp"), gauge, "UR5").fit()
     assert nlp.converged_by and np.all(np.abs(nlp.x - lm.x) <= 1e-3 * lm.std + 1e-9)
+
+
+def test_lm_stops_where_no_parameter_would_move_by_a_percent_of_its_uncertainty(monkeypatch, ur5_problem):
+    """Above LARGE_PROBLEM variables LM does not evaluate a step that would change no parameter by more than
+    STEP_FRACTION of its standard uncertainty: it says so, and the solution is within that of LM's run to
+    1e-12 of the cost (STEP_FRACTION 0), with fewer evaluations."""
+    meas, gauge = ur5_problem
+    monkeypatch.setattr(calibration, "LARGE_PROBLEM", 0)
+    counted = []
+    residuals = Calibration.residuals
+    monkeypatch.setattr(Calibration, "residuals", lambda self, x: counted.append(1) or residuals(self, x))
+    early = Calibration(meas, SolverOptions(), gauge, "UR5").fit()
+    n_early, fraction = len(counted), calibration.STEP_FRACTION
+    monkeypatch.setattr(calibration, "STEP_FRACTION", 0.0)
+    counted.clear()
+    tight = Calibration(meas, SolverOptions(), gauge, "UR5").fit()
+    assert "1% of its standard uncertainty" in early.converged_by
+    assert "1e-12" in tight.converged_by and n_early < len(counted)
+    assert np.all(np.abs(early.x - tight.x) <= fraction * tight.std + 1e-12)
+    assert early.std == pytest.approx(tight.std, rel=1e-3)

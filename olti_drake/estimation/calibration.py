@@ -62,7 +62,8 @@ from scipy.linalg import lapack
 
 from olti_drake.io.budget import ReadingErrors
 from olti_drake.io.errors import InputError
-from olti_drake.threads import single_thread_blas
+from olti_drake.threads import (blas_threads, in_parallel, single_thread_blas, symmetric_times, triangular_inverse,
+                                triangular_solve)
 
 
 #: Relative eigenvalue below which a parameter combination counts as unidentifiable.
@@ -83,6 +84,12 @@ REUSE_TOLERANCE = 0.02
 #: The variances on the large path come from U⁻¹ computed in single precision (half the time of double at
 #: thousands of unknowns) when sampled rows agree with double precision to this relative accuracy; else double.
 INVERSE_RTOL = 1e-5
+#: LM stops (above LARGE_PROBLEM variables) before a step that would change no parameter by more than this
+#: fraction of its standard uncertainty (:meth:`LeastSquaresProgram._negligible_decrease`): the rest is far
+#: below what the readings determine (scipy's least_squares stops at a relative cost change of 1e-8: about
+#: 0.03 sigma at 10^5 readings).
+STEP_FRACTION = 0.01
+HELPER_THREAD = "olti-within"  # the name of Within.start_background's thread
 #: Optimality tolerance set on the program for the NLP solvers (SNOPT, IPOPT), relative.
 NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 41), a failure, at the minimum
 #: SNOPT's major-iteration limit set on the program (its own default, 1000, stops short on six-axis maps).
@@ -530,20 +537,22 @@ class LeastSquaresProgram:
             # themselves, eps times the coordinates' size: below it no step can show a decrease.
             floor = 4.0 * np.finfo(float).eps * max(1.0, float(np.max(np.abs(x)))) * float(np.sum(w * np.abs(r)))
             tol = max(1e-12 * abs(cost), floor)
+            negligible = max(1e-12 * abs(cost), self._negligible_decrease(r, w))
             while True:
                 # The user's own variables carry no curvature of the data: damp them by the mean one.
                 D = H.diagonal().copy()
                 D[D == 0] = np.mean(D[D > 0]) if (D > 0).any() else 1.0
                 delta = (self._cg_step(x, H, lam * D, g, prior) if prior is not None
                          else self._step(x, H + lam * np.diag(D), g))
-                # What the quadratic model promises: below 1e-12 of the cost we are at the minimum, known before
-                # evaluating the step (at large scale an evaluation is a third of the fit's time). Not at the
-                # rounding floor of exact readings: there the step is still taken, and judged by its cost.
+                # What the quadratic model promises: below 1e-12 of the cost, or a step no parameter would notice
+                # (:meth:`_negligible_decrease`), we are at the minimum, known before evaluating the step (at
+                # large scale an evaluation is a sixth of the fit's time). Not at the rounding floor of exact
+                # readings: there the step is still taken, and judged by its cost.
                 # (The user's costs are linear or quadratic: their change is exact.)
                 x_new = x + delta
                 user_new = self._user_cost(x_new)
                 predicted = -(g @ delta + 0.5 * delta @ (H @ delta)) + user - user_new
-                if predicted <= 1e-12 * abs(cost):
+                if predicted <= negligible:
                     break
                 r_new, J_new = self.residuals(x_new[:n])
                 J_new = self._pad(J_new)
@@ -551,11 +560,13 @@ class LeastSquaresProgram:
                 if cost_new <= cost or predicted <= tol or lam > 1e12:
                     break
                 lam *= 8.0
-            if predicted <= 1e-12 * abs(cost) or cost_new > cost:
+            if predicted <= negligible or cost_new > cost:
                 # No step lowers the cost: at the minimum if the quadratic model promised nothing more.
-                at_minimum = predicted <= tol + 1e-300
-                self._stop = (True, "the predicted cost decrease is below 1e-12 of the cost (or the rounding "
-                                    "floor of exact readings)") if at_minimum else (
+                at_minimum = predicted <= max(tol, negligible) + 1e-300
+                self._stop = (True, (f"the next step would change no parameter by more than {STEP_FRACTION:.0%} "
+                                     f"of its standard uncertainty" if negligible > 1e-12 * abs(cost) else
+                                     "the predicted cost decrease is below 1e-12 of the cost (or the rounding "
+                                     "floor of exact readings)")) if at_minimum else (
                     False, f"no step lowers the cost (damping {lam:.0e}) though the model predicts "
                            f"{predicted / max(abs(cost), 1e-300):.1e} of it")
                 break
@@ -566,6 +577,19 @@ class LeastSquaresProgram:
                 break
         self._final = (x, r, J)
         return x, steps, self._weights(r)
+
+    def _negligible_decrease(self, r, w) -> float:
+        """The predicted cost decrease of a step that changes no parameter by more than :data:`STEP_FRACTION`
+        of its standard uncertainty: ½ f² σ̂², σ̂² = Σ w r² / (m − n) the residual variance. A Gauss-Newton
+        step δ predicts ½ δᵀHδ (more when damped), and |δ_i| ≤ √(δᵀHδ · C_ii) = √(δᵀHδ) σ_i / σ̂ with
+        C = H⁻¹ within the constraints (Cauchy-Schwarz in H's metric): below this, each |δ_i| ≤ f σ_i.
+        0 without redundant readings (σ̂ unknown; for exact readings it lies at the rounding floor anyway),
+        and up to :data:`LARGE_PROBLEM` variables: there an evaluation costs milliseconds, and LM goes on to
+        1e-12 of the cost (results the same to rounding whichever solver or path)."""
+        dof = len(r) - self.n_all
+        if dof <= 0 or self.n_all <= LARGE_PROBLEM:
+            return 0.0
+        return 0.5 * STEP_FRACTION ** 2 * float(np.sum(w * r * r)) / dof
 
     def _steps_by_cg(self) -> bool:
         """Large path (:data:`LARGE_PROBLEM`) for LM steps: only linear equalities and quadratic costs on the
@@ -799,7 +823,8 @@ class Within:
         M = _leading_block(QHQ, self.r)
         self._dim, self._finite = M.shape[0], bool(np.all(np.isfinite(M)))
         self._M_diag = np.diag(M).copy()
-        packed, info = lapack.dpotrf(M, lower=0, clean=0, overwrite_a=1)
+        with _factor_threads(self._dim):
+            packed, info = lapack.dpotrf(M, lower=0, clean=0, overwrite_a=1)
         self._packed = packed
         self._diag_fix = self._M_diag - np.diag(packed)  # dsymv on the lower triangle sees U's diagonal
         self._U = packed if info == 0 and self._finite and np.all(np.isfinite(np.diag(packed))) else None
@@ -820,9 +845,7 @@ class Within:
 
     def _times_M(self, v) -> np.ndarray:
         """M v (large path) from the lower triangle kept beside the factor."""
-        from scipy.linalg import blas
-
-        return blas.dsymv(1.0, self._packed, v, lower=1) + self._diag_fix * v
+        return symmetric_times(self._packed, v) + self._diag_fix * v  # (releases the GIL: see threads)
 
     @property
     def factorized(self) -> bool:
@@ -844,7 +867,7 @@ class Within:
                 self._job_error = e
 
         self._job_error = None
-        self._job = threading.Thread(target=work, name="olti-within", daemon=True)
+        self._job = threading.Thread(target=work, name=HELPER_THREAD, daemon=True)
         self._job.start()
 
     def background_done(self) -> bool:
@@ -870,9 +893,10 @@ class Within:
         J0, J1 = J0.tocsr(), J1.tocsr()
         s = self.s[:, None]
 
-        def apply(V):
+        def apply(V):  # (two J products beside each other: they release the GIL)
             Z = self.to_full(lapack.dtrtrs(self._U, V)[0]) / s
-            D = J1.T @ (w1[:, None] * (J1 @ Z)) - J0.T @ (w0[:, None] * (J0 @ Z))
+            one, zero = in_parallel(*[lambda J=J, w=w: J.T @ (w[:, None] * (J @ Z)) for J, w in ((J1, w1), (J0, w0))])
+            D = one - zero
             return lapack.dtrtrs(self._U, self.to_null(np.asarray(D) / s), trans=1)[0]
 
         V = np.linalg.qr(np.random.default_rng(seed).normal(size=(self.dim, min(block, self.dim))))[0]
@@ -1002,10 +1026,8 @@ class Within:
         """M⁻¹ z (over the null space)."""
         if not self.large:
             return np.linalg.solve(self.M, z)
-        if np.ndim(z) == 1:  # two BLAS triangular solves: they hold the GIL far less than LAPACK's dpotrs (measured),
-            from scipy.linalg import blas  # so the helper thread's Lanczos and the solver wait less on each other
-
-            return blas.dtrsv(self._U, blas.dtrsv(self._U, np.asarray(z, float), trans=1), trans=0)
+        if np.ndim(z) == 1:  # two BLAS triangular solves releasing the GIL (threads): the helper thread's Lanczos
+            return triangular_solve(self._U, triangular_solve(self._U, z, transpose=True))  # and the solver run on
         x, _ = lapack.dpotrs(self._U, np.reshape(z, (self.dim, -1)), lower=0)
         return x.reshape(np.shape(z))
 
@@ -1045,15 +1067,17 @@ class Within:
             d[rows] = np.einsum("ij,ij->i", K_rows, K_rows)
         return d / self.s ** 2
 
-    def _inverse_row_norms(self, dtype) -> np.ndarray:
-        """Σ_{j ≥ i} U⁻¹_ij² (dim,), U⁻¹ by LAPACK's triangular inverse in ``dtype``, summed in float64 column
-        by column over the upper triangle (contiguous; below the diagonal lie M's numbers, never read)."""
-        trtri = lapack.strtri if dtype == np.float32 else lapack.dtrtri
-        Uinv, _ = trtri(np.asfortranarray(self._U, dtype=dtype), lower=0)
+    def _inverse_row_norms(self, dtype, chunk: int = 256) -> np.ndarray:
+        """Σ_{j ≥ i} U⁻¹_ij² (dim,), U⁻¹ by LAPACK's triangular inverse in ``dtype``, squared and summed in
+        float64 over the upper triangle (below the diagonal lie M's numbers, never read), ``chunk`` columns at a
+        time: few long numpy calls, so a solver in another thread is not kept waiting for the GIL."""
+        Uinv, _ = triangular_inverse(self._U, dtype)  # (releases the GIL: the solver's thread runs on)
         out = np.zeros(self.dim)
-        for j in range(self.dim):
-            col = Uinv[:j + 1, j].astype(float)
-            out[:j + 1] += col * col
+        for j0 in range(0, self.dim, chunk):
+            j1 = min(self.dim, j0 + chunk)
+            sq = np.square(Uinv[:j1, j0:j1], dtype=np.float64)
+            sq[j0:] = np.triu(sq[j0:])  # the diagonal block: its upper triangle only
+            out[:j1] += sq.sum(axis=1)
         return out
 
     def _row_norms_agree(self, norms, rows: int = 8) -> bool:
@@ -1068,15 +1092,13 @@ class Within:
 
     def _inverse_row(self, i: int) -> np.ndarray:
         """Row i of U⁻¹ in double precision: the solution of Uᵀ y = e_i (zero before i)."""
-        from scipy.linalg import blas
-
         e = np.zeros(self.dim)
         e[i] = 1.0
-        return blas.dtrsv(self._U, e, trans=1)
+        return triangular_solve(self._U, e, transpose=True)
 
     def _inverse_factor(self) -> np.ndarray:
         """U⁻¹ (dim, dim), upper triangular (the factor's memory holds M below the diagonal: cleared)."""
-        Uinv, _ = lapack.dtrtri(self._U, lower=0)
+        Uinv, _ = triangular_inverse(self._U, np.float64)
         for j in range(self.dim - 1):  # column by column: contiguous in Fortran order, no index arrays
             Uinv[j + 1:, j] = 0.0
         return Uinv
@@ -1210,8 +1232,17 @@ def _normal_matrix(J, w) -> np.ndarray:
     quiet.data[busy[quiet.indices]] = 0.0  # the busy columns' entries out: the quiet ones keep their indices
     quiet.eliminate_zeros()
     H = np.zeros((n, n))
-    (quiet.T.tocsr() @ quiet).toarray(out=H)  # (busy rows and columns stay 0)
-    cross = np.asarray(quiet.T @ Jd)  # (n, busy): the quiet rows; the busy rows are 0 here ...
+    cross = np.empty((n, len(dense)))  # (n, busy): the quiet rows, the busy rows 0 ...
+    QT = quiet.T.tocsr()
+
+    def rows(a, b):  # rows a:b of the quiet product, written straight into H (busy rows and columns stay 0)
+        rows_QT = QT[a:b]
+        (rows_QT @ quiet).toarray(out=H[a:b])
+        cross[a:b] = rows_QT @ Jd
+
+    # Two row blocks, each on a core (sparse products release the GIL), split where half of the entries lie.
+    half = int(np.searchsorted(QT.indptr, QT.indptr[-1] / 2))
+    in_parallel(lambda: rows(0, half), lambda: rows(half, n))
     cross[dense] = Jd.T @ Jd  # ... and take the busy block
     H[:, dense] = cross
     H[dense, :] = cross.T
@@ -1231,6 +1262,18 @@ def _leading_block(A, r: int) -> np.ndarray:
         src = (r + j) * n + r
         flat[j * m:(j + 1) * m] = flat[src:src + m]
     return flat[:m * m].reshape((m, m), order="F")
+
+
+def _factor_threads(dim: int):
+    """BLAS threads for an n³ factorization or inverse of ``dim`` unknowns: as many as the process started with
+    above :data:`REUSE_ABOVE` unknowns when no helper thread (:meth:`Within.start_background`) is at work --
+    blocks of thousands keep every thread busy (4 123 unknowns: 0.51 s on one thread, 0.31 s on two) --, else
+    the caller's (one, in :meth:`LeastSquaresProgram.fit`: below that, threads only cost)."""
+    import contextlib
+    import threading
+
+    helper = any(t.name == HELPER_THREAD and t.is_alive() for t in threading.enumerate())
+    return blas_threads() if dim > REUSE_ABOVE and not helper else contextlib.nullcontext()
 
 
 def _round_up(v: float, digits: int = 2) -> float:
