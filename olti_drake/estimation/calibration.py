@@ -1218,8 +1218,8 @@ def _normal_matrix(J, w) -> np.ndarray:
     every extra one costs a pass and fresh pages) -- a sparse product would otherwise spend most of its time
     on the busy columns."""
     if J.shape[1] <= SMALL_PROBLEM:
-        Jd = J.toarray()
-        return Jd.T @ (w[:, None] * Jd)
+        S = np.sqrt(w)[:, None] * J.toarray()
+        return S.T @ S  # (numpy sees SᵀS: BLAS syrk, half the work of a general product, exactly symmetric)
     J = J.tocsr()
     n = J.shape[1]
     busy = np.bincount(J.indices, minlength=n) > J.shape[0] // 20
