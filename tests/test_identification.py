@@ -582,3 +582,46 @@ def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
     fit.converged_by = ""
     with pytest.raises(FitRefused, match="did not converge: iteration cap 100 reached"):
         line.accept(fit)
+
+
+def test_the_resolution_check_from_the_fine_solution_equals_the_one_from_the_nominal_robot(paper0):
+    """The coarse fit starts at the fine solution (its map at the kept nodes) and solves without uncertainty:
+    the same held-out miss as a coarse fit from the nominal robot with its full uncertainty, to LM's precision."""
+    data = paper0["data"]
+    ident = Identifier(data, IdentificationOptions())
+    fit = ident.fit()
+    _, P, _ = ident.split(fit.x)
+    fast, slow = ident.resolution_check(P, fit.x), ident.resolution_check(P)
+    assert fast["done"] and slow["done"]
+    assert fast["held_out_rms_mm"] == pytest.approx(slow["held_out_rms_mm"], rel=1e-6)
+    assert fast["ratio"] == pytest.approx(slow["ratio"], rel=1e-6)
+
+
+def test_a_fit_without_uncertainty_gives_the_solution_only(paper0):
+    data = paper0["data"]
+    full = Identifier(data, IdentificationOptions()).fit()
+    bare = Identifier(data, IdentificationOptions()).fit(uncertainty=False)
+    assert bare.converged_by and bare.covariance is None and np.all(np.isnan(bare.std))
+    assert np.all(np.abs(bare.x - full.x) <= 1e-6 * full.std + 1e-12)
+    assert bare.condition_number == pytest.approx(full.condition_number, rel=0.1)  # (the check's, at the start)
+
+
+def test_on_nodes_is_the_nearest_node_within_tolerance():
+    from olti_drake.estimation.identification import _on_nodes
+
+    rng = np.random.default_rng(0)
+    grid = np.sort(rng.choice(np.arange(-140.0, 61.0), 100, replace=False))
+    commands = np.concatenate([rng.choice(np.arange(-150.0, 70.0, 0.5), 500), grid, grid + 1e-10, grid + 1e-8])
+    expected = np.any(np.abs(commands[:, None] - grid[None, :]) <= 1e-9, axis=1)
+    assert np.array_equal(_on_nodes(commands, grid), expected) and 0 < expected.sum() < len(commands)
+    assert list(_on_nodes(np.array([1.0, 2.0]), np.array([1.0]))) == [True, False]
+
+
+def test_the_identification_forms_its_covariance_when_read(paper0):
+    """Identification.covariance: the (n, n) matrix is formed on first read (a result file needs only std),
+    equal to the fit's."""
+    res = paper0["errormap"]
+    ident = Identifier(paper0["data"], IdentificationOptions())
+    C = ident.fit().covariance
+    assert np.allclose(res.covariance, C, rtol=1e-6, atol=1e-15 * np.abs(C).max())
+    assert np.allclose(np.sqrt(np.diag(res.covariance)), res.std, rtol=1e-9)

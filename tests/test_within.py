@@ -308,3 +308,31 @@ def test_lm_stops_where_no_parameter_would_move_by_a_percent_of_its_uncertainty(
     assert "1e-12" in tight.converged_by and n_early < len(counted)
     assert np.all(np.abs(early.x - tight.x) <= fraction * tight.std + 1e-12)
     assert early.std == pytest.approx(tight.std, rel=1e-3)
+
+
+def test_the_factorization_takes_every_blas_thread_only_when_large_and_alone(monkeypatch):
+    """Above REUSE_ABOVE unknowns and with no helper thread at work: the process's starting BLAS threads;
+    otherwise the caller's setting (one thread inside fit)."""
+    import threading
+
+    from olti_drake import threads
+
+    controls = threads._openblas_controls()
+    if not controls:
+        pytest.skip("no OpenBLAS found in this process")
+    counts = lambda: [get() for get, _ in controls]  # noqa: E731
+    with threads.single_thread_blas():
+        with calibration._factor_threads(calibration.REUSE_ABOVE):
+            assert counts() == [1] * len(controls)
+        with calibration._factor_threads(calibration.REUSE_ABOVE + 1):
+            assert counts() == threads._STARTED
+        release = threading.Event()
+        helper = threading.Thread(target=release.wait, name=calibration.HELPER_THREAD)
+        helper.start()
+        try:
+            with calibration._factor_threads(calibration.REUSE_ABOVE + 1):
+                assert counts() == [1] * len(controls)
+        finally:
+            release.set()
+            helper.join()
+        assert counts() == [1] * len(controls)

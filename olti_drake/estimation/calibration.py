@@ -166,9 +166,20 @@ def _covariance_set(fit, value):
     fit.__dict__["_covariance"] = value
 
 
-# A property over the dataclass field: Fit(..., covariance, ...) and fit.covariance = C still work; a callable
-# given as the covariance is evaluated (once) when the covariance is read.
-Fit.covariance = property(_covariance_get, _covariance_set)
+def lazy_covariance(cls):
+    """Class decorator for a dataclass with a ``covariance`` field: Cls(..., covariance, ...) and obj.covariance = C
+    still work; a callable given as the covariance is evaluated (once) when the covariance is first read."""
+    cls.covariance = property(_covariance_get, _covariance_set)
+    return cls
+
+
+def deferred_covariance(fit):
+    """The fit's covariance as it was given: the matrix, or the callable that forms it when read -- for a result
+    built from the fit that keeps it deferred (:func:`lazy_covariance`)."""
+    return fit.__dict__["_covariance"]
+
+
+lazy_covariance(Fit)
 
 
 class LeastSquaresProgram:
@@ -402,8 +413,13 @@ class LeastSquaresProgram:
         self.notes.append(f"regularized (weak prior to the start value): {_listing(names)}")
 
     # -- solve -------------------------------------------------------------------------------
-    def fit(self) -> "Fit":
-        """Check identifiability, solve (LM or NLP), estimate uncertainty, flag outliers."""
+    def fit(self, uncertainty: bool = True) -> "Fit":
+        """Check identifiability, solve (LM or NLP), estimate uncertainty, flag outliers.
+
+        ``uncertainty`` False: the solution only -- no covariance at it (std NaN, covariance None, condition
+        number that of the check), for an auxiliary fit of which only x is used (the resolution check's coarse
+        map); the identifiability check before solving and the convergence are still required."""
+        self._uncertainty = uncertainty
         o = self.options
         if o.solver not in ("lm", "nlp"):
             raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
@@ -429,7 +445,8 @@ class LeastSquaresProgram:
             raise FitRefused(f"{where} the solver did not converge: {self._stop_text()} after {fit.iterations} "
                              f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um); check the units "
                              f"(mm), the nominal values and the start")
-        bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~np.isfinite(fit.std))]
+        std_ok = np.isfinite(fit.std) | (not getattr(self, "_uncertainty", True))  # (NaN: none asked for)
+        bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~std_ok)]
         if bad:
             raise FitRefused(f"{where} non-finite estimate or uncertainty of {_listing(bad)}")
         if self._weak:
@@ -731,6 +748,8 @@ class LeastSquaresProgram:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
         J = self._pad(J)
+        if not getattr(self, "_uncertainty", True):
+            return self._solution_only(z, r, iterations)
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
         within = data = self._start_factor(J, weights, prior)
@@ -757,6 +776,18 @@ class LeastSquaresProgram:
         stop = self._stop
         return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
                    f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
+                   stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
+
+    def _solution_only(self, z, r, iterations) -> "Fit":
+        """:meth:`fit` without uncertainty: x, residuals and the stop; std NaN, covariance None, no outliers
+        flagged (their normalization needs no covariance, but nothing reads them here)."""
+        n = len(self.names)
+        self._weak = []
+        stop = getattr(self, "_stop", (True, "solved"))
+        within = getattr(self, "_within0", None)
+        cond = within.condition() if within is not None else float("nan")
+        return Fit(list(self.names), z[:n], np.full(n, np.nan), None, r, iterations, cond,
+                   f"{self._solver_used} ({self.options.loss} loss)", [], list(self.notes),
                    stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
 
     def _start_factor(self, J, w, prior):

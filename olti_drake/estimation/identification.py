@@ -30,7 +30,7 @@ from olti_drake.io.csvio import InputError, check_spread, unit_bound
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
 from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
-from olti_drake.estimation.calibration import distance_rows, station_fit
+from olti_drake.estimation.calibration import deferred_covariance, distance_rows, lazy_covariance, station_fit
 
 
 @dataclass
@@ -53,6 +53,7 @@ class IdentificationOptions(SolverOptions):
     check_resolution: bool = True
 
 
+@lazy_covariance  # (the (n, n) matrix formed when read: a result file carries the standard uncertainties)
 @dataclass
 class Identification:
     """The identified model, its uncertainty (k = 1, linear propagation) and diagnostics."""
@@ -144,7 +145,9 @@ class Identifier(LeastSquaresProgram):
     rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
     untouched_hint = "set a coarser map grid"
 
-    def __init__(self, data: CampaignData, options: IdentificationOptions = None):
+    def __init__(self, data: CampaignData, options: IdentificationOptions = None, start=None):
+        """``start``: the parameter vector LM starts from (default: the nominal robot, reflectors and dead paths
+        fitted per reflector on it)."""
         self.data = data
         o = options or IdentificationOptions()
         if o.model not in ("dh", "errormap"):
@@ -156,7 +159,7 @@ class Identifier(LeastSquaresProgram):
         self.n_robot = len(self.robot0.parameter_names())
         self._declare(self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
                       + [f"d0_{j}_mm" for j in range(self.n_t)], o)
-        self.x0 = self._initial_guess()
+        self.x0 = self._initial_guess() if start is None else np.asarray(start, dtype=float)
         self.gauge = self._add_gauge()
         if o.fix_reflectors:
             idx = slice(self.n_robot, self.n_robot + 2 * self.n_t)
@@ -168,13 +171,14 @@ class Identifier(LeastSquaresProgram):
 
         f = self.fit()
         model, P, d0 = self.split(f.x)
-        resolution = self.resolution_check(P) if model.is_errormap and self.options.check_resolution else None
+        resolution = (self.resolution_check(P, f.x) if model.is_errormap and self.options.check_resolution
+                      else None)
         warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
-        return Identification(model, P, d0, f.names, f.x, f.std, f.covariance, f.residuals, f.iterations,
+        return Identification(model, P, d0, f.names, f.x, f.std, deferred_covariance(f), f.residuals, f.iterations,
                               f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
                               f.converged_by, warnings, campaign_digest(self.data), resolution)
 
-    def resolution_check(self, reflectors_mm) -> Optional[dict]:
+    def resolution_check(self, reflectors_mm, x=None) -> Optional[dict]:
         """Is the map resolved between its nodes? Held-out readings at every second node (000 Eq. 8-9).
 
         The residual cannot tell: at the default grid every reading sits on a node, so a deviation with a
@@ -184,14 +188,15 @@ class Identifier(LeastSquaresProgram):
         the budget's reading uncertainty (:data:`RESOLUTION_WARNING_RATIO`) says whether the true deviation
         changes within two node spacings -- then the map may miss as much between its own nodes, and readings
         between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
+        ``x``: the fine fit's solution, where the coarse fit starts (its map at the kept nodes, its robot,
+        reflectors and dead paths: a few LM iterations instead of a fit from the nominal robot).
         """
         from olti_drake.estimation.calibration import RESIDUAL_WARNING_RATIO, _rms
         from olti_drake.io.budget import ReadingErrors
 
         c = self.data.commands
         coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
-        on = [np.any(np.abs(cmd[:, None] - g[None, :]) <= 1e-9, axis=1)
-              for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
+        on = [_on_nodes(cmd, g) for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
         keep = on[0] & on[1]
         if keep.all() or not keep.any():
             return None
@@ -202,8 +207,8 @@ class Identifier(LeastSquaresProgram):
         o = dataclasses.replace(self.options, grid1_deg=coarse[0], grid2_deg=coarse[1], reflectors_mm=reflectors_mm,
                                 check_resolution=False, regularize=False)
         try:
-            coarse_fit = Identifier(self.data.subset(keep), o)
-            x = coarse_fit.fit().x
+            coarse_fit = Identifier(self.data.subset(keep), o, None if x is None else self._coarse_start(x, coarse))
+            x = coarse_fit.fit(uncertainty=False).x  # (only its solution is used)
         except InputError as e:  # too few readings left, or the coarse fit refused: say so, do not fail
             return {"method": how, "done": False, "why": str(e)}
         # The same coarse model on every reading: residuals only, so no second program is built for it.
@@ -221,6 +226,15 @@ class Identifier(LeastSquaresProgram):
                 f"reading uncertainty: the true deviation changes within two node spacings, so the map may miss "
                 f"as much between its own nodes, where no reading looks -- measure between the nodes (finer plan)")
         return out
+
+    def _coarse_start(self, x, coarse) -> np.ndarray:
+        """The fine parameter vector ``x`` on the ``coarse`` grids (subsets of the fine ones): the map values at the
+        kept nodes, the lengths, reflectors and dead paths as they are."""
+        model = self.robot0.with_parameters(x[:self.n_robot])
+        maps = [np.concatenate([m.forward_deg[i], m.reverse_deg[i]]) for m, i in
+                ((model.map1, np.searchsorted(model.map1.grid_deg, coarse[0])),
+                 (model.map2, np.searchsorted(model.map2.grid_deg, coarse[1])))]
+        return np.concatenate([[model.L1_mm, model.L2_mm], *maps, x[self.n_robot:]])
 
     #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
     LENGTH_FACTOR = 2.0
@@ -389,6 +403,14 @@ class Identifier(LeastSquaresProgram):
                 f"X lies along the arm at theta1* = {at:g} deg, mean of both approach directions")
 
     # -- linear algebra shared by the solvers and the uncertainty ----------------------------
+def _on_nodes(commands_deg, grid_deg, tol_deg: float = 1e-9) -> np.ndarray:
+    """Which commands lie on a node of the ascending ``grid_deg`` (within ``tol_deg``): the nearest node of each,
+    by bisection (10⁴ commands x 350 nodes: no (M, N) difference array)."""
+    i = np.clip(np.searchsorted(grid_deg, commands_deg), 1, max(len(grid_deg) - 1, 1))
+    below, above = grid_deg[i - 1], grid_deg[np.minimum(i, len(grid_deg) - 1)]
+    return np.minimum(np.abs(commands_deg - below), np.abs(commands_deg - above)) <= tol_deg
+
+
 def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
     """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
     return Identifier(data, options).solve()
