@@ -585,24 +585,28 @@ def test_fit_acceptance_refuses_singular_or_non_finite_solutions():
 
 
 def test_the_resolution_check_from_the_fine_solution_equals_the_one_from_the_nominal_robot(paper0):
-    """The coarse fit starts at the fine solution (its map at the kept nodes) and solves without uncertainty:
-    the same held-out miss as a coarse fit from the nominal robot with its full uncertainty, to LM's precision."""
+    """The coarse fit starts at the fine solution (its map at the kept nodes): the same held-out miss as a coarse
+    fit from the nominal robot. Both solve without uncertainty, so both stop where no parameter would move by
+    STEP_FRACTION (1 %) of its u: the RMS misses agree to far below what the check compares them with (3 x)."""
     data = paper0["data"]
     ident = Identifier(data, IdentificationOptions())
     fit = ident.fit()
     _, P, _ = ident.split(fit.x)
     fast, slow = ident.resolution_check(P, fit.x), ident.resolution_check(P)
     assert fast["done"] and slow["done"]
-    assert fast["held_out_rms_mm"] == pytest.approx(slow["held_out_rms_mm"], rel=1e-6)
-    assert fast["ratio"] == pytest.approx(slow["ratio"], rel=1e-6)
+    assert fast["held_out_rms_mm"] == pytest.approx(slow["held_out_rms_mm"], rel=1e-4)
+    assert fast["ratio"] == pytest.approx(slow["ratio"], rel=1e-4)
 
 
 def test_a_fit_without_uncertainty_gives_the_solution_only(paper0):
+    """No covariance, the large path's rank check, and LM stopped where no parameter would move by 1 % of its u."""
+    from olti_drake.estimation import calibration
+
     data = paper0["data"]
     full = Identifier(data, IdentificationOptions()).fit()
     bare = Identifier(data, IdentificationOptions()).fit(uncertainty=False)
     assert bare.converged_by and bare.covariance is None and np.all(np.isnan(bare.std))
-    assert np.all(np.abs(bare.x - full.x) <= 1e-6 * full.std + 1e-12)
+    assert np.all(np.abs(bare.x - full.x) <= calibration.STEP_FRACTION * full.std + 1e-12)
     assert bare.condition_number == pytest.approx(full.condition_number, rel=0.1)  # (the check's, at the start)
 
 

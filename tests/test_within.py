@@ -262,7 +262,7 @@ def test_the_start_factorization_serves_the_covariance_within_its_stated_bound(m
 
 
 def test_single_precision_variances_agree_with_double_or_are_redone(monkeypatch, ur5_problem):
-    """Above REUSE_ABOVE the variances come from a single-precision U⁻¹ checked on sampled rows: they agree
+    """Above THOUSANDS unknowns the variances come from a single-precision U⁻¹ checked on sampled rows: they agree
     with the double-precision ones to INVERSE_RTOL; a tolerance no single-precision inverse meets sends them
     back to double precision (equal to the dense path)."""
     meas, gauge = ur5_problem
@@ -271,7 +271,7 @@ def test_single_precision_variances_agree_with_double_or_are_redone(monkeypatch,
     H = cal._normal(cal._pad(J), np.ones(len(r)))
     A = cal._equality_rows()[0]
     exact = Within(H.copy(), A, large=True).inverse_diagonal()
-    monkeypatch.setattr(calibration, "REUSE_ABOVE", 0)
+    monkeypatch.setattr(calibration, "THOUSANDS", 0)
     single = Within(H.copy(), A, large=True)
     assert single._row_norms_agree(single._inverse_row_norms(np.float32))
     assert single.inverse_diagonal() == pytest.approx(exact, rel=calibration.INVERSE_RTOL, abs=1e-300)
@@ -311,7 +311,7 @@ def test_lm_stops_where_no_parameter_would_move_by_a_percent_of_its_uncertainty(
 
 
 def test_the_factorization_takes_every_blas_thread_only_when_large_and_alone(monkeypatch):
-    """Above REUSE_ABOVE unknowns and with no helper thread at work: the process's starting BLAS threads;
+    """Above THOUSANDS unknowns and with no helper thread at work: the process's starting BLAS threads;
     otherwise the caller's setting (one thread inside fit)."""
     import threading
 
@@ -322,15 +322,15 @@ def test_the_factorization_takes_every_blas_thread_only_when_large_and_alone(mon
         pytest.skip("no OpenBLAS found in this process")
     counts = lambda: [get() for get, _ in controls]  # noqa: E731
     with threads.single_thread_blas():
-        with calibration._factor_threads(calibration.REUSE_ABOVE):
+        with calibration._factor_threads(calibration.THOUSANDS):
             assert counts() == [1] * len(controls)
-        with calibration._factor_threads(calibration.REUSE_ABOVE + 1):
+        with calibration._factor_threads(calibration.THOUSANDS + 1):
             assert counts() == threads._STARTED
         release = threading.Event()
         helper = threading.Thread(target=release.wait, name=calibration.HELPER_THREAD)
         helper.start()
         try:
-            with calibration._factor_threads(calibration.REUSE_ABOVE + 1):
+            with calibration._factor_threads(calibration.THOUSANDS + 1):
                 assert counts() == [1] * len(controls)
         finally:
             release.set()

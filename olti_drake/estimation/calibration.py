@@ -75,14 +75,17 @@ SMALL_PROBLEM = 300
 LARGE_PROBLEM = 500
 #: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
 LANCZOS_TOLERANCE = 1e-7
-#: Above this many decision variables one factorization of the normal matrix costs seconds: the identifiability
-#: check's rank and variance work runs in a thread beside LM (LAPACK releases the GIL), and the covariance
-#: reuses the check's factorization when the normal matrix at the solution differs from the start's by at
-#: most :data:`REUSE_TOLERANCE` in its metric -- every variance is then within that factor of the solution's.
-REUSE_ABOVE = 2000
+#: Above this many decision variables (the large path: a second factorization and its Lanczos cost more than
+#: the metric change's few block products) the identifiability check's rank and variance work runs in a thread
+#: beside LM (its BLAS/LAPACK calls release the GIL), and the covariance reuses the check's factorization when
+#: the normal matrix at the solution differs from the start's by at most :data:`REUSE_TOLERANCE` in its metric
+#: -- every variance is then within that factor of the solution's.
+REUSE_ABOVE = LARGE_PROBLEM
 REUSE_TOLERANCE = 0.02
-#: The variances on the large path come from U⁻¹ computed in single precision (half the time of double at
-#: thousands of unknowns) when sampled rows agree with double precision to this relative accuracy; else double.
+#: Thousands of unknowns: the variances come from U⁻¹ computed in single precision (half the time of double)
+#: when sampled rows agree with double precision to :data:`INVERSE_RTOL`, else double; the check's Cholesky runs
+#: on every BLAS thread (:func:`_factor_threads`).
+THOUSANDS = 2000
 INVERSE_RTOL = 1e-5
 #: LM stops (above LARGE_PROBLEM variables) before a step that would change no parameter by more than this
 #: fraction of its standard uncertainty (:meth:`LeastSquaresProgram._negligible_decrease`): the rest is far
@@ -385,7 +388,7 @@ class LeastSquaresProgram:
         if kept is not None and kept[0] is J and np.array_equal(kept[1], w):
             return kept[2]
         H = _normal_matrix(J, w)
-        self._normal_kept = (J, w.copy(), H) if self.n_all <= LARGE_PROBLEM else None
+        self._normal_kept = (J, w.copy(), H) if not self._large() else None
         return H
 
     def within(self, H, overwrite: bool = False) -> "Within":
@@ -395,7 +398,13 @@ class LeastSquaresProgram:
         n = self.n_all
         if H.shape[0] < n:
             H = np.pad(H, ((0, n - H.shape[0]), (0, n - H.shape[0])))
-        return Within(H, self._equality_rows()[0], large=n > LARGE_PROBLEM, overwrite=overwrite)
+        return Within(H, self._equality_rows()[0], large=self._large(), overwrite=overwrite)
+
+    def _large(self) -> bool:
+        """The large path: above :data:`LARGE_PROBLEM` variables, or a fit without uncertainty (:meth:`fit`) --
+        its identifiability check needs the rank only, not the reference eigen-decomposition, and its solution
+        no more than the readings determine (:meth:`_negligible_decrease`)."""
+        return self.n_all > LARGE_PROBLEM or not getattr(self, "_uncertainty", True)
 
     def _all_names(self) -> list:
         if self.n_all == len(self.names):
@@ -418,7 +427,8 @@ class LeastSquaresProgram:
 
         ``uncertainty`` False: the solution only -- no covariance at it (std NaN, covariance None, condition
         number that of the check), for an auxiliary fit of which only x is used (the resolution check's coarse
-        map); the identifiability check before solving and the convergence are still required."""
+        map): the identifiability check (rank by the large path, :meth:`_large`) and convergence are still
+        required; LM stops where no parameter would move by :data:`STEP_FRACTION` of its u."""
         self._uncertainty = uncertainty
         o = self.options
         if o.solver not in ("lm", "nlp"):
@@ -601,10 +611,11 @@ class LeastSquaresProgram:
         step δ predicts ½ δᵀHδ (more when damped), and |δ_i| ≤ √(δᵀHδ · C_ii) = √(δᵀHδ) σ_i / σ̂ with
         C = H⁻¹ within the constraints (Cauchy-Schwarz in H's metric): below this, each |δ_i| ≤ f σ_i.
         0 without redundant readings (σ̂ unknown; for exact readings it lies at the rounding floor anyway),
-        and up to :data:`LARGE_PROBLEM` variables: there an evaluation costs milliseconds, and LM goes on to
-        1e-12 of the cost (results the same to rounding whichever solver or path)."""
+        and off the large path (:meth:`_large`: up to :data:`LARGE_PROBLEM` variables with uncertainty): there
+        an evaluation costs milliseconds, and LM goes on to 1e-12 of the cost (results the same to rounding
+        whichever solver or path)."""
         dof = len(r) - self.n_all
-        if dof <= 0 or self.n_all <= LARGE_PROBLEM:
+        if dof <= 0 or not self._large():
             return 0.0
         return 0.5 * STEP_FRACTION ** 2 * float(np.sum(w * r * r)) / dof
 
@@ -613,7 +624,7 @@ class LeastSquaresProgram:
         program, and the identifiability check's factorization at hand."""
         from pydrake.solvers import BoundingBoxConstraint, LinearConstraint, QuadraticCost
 
-        if self.n_all <= LARGE_PROBLEM or getattr(self, "_within0", None) is None:
+        if not self._large() or getattr(self, "_within0", None) is None:
             return False
         for b in self.prog.GetAllConstraints():
             e = b.evaluator()
@@ -1081,7 +1092,7 @@ class Within:
         """diag(K Kᵀ), K = (N U⁻¹) / s, without forming K (large path): the reflectors touch only the rows
         ``_rows``, so every other row of N is a unit row and K's row is a row of U⁻¹; the few rows the
         constraints involve are formed from Q's (|rows|, |rows|) block."""
-        single = self.dim > REUSE_ABOVE  # (thousands of unknowns: see INVERSE_RTOL)
+        single = self.dim > THOUSANDS  # (see INVERSE_RTOL)
         tail = self._inverse_row_norms(np.float32 if single else np.float64)
         if single and not self._row_norms_agree(tail):
             tail = self._inverse_row_norms(np.float64)
@@ -1297,14 +1308,14 @@ def _leading_block(A, r: int) -> np.ndarray:
 
 def _factor_threads(dim: int):
     """BLAS threads for an n³ factorization or inverse of ``dim`` unknowns: as many as the process started with
-    above :data:`REUSE_ABOVE` unknowns when no helper thread (:meth:`Within.start_background`) is at work --
+    above :data:`THOUSANDS` unknowns when no helper thread (:meth:`Within.start_background`) is at work --
     blocks of thousands keep every thread busy (4 123 unknowns: 0.51 s on one thread, 0.31 s on two) --, else
     the caller's (one, in :meth:`LeastSquaresProgram.fit`: below that, threads only cost)."""
     import contextlib
     import threading
 
     helper = any(t.name == HELPER_THREAD and t.is_alive() for t in threading.enumerate())
-    return blas_threads() if dim > REUSE_ABOVE and not helper else contextlib.nullcontext()
+    return blas_threads() if dim > THOUSANDS and not helper else contextlib.nullcontext()
 
 
 def _round_up(v: float, digits: int = 2) -> float:
