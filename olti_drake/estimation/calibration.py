@@ -75,6 +75,8 @@ SMALL_PROBLEM = 300
 LARGE_PROBLEM = 500
 #: Relative accuracy of the extreme eigenvalues (condition number, rank) on the large path (Lanczos).
 LANCZOS_TOLERANCE = 1e-7
+#: Up to this dimension the large path's extreme eigenvalues come from the dense eigen-decomposition.
+DENSE_EXTREMES = 100
 #: Above this many decision variables (the large path: a second factorization and its Lanczos cost more than
 #: the metric change's few block products) the identifiability check's rank and variance work runs in a thread
 #: beside LM (its BLAS/LAPACK calls release the GIL), and the covariance reuses the check's factorization when
@@ -443,7 +445,8 @@ class LeastSquaresProgram:
         with single_thread_blas():
             fit = self._fit()
         self.accept(fit)
-        fit.warnings.extend(self.residual_warnings(fit))
+        if uncertainty:  # (the residual's warning compares it with the budget: for a result, not a solution only)
+            fit.warnings.extend(self.residual_warnings(fit))
         return fit
 
     # -- acceptance: refuse what is not to be trusted, state what is doubtful ---------------------
@@ -1020,7 +1023,9 @@ class Within:
         return self._extremes
 
     def _compute_extremes(self):
-        if not self.large or self.dim < 10:  # (ARPACK needs more dimensions than eigenvalues asked for)
+        # Up to DENSE_EXTREMES dimensions all eigenvalues cost less than ARPACK's setup (and ARPACK needs more
+        # dimensions than eigenvalues asked for): a fit without uncertainty takes the large path at any size.
+        if not self.large or self.dim <= DENSE_EXTREMES:
             lam = self._eigh()[0]
             return lam[0], lam[-1]
         from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
