@@ -211,6 +211,7 @@ class LeastSquaresProgram:
         self.prog.AddDecisionVariables(self.variables)
         self.notes: List[str] = []
         self._cost_weights = None  # IRLS weights of the data cost (None: all 1)
+        self._uncertainty = True  # fit(uncertainty=...): False for a solution-only fit
         self.data_cost = self.prog.AddCost(self._data_cost_value, self.variables)
         self.data_cost.evaluator().set_description("data: 1/2 sum of squared residuals (mm^2)")
         self._set_solver_tolerances()
@@ -406,7 +407,7 @@ class LeastSquaresProgram:
         """The large path: above :data:`LARGE_PROBLEM` variables, or a fit without uncertainty (:meth:`fit`) --
         its identifiability check needs the rank only, not the reference eigen-decomposition, and its solution
         no more than the readings determine (:meth:`_negligible_decrease`)."""
-        return self.n_all > LARGE_PROBLEM or not getattr(self, "_uncertainty", True)
+        return self.n_all > LARGE_PROBLEM or not self._uncertainty
 
     def _all_names(self) -> list:
         if self.n_all == len(self.names):
@@ -458,7 +459,7 @@ class LeastSquaresProgram:
             raise FitRefused(f"{where} the solver did not converge: {self._stop_text()} after {fit.iterations} "
                              f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um); check the units "
                              f"(mm), the nominal values and the start")
-        std_ok = np.isfinite(fit.std) | (not getattr(self, "_uncertainty", True))  # (NaN: none asked for)
+        std_ok = np.isfinite(fit.std) | (not self._uncertainty)  # (NaN: none asked for)
         bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~std_ok)]
         if bad:
             raise FitRefused(f"{where} non-finite estimate or uncertainty of {_listing(bad)}")
@@ -762,7 +763,7 @@ class LeastSquaresProgram:
         final = getattr(self, "_final", None)
         r, J = final[1:] if final is not None and final[0] is z else self.residuals(z[:n])
         J = self._pad(J)
-        if not getattr(self, "_uncertainty", True):
+        if not self._uncertainty:
             return self._solution_only(z, r, iterations)
         # Priors (user costs, regularization) inform the estimate: include them in the covariance.
         prior = self._prior_hessian()
@@ -787,21 +788,22 @@ class LeastSquaresProgram:
         order = np.argsort(-np.abs(zr))
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
                for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
-        stop = self._stop
-        return Fit(list(self.names), z[:n], np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond,
-                   f"{self._solver_used} ({self.options.loss} loss)", out, list(self.notes),
-                   stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
+        return self._make_fit(z, np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond, out)
 
     def _solution_only(self, z, r, iterations) -> "Fit":
         """:meth:`fit` without uncertainty: x, residuals and the stop; std NaN, covariance None, no outliers
         flagged (their normalization needs no covariance, but nothing reads them here)."""
-        n = len(self.names)
         self._weak = []
-        stop = getattr(self, "_stop", (True, "solved"))
+        self._stop = getattr(self, "_stop", (True, "solved"))
         within = getattr(self, "_within0", None)
         cond = within.condition() if within is not None else float("nan")
-        return Fit(list(self.names), z[:n], np.full(n, np.nan), None, r, iterations, cond,
-                   f"{self._solver_used} ({self.options.loss} loss)", [], list(self.notes),
+        return self._make_fit(z, np.full(len(self.names), np.nan), None, r, iterations, cond, [])
+
+    def _make_fit(self, z, std, covariance, r, iterations, cond, outliers) -> "Fit":
+        """The :class:`Fit` of the solution z: the solver's label, the notes, the stop reason, the user's values."""
+        stop = self._stop
+        return Fit(list(self.names), z[:len(self.names)], std, covariance, r, iterations, cond,
+                   f"{self._solver_used} ({self.options.loss} loss)", outliers, list(self.notes),
                    stop[1] if stop is not None and stop[0] else "", extra=self._extra_values(z))
 
     def _start_factor(self, J, w, prior):
@@ -1312,7 +1314,7 @@ def _leading_block(A, r: int) -> np.ndarray:
 
 
 def _factor_threads(dim: int):
-    """BLAS threads for an n³ factorization or inverse of ``dim`` unknowns: as many as the process started with
+    """BLAS threads for the n³ Cholesky factorization of ``dim`` unknowns: as many as the process started with
     above :data:`THOUSANDS` unknowns when no helper thread (:meth:`Within.start_background`) is at work --
     blocks of thousands keep every thread busy (4 123 unknowns: 0.51 s on one thread, 0.31 s on two) --, else
     the caller's (one, in :meth:`LeastSquaresProgram.fit`: below that, threads only cost)."""

@@ -403,17 +403,17 @@ class Identifier(LeastSquaresProgram):
                 f"X lies along the arm at theta1* = {at:g} deg, mean of both approach directions")
 
     # -- linear algebra shared by the solvers and the uncertainty ----------------------------
+def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
+    """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
+    return Identifier(data, options).solve()
+
+
 def _on_nodes(commands_deg, grid_deg, tol_deg: float = 1e-9) -> np.ndarray:
     """Which commands lie on a node of the ascending ``grid_deg`` (within ``tol_deg``): the nearest node of each,
     by bisection (10⁴ commands x 350 nodes: no (M, N) difference array)."""
     i = np.clip(np.searchsorted(grid_deg, commands_deg), 1, max(len(grid_deg) - 1, 1))
     below, above = grid_deg[i - 1], grid_deg[np.minimum(i, len(grid_deg) - 1)]
     return np.minimum(np.abs(commands_deg - below), np.abs(commands_deg - above)) <= tol_deg
-
-
-def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
-    """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
-    return Identifier(data, options).solve()
 
 
 def identifier_at_result(result_path, data):
