@@ -160,12 +160,15 @@ def triangular_solve(U, v, transpose: bool = False):
     return x
 
 
-def in_parallel(*calls):
+def in_parallel(*calls, parallel: bool = True):
     """[call() for call in calls], the first in this thread and each other in a thread of its own: for numpy
     and scipy.sparse work that releases the GIL (sparse products: two halves on two cores take 0.55 of the
-    time of one). The first exception raised is re-raised here."""
+    time of one). The first exception raised is re-raised here. ``parallel`` False: one after the other
+    here -- small work, where starting threads and sharing the caches cost more than a second core gains."""
     import threading
 
+    if not parallel:
+        return [call() for call in calls]
     results, errors = [None] * len(calls), []
 
     def run(i):

@@ -17,7 +17,6 @@ machinery of :mod:`olti_drake.estimation.calibration`.
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
-import copy
 import dataclasses
 import os
 from dataclasses import dataclass, field
@@ -171,14 +170,14 @@ class Identifier(LeastSquaresProgram):
 
         f = self.fit()
         model, P, d0 = self.split(f.x)
-        resolution = (self.resolution_check(P, f.x) if model.is_errormap and self.options.check_resolution
+        resolution = (self.resolution_check(f.x) if model.is_errormap and self.options.check_resolution
                       else None)
         warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
         return Identification(model, P, d0, f.names, f.x, f.std, deferred_covariance(f), f.residuals, f.iterations,
                               f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
                               f.converged_by, warnings, campaign_digest(self.data), resolution)
 
-    def resolution_check(self, reflectors_mm, x=None) -> Optional[dict]:
+    def resolution_check(self, x) -> Optional[dict]:
         """Is the map resolved between its nodes? Held-out readings at every second node (000 Eq. 8-9).
 
         The residual cannot tell: at the default grid every reading sits on a node, so a deviation with a
@@ -188,14 +187,17 @@ class Identifier(LeastSquaresProgram):
         the budget's reading uncertainty (:data:`RESOLUTION_WARNING_RATIO`) says whether the true deviation
         changes within two node spacings -- then the map may miss as much between its own nodes, and readings
         between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
-        ``x``: the fine fit's solution, where the coarse fit starts (its map at the kept nodes, its robot,
-        reflectors and dead paths: a few LM iterations instead of a fit from the nominal robot).
+
+        The coarse map is this model with the dropped nodes' values interpolated between the kept ones (a
+        linear reparametrization, exact at every command), so its fit is :meth:`reduced_fit` at ``x``, the fine
+        fit's solution, with the fine fit's last residuals and Jacobian: no evaluation, no second program.
         """
         from olti_drake.estimation.calibration import RESIDUAL_WARNING_RATIO, _rms
         from olti_drake.io.budget import ReadingErrors
 
         c = self.data.commands
-        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
+        maps = (self.robot0.map1, self.robot0.map2)
+        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in maps]
         on = [_on_nodes(cmd, g) for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
         keep = on[0] & on[1]
         if keep.all() or not keep.any():
@@ -204,19 +206,19 @@ class Identifier(LeastSquaresProgram):
         how = (f"map on every second node (J1 {spacing[0]:g} deg, J2 {spacing[1]:g} deg spacing) from the "
                f"{int(keep.sum())} readings on them; {int((~keep).sum())} readings at the dropped nodes held out "
                f"and predicted")
-        o = dataclasses.replace(self.options, grid1_deg=coarse[0], grid2_deg=coarse[1], reflectors_mm=reflectors_mm,
-                                check_resolution=False, regularize=False)
+        T, kept = self._coarse_parameters(coarse)
+        x = np.asarray(x, dtype=float)
+        final = getattr(self, "_final", None)
+        at = final[1:] if final is not None and np.array_equal(final[0][:len(x)], x) else None
         try:
-            coarse_fit = Identifier(self.data.subset(keep), o, None if x is None else self._coarse_start(x, coarse))
-            x = coarse_fit.fit(uncertainty=False).x  # (only its solution is used)
+            y, r = self.reduced_fit(T, x[kept], x, keep, [self.names[i] for i in kept], at)
+            problems = self.implausible(T @ y)
+            if problems:
+                raise InputError(f"the coarse map's solution is physically impossible: {'; '.join(problems)}")
         except InputError as e:  # too few readings left, or the coarse fit refused: say so, do not fail
             return {"method": how, "done": False, "why": str(e)}
-        # The same coarse model on every reading: residuals only, so no second program is built for it.
-        full = copy.copy(coarse_fit)
-        full.data = self.data
-        r = full.residuals(x)[0]
         budget = self.options.budget if self.options.budget is not None else self.default_budget()
-        u = _rms(ReadingErrors(budget).std(full.beam_lengths(x)))
+        u = _rms(ReadingErrors(budget).std(self.beam_lengths(T @ y, r)))
         out = {"method": how, "done": True, "held_out_rms_mm": _rms(r[~keep]), "fitted_rms_mm": _rms(r[keep]),
                "reading_u_mm": u, "ratio": _rms(r[~keep]) / u}
         if out["ratio"] > RESIDUAL_WARNING_RATIO:
@@ -227,14 +229,23 @@ class Identifier(LeastSquaresProgram):
                 f"as much between its own nodes, where no reading looks -- measure between the nodes (finer plan)")
         return out
 
-    def _coarse_start(self, x, coarse) -> np.ndarray:
-        """The fine parameter vector ``x`` on the ``coarse`` grids (subsets of the fine ones): the map values at the
-        kept nodes, the lengths, reflectors and dead paths as they are."""
-        model = self.robot0.with_parameters(x[:self.n_robot])
-        maps = [np.concatenate([m.forward_deg[i], m.reverse_deg[i]]) for m, i in
-                ((model.map1, np.searchsorted(model.map1.grid_deg, coarse[0])),
-                 (model.map2, np.searchsorted(model.map2.grid_deg, coarse[1])))]
-        return np.concatenate([[model.L1_mm, model.L2_mm], *maps, x[self.n_robot:]])
+    def _coarse_parameters(self, coarse):
+        """The map on the ``coarse`` grids (subsets of the fine ones, deg) as fine parameters x = T y: T (n, k)
+        sparse -- the identity on the lengths, reflectors and dead paths, linear interpolation of the kept nodes
+        (000 Eq. 9) at every fine node -- and ``kept`` (k,), the fine index of each coarse parameter."""
+        import scipy.sparse as sp
+
+        blocks, kept, at = [sp.identity(2)], [np.arange(2)], 2
+        for m, g in zip((self.robot0.map1, self.robot0.map2), coarse):
+            nodes = np.concatenate([m.grid_deg, m.grid_deg])
+            directions = np.repeat([1.0, -1.0], m.n_nodes)
+            blocks.append(ErrorMap(g, np.zeros(g.size), np.zeros(g.size), axis=m.axis).weights(nodes, directions))
+            i = np.searchsorted(m.grid_deg, g)
+            kept += [at + i, at + m.n_nodes + i]
+            at += 2 * m.n_nodes
+        blocks.append(sp.identity(len(self.names) - at))
+        kept.append(np.arange(at, len(self.names)))
+        return sp.block_diag(blocks, format="csr"), np.concatenate(kept)
 
     #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
     LENGTH_FACTOR = 2.0
@@ -274,10 +285,10 @@ class Identifier(LeastSquaresProgram):
 
         return uncertainty_layout(self.robot0, v)
 
-    def beam_lengths(self, x) -> np.ndarray:
+    def beam_lengths(self, x, residuals=None) -> np.ndarray:
         """Reflector distance ‖p̂(k) − P_j‖ of every reading at x, mm (the budget's cosine error scales with it)."""
-        r, _, _ = self.residual_rows(np.asarray(x)[None])
-        return r[0] + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
+        r = self.residual_rows(np.asarray(x)[None])[0][0] if residuals is None else residuals
+        return r + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
     def _explain(self, error: UnidentifiableError) -> UnidentifiableError:
         """A map node no reading touches is also named by the campaign lines that command that axis near it

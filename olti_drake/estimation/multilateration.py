@@ -400,9 +400,9 @@ class Multilateration(LeastSquaresProgram):
         targets, stations, dead = self._split(np.asarray(v, dtype=float))
         return {"targets_mm": targets.tolist(), "stations_mm": stations.tolist(), "dead_paths_mm": dead.tolist()}
 
-    def beam_lengths(self, x) -> np.ndarray:
+    def beam_lengths(self, x, residuals=None) -> np.ndarray:
         """‖p_i − P_j‖ of every reading at x, mm."""
-        r, _ = self.residuals(x)
+        r = self.residuals(x)[0] if residuals is None else residuals
         return r + self._split(x)[2][self.data.station] + self.data.displacement_mm
 
     def _station_fits(self, points_mm, rows, S=None):

@@ -294,9 +294,9 @@ class VolumetricIdentification(LeastSquaresProgram):
         A[rows, self.n_model + 3 * n_j + d.station] = -1.0
         return r, sp.csr_matrix(A)
 
-    def beam_lengths(self, x) -> np.ndarray:
+    def beam_lengths(self, x, residuals=None) -> np.ndarray:
         """‖p_i − P_j‖ of every reading at x, mm (for the budget's cosine error)."""
-        r, _ = self.residuals(x)
+        r = self.residuals(x)[0] if residuals is None else residuals
         return r + self.split(x)[2][self.data.station] + self.data.displacement_mm
 
     def reading_label(self, k: int) -> dict:

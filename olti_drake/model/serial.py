@@ -632,9 +632,11 @@ class DistanceMeasurement(_Measurement):
             out["drift_mm_per_h"] = own[(nf + 1) * nt:].tolist()
         return out
 
-    def beam_lengths(self, x) -> np.ndarray:
-        """‖p − P_j‖ of every reading at x, mm."""
-        xm, P, _ = self._parts(x)
+    def beam_lengths(self, x, residuals=None) -> np.ndarray:
+        """‖p − P_j‖ of every reading at x, mm (from the ``residuals`` at x when given: r + d0 + reading)."""
+        xm, P, d0 = self._parts(x)
+        if residuals is not None:
+            return residuals + d0 + self.displacement
         return np.linalg.norm(self.model.positions(self.commands, self.dirs, xm) - P[self.station], axis=1)
 
     def predict(self, x) -> np.ndarray:
@@ -705,8 +707,9 @@ class PointMeasurement(_Measurement):
         return {"tracker_frame": {"translation_mm": own[:3].tolist(), "rotation_deg": own[3:].tolist(),
                                   "convention": "tracker point = R p + t, R = Rx(rx) Ry(ry) Rz(rz)"}}
 
-    def beam_lengths(self, x) -> np.ndarray:
-        """Distance from the tracker (its frame's origin) to every tool point at x, mm."""
+    def beam_lengths(self, x, residuals=None) -> np.ndarray:
+        """Distance from the tracker (its frame's origin) to every tool point at x, mm (``residuals``: unused,
+        a point's residual does not give it)."""
         return np.linalg.norm(self.predict(x), axis=1)
 
     def predict(self, x) -> np.ndarray:
