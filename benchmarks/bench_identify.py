@@ -15,13 +15,15 @@ Times, on this machine:
     residual RMS of both (they must reach the same cost);
 (2) scaling: a 1 deg map grid (J1 -140..60, J2 0..140: 695 unknowns) and
     10 000 readings generated with numpy (:func:`synthetic_campaign`): the
-    time of ``identify`` (target < 10 s), split by phase, and scipy's time on
-    the same problem (stopped at 60 s), its start built inside its timing as
-    at paper scale.
+    time of ``identify`` (target < 10 s, and not slower than scipy's sparse
+    variant), split by phase, and scipy's time on the same problem (stopped
+    at 60 s), its start built inside its timing as at paper scale; one
+    untimed run of each first, then ours and scipy's in turn (best of 5), so
+    both meet the same load.
 
 ``identify`` of an error map also runs the under-resolution check (000 Eq.
 8-9: the map refitted on every second node predicts the held-out readings),
-a second fit scipy does not do: its time without that check is printed too,
+a reduced fit scipy does not do: its time without that check is printed too,
 for information (``check_resolution=False``).
 
 scipy: ``least_squares(method='trf', x_scale='jac')`` with ``jac=`` the
@@ -48,8 +50,8 @@ the rest of ``identify`` is "other".
 The wall time of ``identify`` includes what scipy does not do (building the
 program, the identifiability check, the covariance); scipy's time includes
 the gauge elimination and one more residuals call for its RMS. Exits 1 when
-the default solver is slower than scipy at paper scale, the 1 deg case takes
-10 s or more, or the two do not reach the same cost.
+the default solver is slower than scipy at paper scale or at the 1 deg grid,
+the 1 deg case takes 10 s or more, or the two do not reach the same cost.
 
 Units: readings and residuals in mm, angles in deg, times in s (ms in tables).
 """
@@ -77,7 +79,7 @@ from timing import best_of, cpu_busy  # noqa: E402
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
 REPEATS = 5
-SCALING_REPEATS = 3
+SCALING_REPEATS = 5
 #: The issue's target for the 1 deg map with 10 000 readings (s).
 TARGET_1DEG_S = 10.0
 #: scipy on the 1 deg problem is stopped after this long (s).
@@ -258,6 +260,7 @@ PHASES = {
     "identifiability check + covariance": ("check_identifiability", "within", "_equality_rows", "_finish",
                                            "_prior_hessian", "_result", "_regularize"),
     "fit acceptance, residual warning": ("accept", "residual_warnings", "beam_lengths", "implausible"),
+    "under-resolution check (Identifier.at_solution)": ("at_solution",),
     "NLP solver (Drake Solve of the whole program, less residuals)": ("_solve_nlp",),
     "program setup (Identifier.__init__, start x0)": ("__init__", "_initial_guess", "_robot_start",
                                                        "_check_reflectors", "_add_gauge"),
@@ -436,30 +439,40 @@ def scaling():
     """Print the 1 deg table; return (ok_time, ok_cost, time s)."""
     t_gen, (big, _) = best_of(lambda: synthetic_campaign(10_000, 1.0, seed=1), repeats=1)
     opts = grid_options(1.0)
-    times = []
+    bare = dataclasses.replace(opts, check_resolution=False)  # (information: without the under-resolution check)
+    # The same start as ours, built inside the timing as at paper scale (ours builds it inside identify).
+    run_scipy = lambda: scipy_solve(Identifier(big, opts), "lsmr", time_limit_s=SCIPY_LIMIT_S)  # noqa: E731
+    # One untimed run of each first (the first arrays of a size come from fresh pages), then the runs in turn,
+    # so both meet the same load on this shared machine.
+    identify(big, opts)
+    scipy_ok = best_of_limited(run_scipy, 1)[0] is not None
+    times, bare_times, scipy_runs = [], [], []
     for _ in range(SCALING_REPEATS):
         t0 = time.perf_counter()
         res = identify(big, opts)
         times.append(time.perf_counter() - t0)
-    t_our = min(times)
-    bare = dataclasses.replace(opts, check_resolution=False)  # (information: without the under-resolution refit)
-    t_bare = min(best_of(lambda: identify(big, bare), repeats=1)[0] for _ in range(SCALING_REPEATS))
+        bare_times.append(best_of(lambda: identify(big, bare), repeats=1)[0])
+        if scipy_ok:
+            scipy_runs.append(best_of_limited(run_scipy, 1))
+    t_our, t_bare = min(times), min(bare_times)
     _, t_split, split, calls = timed_split(lambda: identify(big, opts))
     print(f"\n(2) scaling: 1 deg map grid (J1 {J1_RANGE_DEG[0]:g}..{J1_RANGE_DEG[1]:g}, J2 {J2_RANGE_DEG[0]:g}.."
           f"{J2_RANGE_DEG[1]:g} deg), {len(res.names)} unknowns, {len(big)} synthetic readings "
           f"(numpy, {1e3 * t_gen:.0f} ms; noise {1e3 * NOISE_MM:g} um; every node touched both ways: "
           f"{'yes' if not untouched_parameters(Identifier(big, opts)) else 'NO'})")
     print(f"{'':64s}{'time s':>9s}")
-    print(f"{'identify (lm), wall, best of ' + str(SCALING_REPEATS):64s}{t_our:9.2f}  "
-          f"(all: {', '.join(f'{t:.2f}' for t in times)}; {res.iterations} LM iterations; "
+    print(f"{'identify (lm), wall, best of ' + str(SCALING_REPEATS):64s}{t_our:9.3f}  "
+          f"(all: {', '.join(f'{t:.3f}' for t in times)}; {res.iterations} LM iterations; "
           f"RMS {res.residual_rms_mm:.12f} mm)")
-    print(f"{'identify (lm), no resolution check, wall, best of ' + str(SCALING_REPEATS):64s}{t_bare:9.2f}")
-    print(f"{'identify (lm), wall, timed run (split below)':64s}{t_split:9.2f}")
+    print(f"{'identify (lm), no resolution check, wall, best of ' + str(SCALING_REPEATS):64s}{t_bare:9.3f}")
+    print(f"{'identify (lm), wall, timed run (split below)':64s}{t_split:9.3f}")
     print_split(t_split, split, calls, indent="    ")
-    ok_cost = True
+    ok_cost, fastest = True, float("inf")
     for tr, repeats in (("lsmr", SCALING_REPEATS), ("exact", 1)):
-        # The same start as ours, built inside the timing as at paper scale (ours builds it inside identify).
-        t, o = best_of_limited(lambda: scipy_solve(Identifier(big, opts), tr, time_limit_s=SCIPY_LIMIT_S), repeats)
+        if tr == "lsmr":
+            t, o = min(scipy_runs, key=lambda run: run[0]) if scipy_ok else (None, None)
+        else:
+            t, o = best_of_limited(lambda: scipy_solve(Identifier(big, opts), tr, time_limit_s=SCIPY_LIMIT_S), 1)
         label = f"scipy least_squares trf/{tr}" + (" (sparse J)" if tr == "lsmr" else " (dense J)") + \
             (f", best of {repeats}" if repeats > 1 else "")
         if t is None:
@@ -468,11 +481,12 @@ def scaling():
         dx = np.max(np.abs(o["x"] - res.x) / res.std)
         same = rel(res.residual_rms_mm, o["rms_mm"]) <= SAME_COST_RTOL
         ok_cost &= same
-        print(f"{label:64s}{t:9.2f}  ({o['nfev']} fev; RMS {o['rms_mm']:.12f} mm; ours/scipy {t_our / t:.2f}, "
+        fastest = min(fastest, t)
+        print(f"{label:64s}{t:9.3f}  ({o['nfev']} fev; RMS {o['rms_mm']:.12f} mm; ours/scipy {t_our / t:.2f}, "
               f"without the resolution check {t_bare / t:.2f}; "
               f"max|dx|/std {dx:.1e})")
     ok_time = t_our <= TARGET_1DEG_S
-    return ok_time, ok_cost, t_our
+    return ok_time, ok_cost, t_our <= fastest, t_our
 
 
 def main() -> int:
@@ -491,11 +505,12 @@ def main() -> int:
           "1e-8); tr_solver 'lsmr' on the sparse J or 'exact' on J densified")
     ok_speed, ok_cost1 = paper_scale(data)
     paper_split(data)
-    ok_time, ok_cost2, t_big = scaling()
+    ok_time, ok_cost2, ok_speed_big, t_big = scaling()
 
     print()
     checks = [("paper scale: identify (solver lm, both models) not slower than scipy", ok_speed),
               (f"1 deg grid, 10 000 readings: identify < {TARGET_1DEG_S:g} s ({t_big:.2f} s)", ok_time),
+              ("1 deg grid: identify not slower than the faster scipy variant", ok_speed_big),
               (f"same cost: residual RMS of ours and scipy agree to {SAME_COST_RTOL:g} relative",
                ok_cost1 and ok_cost2)]
     for text, ok in checks:

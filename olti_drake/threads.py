@@ -141,22 +141,32 @@ def symmetric_times(A, v):
 
 def triangular_solve(U, v, transpose: bool = False):
     """U⁻¹ v (or U⁻ᵀ v) for an upper triangular U (n, n), Fortran order, float64 (the strict lower triangle
-    is not read): BLAS dtrsv, releasing the GIL."""
+    is not read), v (n,) or (n, k): BLAS dtrsv or dtrsm, releasing the GIL."""
     import ctypes
 
     import numpy as np
 
-    i = ctypes.POINTER(ctypes.c_int)
-    routine = _nogil("cython_blas", "dtrsv", ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, i,
-                     ctypes.c_void_p, i, ctypes.c_void_p, i)
+    i, c = ctypes.POINTER(ctypes.c_int), ctypes.c_char_p
+    p, d = ctypes.c_void_p, ctypes.POINTER(ctypes.c_double)
+    block = np.ndim(v) == 2
+    routine = (_nogil("cython_blas", "dtrsm", c, c, c, c, i, i, d, p, i, p, i) if block else
+               _nogil("cython_blas", "dtrsv", c, c, c, i, p, i, p, i))
     if routine is None or not (U.flags.f_contiguous and U.dtype == np.float64):
-        from scipy.linalg import blas
+        from scipy.linalg import blas, lapack
 
+        if block:
+            return lapack.dtrtrs(U, v, trans=int(transpose))[0]
         return blas.dtrsv(U, v, trans=int(transpose))
-    x = np.array(v, dtype=np.float64)  # (a copy: dtrsv overwrites its right-hand side)
+    x = np.array(v, dtype=np.float64, order="F")  # (a copy: the routines overwrite their right-hand side)
     n, one = ctypes.c_int(U.shape[0]), ctypes.c_int(1)
-    routine(b"U", b"T" if transpose else b"N", b"N", ctypes.byref(n), U.ctypes.data, ctypes.byref(n),
-            x.ctypes.data, ctypes.byref(one))
+    trans = b"T" if transpose else b"N"
+    if block:
+        k, alpha = ctypes.c_int(x.shape[1]), ctypes.c_double(1.0)
+        routine(b"L", b"U", trans, b"N", ctypes.byref(n), ctypes.byref(k), ctypes.byref(alpha), U.ctypes.data,
+                ctypes.byref(n), x.ctypes.data, ctypes.byref(n))
+    else:
+        routine(b"U", trans, b"N", ctypes.byref(n), U.ctypes.data, ctypes.byref(n), x.ctypes.data,
+                ctypes.byref(one))
     return x
 
 

@@ -53,7 +53,13 @@ def test_symmetric_times_and_triangular_solve_equal_their_dense_definitions(rout
         x = threads.triangular_solve(U, v, transpose=transpose)
         assert np.abs(A @ x - v).max() < 1e-12
     assert np.array_equal(threads.triangular_solve(U, v), blas.dtrsv(U, v))  # the same BLAS routine
-    assert np.array_equal(v, v.copy())  # the right-hand side is not overwritten
+    V = rng.normal(size=(50, 4))
+    V0 = V.copy()
+    for transpose, A in ((False, T), (True, T.T)):  # a block of right-hand sides (dtrsm)
+        X = threads.triangular_solve(U, V, transpose=transpose)
+        assert X.shape == V.shape and np.abs(A @ X - V).max() < 1e-12
+        assert np.abs(X - lapack.dtrtrs(U, V, trans=int(transpose))[0]).max() < 1e-12
+    assert np.array_equal(V, V0)  # the right-hand sides are not overwritten
 
 
 def test_the_ctypes_route_lets_another_thread_run_during_the_call():

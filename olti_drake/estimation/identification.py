@@ -168,16 +168,21 @@ class Identifier(LeastSquaresProgram):
         """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
         from olti_drake.io.csvio import campaign_digest
 
-        f = self.fit()
+        self._resolution = None
+        f = self.fit()  # (runs the under-resolution check: at_solution)
         model, P, d0 = self.split(f.x)
-        resolution = (self.resolution_check(f.x) if model.is_errormap and self.options.check_resolution
-                      else None)
+        resolution = self._resolution
         warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
         return Identification(model, P, d0, f.names, f.x, f.std, deferred_covariance(f), f.residuals, f.iterations,
                               f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
                               f.converged_by, warnings, campaign_digest(self.data), resolution)
 
-    def resolution_check(self, x) -> Optional[dict]:
+    def at_solution(self, x, r, J) -> None:
+        """The under-resolution check of an error map (:meth:`resolution_check`), run by :meth:`fit`."""
+        if self.robot0.is_errormap and self.options.check_resolution:
+            self._resolution = self.resolution_check(x, (r, J))
+
+    def resolution_check(self, x, at=None) -> Optional[dict]:
         """Is the map resolved between its nodes? Held-out readings at every second node (000 Eq. 8-9).
 
         The residual cannot tell: at the default grid every reading sits on a node, so a deviation with a
@@ -187,6 +192,7 @@ class Identifier(LeastSquaresProgram):
         the budget's reading uncertainty (:data:`RESOLUTION_WARNING_RATIO`) says whether the true deviation
         changes within two node spacings -- then the map may miss as much between its own nodes, and readings
         between the nodes (a finer plan) are needed to know. Returns None when no reading can be held out.
+        ``at``: the residuals and Jacobian at x (default evaluated).
 
         The coarse map is this model with the dropped nodes' values interpolated between the kept ones (a
         linear reparametrization, exact at every command), so its fit is :meth:`reduced_fit` at ``x``, the fine
@@ -208,8 +214,6 @@ class Identifier(LeastSquaresProgram):
                f"and predicted")
         T, kept = self._coarse_parameters(coarse)
         x = np.asarray(x, dtype=float)
-        final = getattr(self, "_final", None)
-        at = final[1:] if final is not None and np.array_equal(final[0][:len(x)], x) else None
         try:
             y, r = self.reduced_fit(T, x[kept], x, keep, [self.names[i] for i in kept], at)
             problems = self.implausible(T @ y)
