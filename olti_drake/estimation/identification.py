@@ -48,7 +48,8 @@ class IdentificationOptions(SolverOptions):
     nominal_L2_mm: float = PAPER_L2_MM
     reflectors_mm: Optional[np.ndarray] = None
     fix_reflectors: bool = False
-    #: Run :meth:`Identifier.resolution_check` after an error-map fit (one more fit on a third of the readings).
+    #: Run :meth:`Identifier.resolution_check` at an error-map fit's solution (a reduced fit on the readings at
+    #: every second node, on the fit's linearization).
     check_resolution: bool = True
 
 
@@ -144,9 +145,7 @@ class Identifier(LeastSquaresProgram):
     rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
     untouched_hint = "set a coarser map grid"
 
-    def __init__(self, data: CampaignData, options: IdentificationOptions = None, start=None):
-        """``start``: the parameter vector LM starts from (default: the nominal robot, reflectors and dead paths
-        fitted per reflector on it)."""
+    def __init__(self, data: CampaignData, options: IdentificationOptions = None):
         self.data = data
         o = options or IdentificationOptions()
         if o.model not in ("dh", "errormap"):
@@ -158,7 +157,7 @@ class Identifier(LeastSquaresProgram):
         self.n_robot = len(self.robot0.parameter_names())
         self._declare(self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
                       + [f"d0_{j}_mm" for j in range(self.n_t)], o)
-        self.x0 = self._initial_guess() if start is None else np.asarray(start, dtype=float)
+        self.x0 = self._initial_guess()
         self.gauge = self._add_gauge()
         if o.fix_reflectors:
             idx = slice(self.n_robot, self.n_robot + 2 * self.n_t)
