@@ -501,19 +501,18 @@ class LeastSquaresProgram:
                          f"re-weightings")
 
     def _reduced_factor(self, J, w, A, names) -> "Within":
-        """:class:`Within` of :meth:`reduced_fit`'s normal matrix, or UnidentifiableError naming what it lacks."""
+        """:class:`Within` of :meth:`reduced_fit`'s normal matrix, or UnidentifiableError naming what it lacks (not
+        :meth:`_explain`ed: the campaign's readings are not at fault for what a subset of them cannot see)."""
         H = _normal_matrix(J, w)
         untouched = [names[i] for i in np.flatnonzero(np.diag(H) == 0)]
         if untouched:
-            raise self._explain(UnidentifiableError(
-                f"not identifiable from the kept readings: {_listing(untouched)} -- no kept reading touches "
-                f"{'it' if len(untouched) == 1 else 'them'}", untouched))
+            raise UnidentifiableError(f"not identifiable from the kept readings: {_listing(untouched)} -- no kept "
+                                      f"reading touches {'it' if len(untouched) == 1 else 'them'}", untouched)
         within = Within(H, A, large=True, overwrite=True)
         weak = [] if within.clearly_regular() else within.weak_names(names)
         if weak:
-            raise self._explain(UnidentifiableError(
-                f"not identifiable from the kept readings: {_listing(weak)} -- a combination of them leaves every "
-                f"kept reading unchanged", weak))
+            raise UnidentifiableError(f"not identifiable from the kept readings: {_listing(weak)} -- a combination "
+                                      f"of them leaves every kept reading unchanged", weak)
         return within
 
     # -- acceptance: refuse what is not to be trusted, state what is doubtful ---------------------
