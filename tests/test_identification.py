@@ -634,6 +634,20 @@ def test_the_resolution_check_equals_a_coarse_fit_of_its_own(paper0, loss):
     assert np.max(np.abs(r_check - r)) < 1e-4
 
 
+def test_the_resolution_check_beside_the_covariance_equals_it_alone(paper0, monkeypatch):
+    """Above REUSE_ABOVE variables the check (Identifier.at_solution) runs on a second thread beside the reuse
+    test: the same check as in line, and as asked for by resolution_check at the solution afterwards."""
+    from olti_drake.estimation import calibration
+
+    alone = paper0["errormap"].resolution
+    monkeypatch.setattr(calibration, "REUSE_ABOVE", 0)  # (the paper's 49 unknowns take the two-thread path)
+    ident = Identifier(paper0["data"], IdentificationOptions())
+    beside = ident.solve()
+    assert beside.resolution["held_out_rms_mm"] == pytest.approx(alone["held_out_rms_mm"], rel=1e-9)
+    again = ident.resolution_check(beside.x)
+    assert again["held_out_rms_mm"] == pytest.approx(alone["held_out_rms_mm"], rel=1e-9)
+
+
 def test_the_coarse_parameters_interpolate_the_kept_nodes(paper0):
     """x = T y: the kept nodes' values as they are, the dropped ones linearly between them (000 Eq. 9), the rest
     unchanged -- the fine model at T y is the coarse model at every command."""

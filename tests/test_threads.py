@@ -92,6 +92,16 @@ def test_in_parallel_returns_in_order_and_reraises():
         threads.in_parallel(lambda: 1, boom)
 
 
+@pytest.mark.parametrize("parallel", [True, False])
+def test_in_parallel_runs_small_work_here(parallel):
+    """parallel=False: every call in this thread, one after the other (the same results)."""
+    import threading
+
+    names = threads.in_parallel(*[lambda: threading.current_thread().name] * 3, parallel=parallel)
+    here = threading.current_thread().name
+    assert names[0] == here and (names[1:] == [here, here]) != parallel
+
+
 def test_blas_threads_set_and_restore():
     controls = threads._openblas_controls()
     if not controls:

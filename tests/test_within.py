@@ -43,6 +43,19 @@ def test_large_path_equals_dense_on_a_random_normal_matrix(m):
     assert not large.deficient() and large.weak_names([f"p{i}" for i in range(H.shape[0])]) == []
 
 
+def test_clearly_regular_is_a_cheap_sufficient_test_of_full_rank():
+    """dpocon's estimate says full rank (margin 100 x RANK_TOLERANCE) on a well-posed M; on a nearly deficient
+    one (λ_min/λ_max ~ 1e-13: the Cholesky still succeeds) it decides nothing, and Lanczos finds the deficiency."""
+    H, A = _normal(5, m=1)
+    assert Within(H, A, large=True).clearly_regular()
+    rng = np.random.default_rng(6)
+    J = rng.normal(size=(150, 40))
+    J[:, 11] = 2.0 * J[:, 10] + 1e-7 * rng.normal(size=150)  # (relative eigenvalue ~1e-15: below the tolerance)
+    near = Within(J.T @ J, np.zeros((0, 40)), large=True)
+    assert near.factorized and not near.clearly_regular() and near.deficient()
+    assert not Within(H, A, large=False).clearly_regular()  # (dense path: no factor, never decided here)
+
+
 def test_dependent_constraint_rows_count_once():
     """A constraint given twice (or a combination of others) removes one dimension, in both paths."""
     H, A = _normal(3, m=2)
