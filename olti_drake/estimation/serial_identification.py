@@ -32,7 +32,7 @@ import numpy as np
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
 from olti_drake.io.csvio import InputError
-from olti_drake.model.chain import planar_axis, planar_normal
+from olti_drake.model.chain import plane_frame, planar_axis, planar_normal
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
@@ -114,22 +114,21 @@ OFF_PLANE_MIN_MM = 1.0
 def start_stations(model, campaign, planar=None, heights=None) -> tuple:
     """Stations (Nt, 3) and dead paths (Nt,) mm fitted to the nominal tool points (station_fit).
 
-    ``planar``: the root axis normal to a planar robot's plane: each station is fitted in the plane
-    (2D, 000 Eq. (5)) and placed at the tool points' height along the axis (held there). ``heights``:
-    (axis, plane level, {station: (P (3,), d0)}) of :func:`off_plane_stations`, used as they are."""
+    ``planar``: a planar robot's plane (a root axis or a unit normal, :func:`~olti_drake.model.chain.robot_plane`):
+    each station is fitted in the plane (2D, 000 Eq. (5)) and placed at the tool points' level along its
+    normal (held there). ``heights``: (normal, plane level, {station: (P (3,), d0)}) of
+    :func:`off_plane_stations`, used as they are."""
     if heights is not None:
         fits = heights[2]
         return (np.array([fits[j][0] for j in np.unique(campaign.station)]),
                 np.array([fits[j][1] for j in np.unique(campaign.station)]))
     p = model.positions(campaign.commands, campaign.dirs)
-    free = [c for c in range(3) if c != planar]
+    n, E = plane_frame(planar)[:2] if planar is not None else (np.zeros(3), np.eye(3))
     P, d0 = [], []
     for j in np.unique(campaign.station):
         sel = campaign.station == j
-        Pf, d0j = _station_start(campaign, j, p[sel][:, free], campaign.displacement_mm[sel])
-        Pj = np.full(3, p[sel][:, planar].mean() if planar is not None else 0.0)
-        Pj[free] = Pf
-        P.append(Pj)
+        Pf, d0j = _station_start(campaign, j, p[sel] @ E, campaign.displacement_mm[sel])
+        P.append(E @ Pf + np.mean(p[sel] @ n) * n)  # (a root axis: the coordinates as they are, bit for bit)
         d0.append(d0j)
     return np.array(P), np.array(d0)
 
@@ -225,10 +224,12 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
     """The measurement problem of a campaign at its start (nominal robot, fitted stations / frame).
 
     A distance campaign of a planar robot (:func:`~olti_drake.model.chain.planar_axis`: the SCARA of
-    000 as ``models/scara.sdf`` to its ``beam`` frame) is the planar problem: the out-of-plane
-    parameters dropped by name (``base_parameter_set(planar=...)``), the stations 2D in the plane at
-    the tool point's held height -- unless its stations stand off that plane (:func:`off_plane_stations`):
-    then the 3D problem, the stations started at their fitted heights (``above``: those placed above the plane).
+    000 as ``models/scara.sdf`` to its ``beam`` frame; or a plane normal to no root axis,
+    :func:`~olti_drake.model.chain.planar_normal`: a model file that tilts the base) is the planar
+    problem: the out-of-plane parameters dropped by name (``base_parameter_set(planar=...)``), the
+    stations 2D in the plane at the tool point's level -- unless its stations stand off that plane
+    (:func:`off_plane_stations`): then the 3D problem, the stations started at their fitted heights
+    (``above``: those placed above the plane).
     Returns (measurement, notes, labels of the stations off the plane)."""
     nominal = chain.nominal_parameters(options.tool_offset_mm)
     planar = planar_axis(chain, nominal) if campaign.kind == "distance" else None
@@ -238,6 +239,8 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
     heights = off_plane_stations(chain, campaign, options.tool_offset_mm, normal, above) if normal is not None else None
     if heights is not None:  # stations off the plane see the robot in 3D: no planar reduction
         planar = None
+    elif planar is None and normal is not None:  # a tilted planar robot measured in its plane
+        planar = normal
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
                                  grid_step_deg=options.grid_step_deg, grids=options.grids,
                                  tool_offset_mm=options.tool_offset_mm, compliance=options.compliance,
@@ -252,10 +255,17 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
             f"{', '.join(f'{z - heights[1]:.0f}' for z in P @ heights[0])} mm): identified in 3D, the "
             f"out-of-plane parameters seen through the beams' slope; the mirror image of all the stations "
             f"together fits the same (the first is placed below)"]
+        if np.ndim(planar) == 1:
+            n, _, h = plane_frame(planar)
+            free = "".join(c for k, c in enumerate("xyz") if k != h)
+            notes.append(f"a planar robot whose plane is tilted in its model file (normal "
+                         f"({', '.join(f'{c:.4g}' for c in n)})), measured from stations in that plane: the planar "
+                         f"reduction on it; each station's {'xyz'[h]} follows from its {free} (the station held in "
+                         f"the plane: u of {'xyz'[h]} stated 0)")
         return DistanceMeasurement(model, campaign.commands, campaign.dirs, campaign.station,
                                    campaign.displacement_mm, P, d0,
                                    time_h=campaign.time_s / 3600.0 if options.drift else None,
-                                   held_axis=planar), notes, (() if heights is None else heights[3])
+                                   plane=planar), notes, (() if heights is None else heights[3])
     return PointMeasurement(model, campaign.commands, campaign.dirs, campaign.points_mm,
                             start_frame(model, campaign)), [], ()
 

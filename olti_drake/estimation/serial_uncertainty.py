@@ -28,7 +28,7 @@ def calibration_at_result(result, campaign):
     :class:`~olti_drake.io.serial_io.SerialCampaign` (the one the result came from)."""
     from olti_drake.estimation.calibration import SolverOptions
     from olti_drake.estimation.serial_identification import SerialCalibration
-    from olti_drake.model.chain import planar_axis
+    from olti_drake.model.chain import robot_plane
     from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, find_gauge
 
     model = result.model
@@ -50,8 +50,8 @@ def calibration_at_result(result, campaign):
                                    time_h=campaign.time_s / 3600.0 if drift else None,
                                    drift_mm_per_h=data.get("drift_mm_per_h"),
                                    drift_reference_h=data.get("drift_reference_h"),
-                                   held_axis=(planar_axis(model.chain, model.chain_params) if model.planar_reduced
-                                              else None))  # as build_problem
+                                   plane=robot_plane(model.chain, model.chain_params) if model.planar_reduced
+                                   else None)  # as build_problem
     else:
         if result.tracker_frame is None:
             raise InputError(f"{campaign.source}: a point (tracker) campaign, but the result was identified from "

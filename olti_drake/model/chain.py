@@ -499,16 +499,41 @@ def planar_normal(chain: SerialChain, params=None, *, n_poses: int = 40, seed: i
     return n if n[lead] > 0 else -n
 
 
+def robot_plane(chain: SerialChain, params=None):
+    """A planar robot's plane: the root axis normal to it (:func:`planar_axis`, an int), else its unit normal
+    (:func:`planar_normal`, (3,): a model file that tilts the robot's base), else None (not planar)."""
+    axis = planar_axis(chain, params)
+    return axis if axis is not None else planar_normal(chain, params)
+
+
+def plane_frame(plane):
+    """(n (3,), E (3, 2), h): the unit normal of ``plane`` (a root axis 0-2, or a unit normal (3,)), an
+    orthonormal in-plane basis E, and the root axis h along which the normal is largest. For a root axis E
+    is the other two root axes in order and n that axis: projections on them are the plain coordinates,
+    bit for bit."""
+    if np.ndim(plane) == 0:
+        h = int(plane)
+        return np.eye(3)[h], np.eye(3)[:, [c for c in range(3) if c != h]], h
+    n = np.asarray(plane, float) / np.linalg.norm(plane)
+    E = np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2]
+    return n, E, int(np.argmax(np.abs(n)))
+
+
 #: How :func:`planar_reason` begins: what marks a parameter the planar reduction held (results keep the reason).
 PLANAR_REASON = "out of the plane"
 
 
-def planar_reason(axis: int) -> str:
-    """Why a planar robot's readings cannot see a parameter that moves the tool point out of its plane."""
-    name = "xyz"[axis]
-    return (f"{PLANAR_REASON}: a planar robot (every joint axis along {name}) keeps the tool point at one {name}, "
-            f"and readings in that plane see this parameter only at second order (cosine) or as a combination of "
-            f"the in-plane ones; held at its start value")
+def planar_reason(plane) -> str:
+    """Why a planar robot's readings cannot see a parameter that moves the tool point out of its plane
+    (``plane``: a root axis or a unit normal, :func:`robot_plane`)."""
+    if np.ndim(plane) == 0:
+        name = "xyz"[int(plane)]
+        where = f"every joint axis along {name}) keeps the tool point at one {name}"
+    else:
+        normal = ", ".join(f"{c:.4g}" for c in plane_frame(plane)[0])
+        where = f"every joint axis along its plane's normal ({normal})) keeps the tool point in one plane"
+    return (f"{PLANAR_REASON}: a planar robot ({where}, and readings in that plane see this parameter only at "
+            f"second order (cosine) or as a combination of the in-plane ones; held at its start value")
 
 
 def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, seed: int = 0,
@@ -537,11 +562,11 @@ def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, se
     kinematic parameters with full-pose readings is 4R + 6; with position
     readings the tool orientation (3) is unobservable, so 4R + 3 remain.
 
-    ``planar``: the root axis normal to a planar robot's plane (:func:`planar_axis`), for readings
-    in that plane (distances to stations at the tool point's height, 000 Eq. (10)). Every parameter
-    whose column has a component along that axis at some pose (a shift along it, a tilt of a joint
-    frame, the tool offset along it) is dropped first with :func:`planar_reason`, and the rest is
-    ranked on the in-plane rows only: the SCARA's J1, J2 keep 2R + 2 = 6 (J1 dx, dy and offset: the
+    ``planar``: a planar robot's plane (:func:`robot_plane`: the root axis normal to it, or its unit
+    normal), for readings in that plane (distances to stations at the tool point's height, 000 Eq. (10)).
+    Every parameter whose column has a component along the normal at some pose (a shift along it, a
+    tilt of a joint frame, the tool offset along it) is dropped first with :func:`planar_reason`, and
+    the rest is ranked on the in-plane components only: the SCARA's J1, J2 keep 2R + 2 = 6 (J1 dx, dy and offset: the
     base's place and turn; J2 dx = L1 − 325 mm, tool x = L2 − 225 mm, tool y; J2's offset θ20 trades
     with tool y: (L2, θ20) in polar form).
     """
@@ -564,11 +589,12 @@ def base_parameter_set(chain: SerialChain, params=None, *, n_poses: int = 60, se
     if planar is None:
         return _staged_rank(columns, names, groups, rtol, n_poses, seed)
     rows = columns.reshape(-1, 3, columns.shape[1])
-    normal = np.abs(rows[:, planar, :]).max(axis=0)
+    n_vec, E, _ = plane_frame(planar)
+    normal = np.abs(np.einsum("i,mik->mk", n_vec, rows)).max(axis=0)
     out = normal > 1e-9 * max(np.abs(columns).max(), 1e-300)
     groups = [[c for c in g if not out[c]] for g in groups]
-    base = _staged_rank(np.delete(rows, planar, axis=1).reshape(-1, columns.shape[1]), names, groups, rtol,
-                        n_poses, seed)
+    in_plane = np.einsum("ij,mik->mjk", E, rows)  # (a root axis: the other two coordinates, exactly)
+    base = _staged_rank(in_plane.reshape(-1, columns.shape[1]), names, groups, rtol, n_poses, seed)
     held = tuple((names[c], planar_reason(planar)) for c in np.flatnonzero(out))
     return dataclasses.replace(base, dropped=held + base.dropped,
                                independence={**base.independence, **{name: 0.0 for name, _ in held}})

@@ -38,7 +38,8 @@ import scipy.sparse as sp
 
 from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, approach_directions
 from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, PLANAR_REASON, TOOL_NAMES,
-                                    UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, _axis_rotation, _cross)
+                                    UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, plane_frame, _axis_rotation,
+                                    _cross)
 
 MODEL_KINDS = ("dh", "errormap")
 #: Relative singular value below which a parameter combination counts as unseen (gauge analysis).
@@ -567,16 +568,19 @@ class DistanceMeasurement(_Measurement):
     the dead paths; t̄_j (``drift_reference_h``) is the mean time of station j's
     readings, so d0_j stays the dead path at mid-campaign.
 
-    ``held_axis`` (0, 1, 2 or None): a planar robot's readings in its plane cannot see the stations'
-    coordinate along the plane's normal (the beam stays in the plane); it is held at its value in
-    ``stations_mm`` (the plane's height) and the own parameters are the two in-plane coordinates.
+    ``plane`` (a root axis 0-2, a unit normal (3,), or None; :func:`~olti_drake.model.chain.robot_plane`):
+    a planar robot's readings in its plane cannot see the stations' distance from the plane (the beam
+    stays in it): each station stays in the plane through its position in ``stations_mm``, and the own
+    parameters are its two root coordinates other than ``held_axis`` (the axis the normal is largest
+    along). For a root axis the held coordinate is the plane's height; for a tilted plane it follows from
+    the other two (P_h = (level − n_f·P_f) / n_h), and its uncertainty is stated 0 like a held one.
     """
 
     kind = "distance"
 
     def __init__(self, model, commands, dirs, station, displacement_mm,
                  stations_mm=None, dead_paths_mm=None, time_h=None, drift_mm_per_h=None, drift_reference_h=None,
-                 held_axis: Optional[int] = None):
+                 plane=None):
         super().__init__(model, commands, dirs)
         station = np.asarray(station).ravel()
         self.labels = np.unique(station)
@@ -585,12 +589,13 @@ class DistanceMeasurement(_Measurement):
         if not (len(station) == len(self.displacement) == len(self.commands)):
             raise ValueError("distance campaign: station, displacement and commands differ in length")
         nt = len(self.labels)
-        self.held_axis = held_axis
-        self._free = [c for c in range(3) if c != held_axis]
+        self.plane = plane
+        self._normal, _, self.held_axis = plane_frame(plane) if plane is not None else (None, None, None)
+        self._free = [c for c in range(3) if c != self.held_axis]
         self.own_names = tuple(f"P{j}_{'xyz'[c]}_mm" for j in self.labels for c in self._free) + tuple(
             f"d0_{j}_mm" for j in self.labels)
         P = np.zeros((nt, 3)) if stations_mm is None else np.asarray(stations_mm, float).reshape(nt, 3)
-        self._held_P = P.copy()  # the held coordinate's values (planar robot)
+        self._level = None if plane is None else P @ self._normal  # each station's plane (planar robot)
         d0 = np.zeros(nt) if dead_paths_mm is None else np.asarray(dead_paths_mm, float).reshape(nt)
         self._own_start = np.concatenate([P[:, self._free].ravel(), d0])
         self.time_h = self.drift_reference_h = None
@@ -605,11 +610,14 @@ class DistanceMeasurement(_Measurement):
             self._own_start = np.concatenate([self._own_start, v])
 
     def _stations(self, own, held_values: bool = True) -> np.ndarray:
-        """(Nt, 3) stations from the own parameters: the free coordinates, the held one at its value
+        """(Nt, 3) stations from the own parameters: the free coordinates, the held one in the station's plane
         (or 0: ``held_values=False``, an uncertainty)."""
         nt, nf = len(self.labels), len(self._free)
-        P = self._held_P.copy() if held_values else np.zeros((nt, 3))
+        P = np.zeros((nt, 3))
         P[:, self._free] = own[:nf * nt].reshape(nt, nf)
+        if held_values and self.held_axis is not None:  # (a root axis: the held height itself, bit for bit)
+            n, h = self._normal, self.held_axis
+            P[:, h] = (self._level - P[:, self._free] @ n[self._free]) / n[h]
         return P
 
     def _parts(self, x):
@@ -655,7 +663,11 @@ class DistanceMeasurement(_Measurement):
         r = dist - d0 - self.displacement
         pm, nt, nf = self.model.n_params, len(self.labels), len(self._free)
         cols = [pm + nf * self.station + c for c in range(nf)] + [pm + nf * nt + self.station]
-        vals = [-u[:, self._free], -np.ones((len(u), 1))]
+        du = u[:, self._free]
+        if self.held_axis is not None:  # (the held coordinate moves with the free ones on a tilted plane)
+            n, h = self._normal, self.held_axis
+            du = du - u[:, [h]] * (n[self._free] / n[h])
+        vals = [-du, -np.ones((len(u), 1))]
         if self.time_h is not None:  # ∂r/∂v_j = −(t − t̄_j)
             cols.append(pm + (nf + 1) * nt + self.station)
             vals.append(-self._dt()[:, None])
@@ -671,13 +683,14 @@ class DistanceMeasurement(_Measurement):
         P[:, [c for c in range(3) if c not in self._free]] = 0.0
         P *= (1.5 * reach / np.linalg.norm(P, axis=1))[:, None]
         if self.held_axis is not None:  # a planar robot's probe: stations in the tool point's plane
-            P[:, self.held_axis] = p[:, self.held_axis].mean()
+            n, h = self._normal, self.held_axis
+            P[:, h] = (np.mean(p @ n) - P[:, self._free] @ n[self._free]) / n[h]
         m = len(commands)
         tiled_dirs = None if dirs is None else np.tile(dirs, (nt, 1))
         times = None if self.time_h is None else rng.uniform(0.0, 1.0, nt * m)  # drift: generic, seen
         return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
                                    np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times,
-                                   held_axis=self.held_axis)
+                                   plane=self.plane)
 
 
 class PointMeasurement(_Measurement):
