@@ -32,7 +32,7 @@ import numpy as np
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
 from olti_drake.io.csvio import InputError
-from olti_drake.model.chain import plane_frame, planar_axis, planar_normal
+from olti_drake.model.chain import plane_frame, robot_plane
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
@@ -150,11 +150,9 @@ def off_plane_stations(chain, campaign, tool_offset_mm, normal, above=()):
     Distances cannot tell a station above the plane from its mirror image below: off-plane stations are
     placed below (against the normal), those labelled in ``above`` above; the mirror of all of them together
     is the same fit (:func:`_choose_sides` picks the sides against each other)."""
-    n = np.asarray(normal, float)
     # In-plane axes: the root axes other than the normal's when it is one (the same numbers as the planar
     # problem's in-plane coordinates), else an orthonormal pair.
-    E = np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2] if np.count_nonzero(n) > 1 else \
-        np.eye(3)[:, [c for c in range(3) if n[c] == 0]]
+    n, E, _ = plane_frame(normal)
     p = chain.positions(campaign.commands, chain.nominal_parameters(tool_offset_mm))
     level = float(np.mean(p @ n))
     fits, off = {}, []
@@ -232,15 +230,10 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
     (``above``: those placed above the plane).
     Returns (measurement, notes, labels of the stations off the plane)."""
     nominal = chain.nominal_parameters(options.tool_offset_mm)
-    planar = planar_axis(chain, nominal) if campaign.kind == "distance" else None
-    normal = None
-    if campaign.kind == "distance":  # a planar robot's plane, along a root axis or not
-        normal = np.eye(3)[planar] if planar is not None else planar_normal(chain, nominal)
-    heights = off_plane_stations(chain, campaign, options.tool_offset_mm, normal, above) if normal is not None else None
-    if heights is not None:  # stations off the plane see the robot in 3D: no planar reduction
-        planar = None
-    elif planar is None and normal is not None:  # a tilted planar robot measured in its plane
-        planar = normal
+    plane = robot_plane(chain, nominal) if campaign.kind == "distance" else None  # along a root axis or not
+    heights = (off_plane_stations(chain, campaign, options.tool_offset_mm, plane_frame(plane)[0], above)
+               if plane is not None else None)
+    planar = None if heights is not None else plane  # stations off the plane see the robot in 3D: not planar
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
                                  grid_step_deg=options.grid_step_deg, grids=options.grids,
                                  tool_offset_mm=options.tool_offset_mm, compliance=options.compliance,

@@ -507,12 +507,12 @@ def robot_plane(chain: SerialChain, params=None):
 
 
 def plane_frame(plane):
-    """(n (3,), E (3, 2), h): the unit normal of ``plane`` (a root axis 0-2, or a unit normal (3,)), an
-    orthonormal in-plane basis E, and the root axis h along which the normal is largest. For a root axis E
-    is the other two root axes in order and n that axis: projections on them are the plain coordinates,
-    bit for bit."""
-    if np.ndim(plane) == 0:
-        h = int(plane)
+    """(n (3,), E (3, 2), h): the unit normal of ``plane`` (a root axis 0-2, or a normal (3,)), an
+    orthonormal in-plane basis E, and the root axis h along which the normal is largest. For a root axis
+    (or a normal along one) E is the other two root axes in order and n that axis: projections on them are
+    the plain coordinates, bit for bit."""
+    if np.ndim(plane) == 0 or np.count_nonzero(plane) == 1:
+        h = int(plane) if np.ndim(plane) == 0 else int(np.flatnonzero(plane)[0])
         return np.eye(3)[h], np.eye(3)[:, [c for c in range(3) if c != h]], h
     n = np.asarray(plane, float) / np.linalg.norm(plane)
     E = np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2]
