@@ -100,3 +100,66 @@ def test_cli_design_of_a_serial_result(setup, tmp_path):
     run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
                           "--reflectors", "3", "--out", str(tmp_path / "d2.json")], capture_output=True, text=True)
     assert run.returncode == 2 and ">= 4" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_a_planar_robot_is_designed_in_its_plane(tmp_path):
+    """A planar result (the SCARA of 000 as models/scara.sdf, stations in its plane) is designed in that plane:
+    the station information with two in-plane coordinates and a dead path per station gives the tool-point u
+    of the whole planar distance problem (DistanceMeasurement(plane=...), its gauge) to 1e-6; the readability
+    is the SCARA design's (a steered beam, the base radius, the clearance); through the command line 3 stations
+    suffice, the candidates lie in the plane, and regions that do not reach it are refused in one line."""
+    from olti_drake.estimation.serial_design import candidates_in_plane, planar_readable
+    from olti_drake.model.chain import plane_frame, robot_plane
+
+    root = os.path.dirname(PACKAGE_DIR)
+    campaign = os.path.join(root, "data", "paper000", "campaign.csv")
+    result = tmp_path / "scara.json"
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", campaign, "--robot", "scara",
+                          "--tool-frame", "beam", "--model", "errormap", "--grid-step-deg", "20", "--out",
+                          str(result)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    from olti_drake.io.serial_io import load_serial_result
+
+    res = load_serial_result(result, outside="clamp")
+    model, P = res.model, res.stations_mm
+    plane = robot_plane(model.chain, model.chain_params)
+    assert plane == 2 and model.planar_reduced
+    plan, dirs = workspace_poses(model, 200, 5)
+    A, _ = gauge_rows(model, plan, dirs, P, plane=plane)
+    info = StationInformation(model, plan, dirs, U_READING, workspace_poses(model, 50, 6), gauge_rows=A, plane=plane)
+    ok = np.column_stack([planar_readable(info.p, s, plane, model.chain.fixed_mm[0][:3, 3], 40.0, 50.0, info._arm)
+                          for s in P])
+    assert ok.all()  # (the paper's reflectors: in front, beyond the reach, no beam past the base)
+    behind, inside = ([planar_readable(info.p, np.array(s), plane, model.chain.fixed_mm[0][:3, 3], 40.0, 50.0,
+                                       info._arm) for s in ([-800.0, 0, 360], [300.0, 0, 360])])
+    assert 0 < behind.sum() < len(behind) and not inside.any()  # the base column hides some; in the arm's way
+    pose, st = np.nonzero(ok)
+    meas = DistanceMeasurement(model, plan[pose], dirs[pose], st, np.zeros(len(st)), P, np.zeros(len(P)), plane=plane)
+    gauge = find_gauge(meas)
+    _, J = meas.residuals(meas.start_vector())
+    Z = scipy.linalg.null_space(gauge.A)
+    cov = U_READING ** 2 * Z @ np.linalg.inv(Z.T @ (J.T @ J).toarray() @ Z) @ Z.T
+    n, G = model.n_params, info.workspace_jacobian
+    direct = np.sqrt(np.sum((G @ cov[:n, :n]) * G, axis=1).reshape(-1, 3).sum(axis=1))
+    assert np.allclose(info.position_u(sum(info.block(p)[0] for p in P)), direct, rtol=1e-6)
+    # candidates: half a step from the plane, moved onto it; none near it: one line
+    cand = candidates_in_plane(np.array([[900.0, 0, 340], [900.0, 100, 500], [800, 0, 380]]), plane, 360.0, 50.0)
+    assert np.array_equal(cand, [[800.0, 0, 360], [900.0, 0, 360]])
+    with pytest.raises(InputError, match="robot's plane"):
+        candidates_in_plane(np.array([[900.0, 0, 0]]), plane, 360.0, 50.0)
+    regions = tmp_path / "regions.yaml"
+    regions.write_text("regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 600]}\n")
+    out = tmp_path / "design.json"
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
+                          "--step-mm", "125", "--starts", "1", "--max-sweeps", "2", "--workspace-poses", "40",
+                          "--out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "in the planar robot's plane" in run.stdout
+    doc = json.loads(out.read_text())
+    designed = np.array(doc["stations_mm"])
+    assert designed.shape == (3, 3) and np.allclose(designed @ plane_frame(plane)[0], 360.0)
+    assert doc["designed"]["cost_mm"] <= doc["current"]["cost_mm"] * 1.5
+    regions.write_text("regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 100]}\n")
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
+                          "--out", str(tmp_path / "d2.json")], capture_output=True, text=True)
+    assert run.returncode == 2 and "robot's plane" in run.stderr and "Traceback" not in run.stderr

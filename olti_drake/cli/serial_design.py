@@ -10,21 +10,25 @@ import numpy as np
 def design(args) -> int:
     """Stations for a campaign of the result's robot: the result's model is the truth, its stations the current
     layout; candidates on a grid in the 3D regions; cost = the worst or mean predicted tool-point u."""
-    from olti_drake.estimation.serial_design import (StationInformation, candidate_points, design_document,
-                                                     design_stations, evaluate_layout, gauge_rows, load_boxes,
-                                                     workspace_poses)
+    from olti_drake.estimation.serial_design import (StationInformation, candidate_points, candidates_in_plane,
+                                                     design_document, design_stations, evaluate_layout, gauge_rows,
+                                                     load_boxes, workspace_poses)
     from olti_drake.estimation.serial_plan import reading_uncertainty_mm
     from olti_drake.io.budget import budget_or_default
     from olti_drake.io.outputs import write_json
     from olti_drake.io.serial_io import load_serial_result, read_joint_table
+    from olti_drake.model.chain import plane_frame, robot_plane
 
     res = load_serial_result(args.result, outside="clamp")
     model = res.model
+    # A planar model (the planar problem: stations in the robot's plane) is designed in that plane.
+    plane = robot_plane(model.chain, model.chain_params) if model.planar_reduced else None
     n = args.reflectors if args.reflectors is not None else (0 if res.stations_mm is None else len(res.stations_mm))
-    if n < 4:
-        raise ValueError(f"--reflectors (stations) must be >= 4 for a robot in 3D (3 leave the tool on a plane "
-                         f"of mirror solutions), got {n}" + ("" if args.reflectors is not None else
-                                                               f" (the result {args.result} has {n})"))
+    need, why = (3, "in a planar robot's plane (000 §3.2.2 Remark 1)") if plane is not None else (
+        4, "for a robot in 3D (3 leave the tool on a plane of mirror solutions)")
+    if n < need:
+        raise ValueError(f"--reflectors (stations) must be >= {need} {why}, got {n}" + (
+            "" if args.reflectors is not None else f" (the result {args.result} has {n})"))
     if args.plan:
         jt = read_joint_table(args.plan, model.chain.n_joints)
         plan, dirs, plan_name = jt.commands, jt.dirs, args.plan
@@ -39,11 +43,17 @@ def design(args) -> int:
     u = reading_uncertainty_mm(budget)
     boxes = load_boxes(args.regions)
     cand = candidate_points(boxes, args.step_mm)
+    where = "in 3D"
+    if plane is not None:
+        level = float(np.mean(model.positions(plan, dirs) @ plane_frame(plane)[0]))
+        cand = candidates_in_plane(cand, plane, level, args.step_mm, args.regions)
+        where = "in the planar robot's plane"
     t0 = time.perf_counter()
-    ref = res.stations_mm if res.stations_mm is not None and len(res.stations_mm) >= 4 else cand[:4]
-    A, sentence = gauge_rows(model, plan, dirs, ref, seed=args.seed)
+    ref = res.stations_mm if res.stations_mm is not None and len(res.stations_mm) >= need else cand[:need]
+    A, sentence = gauge_rows(model, plan, dirs, ref, seed=args.seed, plane=plane)
     info = StationInformation(model, plan, dirs, u, workspace_poses(model, args.workspace_poses, args.seed + 2),
-                              gauge_rows=A)
+                              gauge_rows=A, plane=plane, base_radius_mm=args.base_radius_mm,
+                              clearance_mm=args.clearance_mm)
     current = evaluate_layout(info, res.stations_mm, args.criterion) if res.stations_mm is not None else None
     d = design_stations(info, cand, n, criterion=args.criterion, seed=args.seed, starts=args.starts,
                         max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm)
@@ -52,7 +62,7 @@ def design(args) -> int:
                           min_separation_mm=args.min_separation_mm, workspace_poses=args.workspace_poses,
                           gauge=sentence, elapsed_s=time.perf_counter() - t0)
     write_json(args.out, doc)
-    print(f"station layout design in 3D ({os.path.basename(res.robot_path)}, {model.chain.n_joints} joints) by linear "
+    print(f"station layout design {where} ({os.path.basename(res.robot_path)}, {model.chain.n_joints} joints) by linear "
           f"propagation (JCGM 100), budget {budget.name!r}, u(reading) = {1e3 * u:.2f} um")
     print(f"  plan: {plan_name}; {len(plan)} poses; cost: {args.criterion} predicted tool-point u over "
           f"{args.workspace_poses} workspace poses")

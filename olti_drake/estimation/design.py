@@ -358,16 +358,19 @@ class DesignResult:
 
 
 def beam_axis_distance(positions_mm, reflectors_mm) -> np.ndarray:
-    """Closest approach (C,) mm to the J1 axis of the beams from the positions (K, 2) to each reflector.
+    """Closest approach (C,) mm to the J1 axis of the beams from the positions (K, 2) to each reflector."""
+    return beam_axis_distances(positions_mm, reflectors_mm).min(axis=1)
 
-    The beam is the segment from the end effector to the reflector (2D).
-    """
+
+def beam_axis_distances(positions_mm, reflectors_mm) -> np.ndarray:
+    """Closest approach (C, K) mm to the J1 axis (the origin) of the beam from each position (K, 2) to each
+    reflector (C, 2): the segment from the end effector to the reflector (2D)."""
     p = np.asarray(positions_mm, dtype=float)[None]  # (1, K, 2)
     P = np.asarray(reflectors_mm, dtype=float).reshape(-1, 2)[:, None]  # (C, 1, 2)
     d = P - p
     t = np.clip(-np.sum(p * d, axis=-1) / np.maximum(np.sum(d * d, axis=-1), 1e-300), 0.0, 1.0)
     q = p + t[..., None] * d
-    return np.hypot(q[..., 0], q[..., 1]).min(axis=1)
+    return np.hypot(q[..., 0], q[..., 1])
 
 
 def feasible_candidates(model: ScaraModel, plan_or_commands, candidates_mm, workspace: JointCommands,

@@ -34,6 +34,8 @@ import scipy.linalg
 from olti_drake.estimation.serial_plan import PlanRules, readable
 from olti_drake.estimation.station_information import predicted_u, station_information
 from olti_drake.io.csvio import InputError, read_yaml, unit_bound
+from olti_drake.estimation.design import BASE_RADIUS_MM, CLEARANCE_MM
+from olti_drake.model.chain import plane_frame
 from olti_drake.model.serial import DistanceMeasurement, SerialPositionModel, find_gauge
 from olti_drake.threads import single_thread_blas
 
@@ -85,6 +87,39 @@ def candidate_points(boxes, step_mm: float) -> np.ndarray:
     return np.unique(np.vstack(pts), axis=0)
 
 
+def planar_readable(tool_mm, station_mm, plane, axis_point_mm, base_radius_mm: float, clearance_mm: float,
+                    arm_mm=None) -> np.ndarray:
+    """(K,) bool: which tool points (K, 3) a station in a planar robot's plane reads -- the rules of the SCARA's
+    design (:func:`~olti_drake.estimation.design.feasible_candidates`), in the plane: the beam is steered at
+    the station (000 Eq. (1): no acceptance cone on the tool), it passes no closer than ``base_radius_mm`` to
+    the first joint's axis (through ``axis_point_mm``: the base column; 0 turns it off), and the station keeps
+    ``clearance_mm`` from every point the tool goes to (``arm_mm``, default the tool points): else it reads
+    none."""
+    from olti_drake.estimation.design import beam_axis_distances
+
+    E = plane_frame(plane)[1]
+    q = (np.asarray(tool_mm, float) - axis_point_mm) @ E
+    s = (np.asarray(station_mm, float) - axis_point_mm) @ E
+    arm = q if arm_mm is None else (np.asarray(arm_mm, float) - axis_point_mm) @ E
+    if np.min(np.linalg.norm(arm - s, axis=1)) < clearance_mm:
+        return np.zeros(len(q), bool)
+    return beam_axis_distances(q, s)[0] >= base_radius_mm if base_radius_mm > 0 else np.ones(len(q), bool)
+
+
+def candidates_in_plane(candidates_mm, plane, level_mm: float, step_mm: float, regions: str = "the regions"):
+    """A planar model's stations stand in its plane (the planar problem: beams in the plane, 000): the
+    candidates within half a grid step of the plane (normal of ``plane`` at ``level_mm`` along it), moved onto
+    it, (C, 3) mm. One line naming the plane when the regions do not reach it."""
+    n = plane_frame(plane)[0]
+    off = np.asarray(candidates_mm, float) @ n - level_mm
+    near = np.abs(off) <= 0.5 * step_mm + 1e-9
+    if not near.any():
+        raise InputError(f"{regions}: no candidate lies within half a step ({0.5 * step_mm:g} mm) of the robot's plane "
+                         f"(normal ({', '.join(f'{c:.4g}' for c in n)}) at {level_mm:.6g} mm along it): a planar "
+                         f"robot's stations stand in its plane -- give regions that cross it")
+    return np.unique(candidates_mm[near] - np.outer(off[near], n), axis=0)
+
+
 def workspace_poses(model: SerialPositionModel, n_poses: int, seed: int):
     """Seeded poses (n, N) deg uniform in the model's commanded ranges, random approach directions
     (None for a one-directional model): where the predicted uncertainty is evaluated."""
@@ -101,7 +136,10 @@ class StationInformation:
 
     ``commands``/``dirs``: the plan's measured poses; ``u_reading_mm``: standard uncertainty of one
     reading; ``workspace``: (poses, dirs) where the cost is evaluated; ``rules``: line of sight and
-    acceptance; ``gauge_rows``: (g, n) the gauge constraints on the model parameters."""
+    acceptance; ``gauge_rows``: (g, n) the gauge constraints on the model parameters; ``plane``: a planar
+    model's plane (:func:`~olti_drake.model.chain.robot_plane`): stations in it have two in-plane
+    coordinates and a dead path of their own (the planar problem's), not three coordinates, and read by
+    :func:`planar_readable` (``base_radius_mm``, ``clearance_mm``) instead of ``rules``."""
 
     model: SerialPositionModel
     commands: np.ndarray
@@ -110,6 +148,9 @@ class StationInformation:
     workspace: tuple
     rules: PlanRules = field(default_factory=PlanRules)
     gauge_rows: Optional[np.ndarray] = None
+    plane: object = None
+    base_radius_mm: float = BASE_RADIUS_MM
+    clearance_mm: float = CLEARANCE_MM
 
     def __post_init__(self):
         m = self.model
@@ -121,17 +162,23 @@ class StationInformation:
             self.gauge_rows = np.zeros((0, m.n_params))
         self.Z = scipy.linalg.null_space(self.gauge_rows) if len(self.gauge_rows) else np.eye(m.n_params)
         self.GZ = self.workspace_jacobian @ self.Z
+        self._own_axes = np.eye(3) if self.plane is None else plane_frame(self.plane)[1]  # (3, 3 or 2)
+        self._arm = np.vstack([self.p, wp])  # (where the tool goes: a planar robot's station keeps clear of it)
 
     def block(self, station_mm):
         """(S (n, n) information on θ, readings) of one station at ``station_mm`` (3,) mm."""
         P = np.asarray(station_mm, float)
-        ok = readable(self.model.chain, self.commands, P[None], self.rules, self.tool_offset)[:, 0]
+        ok = (readable(self.model.chain, self.commands, P[None], self.rules, self.tool_offset)[:, 0]
+              if self.plane is None else
+              planar_readable(self.p, P, self.plane, self.model.chain.fixed_mm[0][:3, 3], self.base_radius_mm,
+                              self.clearance_mm, self._arm))
         n = self.model.n_params
         if ok.sum() < MIN_READINGS:
             return np.zeros((n, n)), int(ok.sum())
         diff = self.p[ok] - P
         u = diff / np.linalg.norm(diff, axis=1, keepdims=True)
-        S = station_information(self.jac.take(ok).contract(u), u, np.full(len(u), 1 / self.u_reading_mm))
+        S = station_information(self.jac.take(ok).contract(u), u @ self._own_axes,
+                                np.full(len(u), 1 / self.u_reading_mm))
         return S, int(ok.sum())
 
     def position_u(self, S) -> np.ndarray:
@@ -140,12 +187,13 @@ class StationInformation:
         return predicted_u(S, self.Z, self.GZ)
 
 
-def gauge_rows(model: SerialPositionModel, commands, dirs, stations_mm, seed: int = 0) -> tuple:
-    """The model's gauge constraints (rows on θ, sentence) for a campaign from ``stations_mm``."""
+def gauge_rows(model: SerialPositionModel, commands, dirs, stations_mm, seed: int = 0, plane=None) -> tuple:
+    """The model's gauge constraints (rows on θ, sentence) for a campaign from ``stations_mm`` (``plane``: a
+    planar model's, its stations in it)."""
     nt = len(stations_mm)
     reps = np.repeat(np.arange(nt), len(commands))
     meas = DistanceMeasurement(model, np.tile(commands, (nt, 1)), None if dirs is None else np.tile(dirs, (nt, 1)),
-                               reps, np.zeros(len(reps)), stations_mm, np.zeros(nt))
+                               reps, np.zeros(len(reps)), stations_mm, np.zeros(nt), plane=plane)
     gauge = find_gauge(meas, seed=seed)
     return np.asarray(gauge.A, float)[:, :model.n_params], gauge.sentence
 
