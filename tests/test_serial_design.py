@@ -34,6 +34,25 @@ def setup():
     return chain, truth, camp, model, info
 
 
+def _full_problem_u(meas, info):
+    """u (mm, k = 1) of the workspace tool points from the covariance of the whole distance problem ``meas``
+    (stations and dead paths unknown, the gauge of find_gauge), readings of u U_READING."""
+    _, J = meas.residuals(meas.start_vector())
+    Z = scipy.linalg.null_space(find_gauge(meas).A)
+    cov = U_READING ** 2 * Z @ np.linalg.inv(Z.T @ (J.T @ J).toarray() @ Z) @ Z.T
+    n, G = info.model.n_params, info.workspace_jacobian
+    return np.sqrt(np.sum((G @ cov[:n, :n]) * G, axis=1).reshape(-1, 3).sum(axis=1))
+
+
+def _design_cli(result, regions_text, tmp_path, *options):
+    """``olti design`` of ``result`` on a regions file of ``regions_text``: (the run, its document or None)."""
+    regions, out = tmp_path / "regions.yaml", tmp_path / "design.json"
+    regions.write_text(regions_text)
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
+                          *options, "--out", str(out), "--force"], capture_output=True, text=True)
+    return run, (json.loads(out.read_text()) if run.returncode == 0 else None)
+
+
 def test_predicted_u_equals_the_full_problem_with_stations_unknown(setup):
     """The Schur-complement information summed over stations gives the same tool-point u as the covariance of
     the whole distance problem (stations and dead paths unknown, the gauge of find_gauge), to 1e-6."""
@@ -42,15 +61,8 @@ def test_predicted_u_equals_the_full_problem_with_stations_unknown(setup):
     ok = readable(chain, camp.commands, P, info.rules, info.tool_offset)
     pose, st = np.nonzero(ok)
     meas = DistanceMeasurement(model, camp.commands[pose], camp.dirs[pose], st, np.zeros(len(st)), P, np.zeros(len(P)))
-    gauge = find_gauge(meas)
-    _, J = meas.residuals(meas.start_vector())
-    Z = scipy.linalg.null_space(gauge.A)
-    cov = U_READING ** 2 * Z @ np.linalg.inv(Z.T @ (J.T @ J).toarray() @ Z) @ Z.T
-    n = model.n_params
-    G = info.workspace_jacobian
-    direct = np.sqrt(np.sum((G @ cov[:n, :n]) * G, axis=1).reshape(-1, 3).sum(axis=1))
     blocks = [info.block(p)[0] for p in P]
-    assert np.allclose(info.position_u(sum(blocks)), direct, rtol=1e-6)
+    assert np.allclose(info.position_u(sum(blocks)), _full_problem_u(meas, info), rtol=1e-6)
     assert [info.block(p)[1] for p in P] == list(ok.sum(axis=0))
 
 
@@ -87,18 +99,13 @@ def test_cli_design_of_a_serial_result(setup, tmp_path):
     result = tmp_path / "result.json"
     write_serial_result(result, serial_result_dict(kind="errormap", robot_file="ur5", measurement=meas, fit=cal.fit(),
                                                    gauge=cal.gauge))
-    regions = tmp_path / "regions.yaml"
-    regions.write_text("regions:\n  - {x_mm: [-1500, 1500], y_mm: [-1500, 1500], z_mm: -400}\n")
-    out = tmp_path / "design.json"
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
-                          "--step-mm", "1500", "--starts", "1", "--max-sweeps", "2", "--workspace-poses", "40",
-                          "--out", str(out)], capture_output=True, text=True)
+    floor = "regions:\n  - {x_mm: [-1500, 1500], y_mm: [-1500, 1500], z_mm: -400}\n"
+    run, doc = _design_cli(result, floor, tmp_path, "--step-mm", "1500", "--starts", "1", "--max-sweeps", "2",
+                           "--workspace-poses", "40")
     assert run.returncode == 0, run.stderr
-    doc = json.loads(out.read_text())
     assert doc["format"] == "olti-design/1" and np.shape(doc["stations_mm"]) == (4, 3)
     assert doc["designed"]["cost_mm"] <= doc["current"]["cost_mm"] * 2 and "improvement" in doc
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
-                          "--reflectors", "3", "--out", str(tmp_path / "d2.json")], capture_output=True, text=True)
+    run, _ = _design_cli(result, floor, tmp_path, "--reflectors", "3")
     assert run.returncode == 2 and ">= 4" in run.stderr and "Traceback" not in run.stderr
 
 
@@ -135,31 +142,18 @@ def test_a_planar_robot_is_designed_in_its_plane(tmp_path):
     assert 0 < behind.sum() < len(behind) and not inside.any()  # the base column hides some; in the arm's way
     pose, st = np.nonzero(ok)
     meas = DistanceMeasurement(model, plan[pose], dirs[pose], st, np.zeros(len(st)), P, np.zeros(len(P)), plane=plane)
-    gauge = find_gauge(meas)
-    _, J = meas.residuals(meas.start_vector())
-    Z = scipy.linalg.null_space(gauge.A)
-    cov = U_READING ** 2 * Z @ np.linalg.inv(Z.T @ (J.T @ J).toarray() @ Z) @ Z.T
-    n, G = model.n_params, info.workspace_jacobian
-    direct = np.sqrt(np.sum((G @ cov[:n, :n]) * G, axis=1).reshape(-1, 3).sum(axis=1))
-    assert np.allclose(info.position_u(sum(info.block(p)[0] for p in P)), direct, rtol=1e-6)
+    assert np.allclose(info.position_u(sum(info.block(p)[0] for p in P)), _full_problem_u(meas, info), rtol=1e-6)
     # candidates: half a step from the plane, moved onto it; none near it: one line
     cand = candidates_in_plane(np.array([[900.0, 0, 340], [900.0, 100, 500], [800, 0, 380]]), plane, 360.0, 50.0)
     assert np.array_equal(cand, [[800.0, 0, 360], [900.0, 0, 360]])
     with pytest.raises(InputError, match="robot's plane"):
         candidates_in_plane(np.array([[900.0, 0, 0]]), plane, 360.0, 50.0)
-    regions = tmp_path / "regions.yaml"
-    regions.write_text("regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 600]}\n")
-    out = tmp_path / "design.json"
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
-                          "--step-mm", "125", "--starts", "1", "--max-sweeps", "2", "--workspace-poses", "40",
-                          "--out", str(out)], capture_output=True, text=True)
+    run, doc = _design_cli(result, "regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 600]}\n",
+                           tmp_path, "--step-mm", "125", "--starts", "1", "--max-sweeps", "2", "--workspace-poses", "40")
     assert run.returncode == 0, run.stderr
     assert "in the planar robot's plane" in run.stdout
-    doc = json.loads(out.read_text())
     designed = np.array(doc["stations_mm"])
     assert designed.shape == (3, 3) and np.allclose(designed @ plane_frame(plane)[0], 360.0)
     assert doc["designed"]["cost_mm"] <= doc["current"]["cost_mm"] * 1.5
-    regions.write_text("regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 100]}\n")
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
-                          "--out", str(tmp_path / "d2.json")], capture_output=True, text=True)
+    run, _ = _design_cli(result, "regions:\n  - {x_mm: [650, 900], y_mm: [-900, 350], z_mm: [0, 100]}\n", tmp_path)
     assert run.returncode == 2 and "robot's plane" in run.stderr and "Traceback" not in run.stderr
