@@ -31,10 +31,10 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.linalg
 
+from olti_drake.estimation.design import BASE_RADIUS_MM, CLEARANCE_MM, beam_axis_distances
 from olti_drake.estimation.serial_plan import PlanRules, readable
 from olti_drake.estimation.station_information import predicted_u, station_information
 from olti_drake.io.csvio import InputError, read_yaml, unit_bound
-from olti_drake.estimation.design import BASE_RADIUS_MM, CLEARANCE_MM
 from olti_drake.model.chain import plane_frame
 from olti_drake.model.serial import DistanceMeasurement, SerialPositionModel, find_gauge
 from olti_drake.threads import single_thread_blas
@@ -95,8 +95,6 @@ def planar_readable(tool_mm, station_mm, plane, axis_point_mm, base_radius_mm: f
     the first joint's axis (through ``axis_point_mm``: the base column; 0 turns it off), and the station keeps
     ``clearance_mm`` from every point the tool goes to (``arm_mm``, default the tool points): else it reads
     none."""
-    from olti_drake.estimation.design import beam_axis_distances
-
     E = plane_frame(plane)[1]
     q = (np.asarray(tool_mm, float) - axis_point_mm) @ E
     s = (np.asarray(station_mm, float) - axis_point_mm) @ E
@@ -110,14 +108,14 @@ def candidates_in_plane(candidates_mm, plane, level_mm: float, step_mm: float, r
     """A planar model's stations stand in its plane (the planar problem: beams in the plane, 000): the
     candidates within half a grid step of the plane (normal of ``plane`` at ``level_mm`` along it), moved onto
     it, (C, 3) mm. One line naming the plane when the regions do not reach it."""
-    n = plane_frame(plane)[0]
-    off = np.asarray(candidates_mm, float) @ n - level_mm
+    n, C = plane_frame(plane)[0], np.asarray(candidates_mm, float)
+    off = C @ n - level_mm
     near = np.abs(off) <= 0.5 * step_mm + 1e-9
     if not near.any():
         raise InputError(f"{regions}: no candidate lies within half a step ({0.5 * step_mm:g} mm) of the robot's plane "
                          f"(normal ({', '.join(f'{c:.4g}' for c in n)}) at {level_mm:.6g} mm along it): a planar "
                          f"robot's stations stand in its plane -- give regions that cross it")
-    return np.unique(candidates_mm[near] - np.outer(off[near], n), axis=0)
+    return np.unique(C[near] - np.outer(off[near], n), axis=0)
 
 
 def workspace_poses(model: SerialPositionModel, n_poses: int, seed: int):
@@ -163,7 +161,8 @@ class StationInformation:
         self.Z = scipy.linalg.null_space(self.gauge_rows) if len(self.gauge_rows) else np.eye(m.n_params)
         self.GZ = self.workspace_jacobian @ self.Z
         self._own_axes = np.eye(3) if self.plane is None else plane_frame(self.plane)[1]  # (3, 3 or 2)
-        self._arm = np.vstack([self.p, wp])  # (where the tool goes: a planar robot's station keeps clear of it)
+        # Where the tool goes: a planar robot's station keeps clear of it.
+        self._arm = None if self.plane is None else np.vstack([self.p, wp])
 
     def block(self, station_mm):
         """(S (n, n) information on θ, readings) of one station at ``station_mm`` (3,) mm."""
