@@ -435,9 +435,9 @@ class LeastSquaresProgram:
         """Check identifiability, solve (LM or NLP), estimate uncertainty, flag outliers.
 
         ``uncertainty`` False: the solution only -- no covariance at it (std NaN, covariance None, condition
-        number that of the check), for an auxiliary fit of which only x is used (the resolution check's coarse
-        map): the identifiability check (rank by the large path, :meth:`_large`) and convergence are still
-        required; LM stops where no parameter would move by :data:`STEP_FRACTION` of its u."""
+        number that of the check), for a fit of which only x is used (e.g. a loop of cross-validation fits): the
+        identifiability check (rank by the large path, :meth:`_large`) and convergence are still required; LM
+        stops where no parameter would move by :data:`STEP_FRACTION` of its u."""
         self._uncertainty = uncertainty
         o = self.options
         if o.solver not in ("lm", "nlp"):
@@ -492,8 +492,7 @@ class LeastSquaresProgram:
                 within = self._reduced_factor(Jk, w, A, names)
             delta = within.to_full(within.solve(within.to_null(-g / within.s))) / within.s
             cost = 0.5 * float(np.sum(w * rk * rk))
-            dof = len(rows) - within.dim
-            negligible = max(1e-12 * cost, STEP_FRACTION ** 2 * cost / dof if dof > 0 else 0.0)
+            negligible = max(1e-12 * cost, _step_fraction_decrease(cost, len(rows) - within.dim))
             if -0.5 * float(g @ delta) <= negligible:  # (the Gauss-Newton step's predicted decrease)
                 return y, r
             y, r = y + delta, r + JT @ delta
@@ -683,10 +682,7 @@ class LeastSquaresProgram:
         and off the large path (:meth:`_large`: up to :data:`LARGE_PROBLEM` variables with uncertainty): there
         an evaluation costs milliseconds, and LM goes on to 1e-12 of the cost (results the same to rounding
         whichever solver or path)."""
-        dof = len(r) - self.n_all
-        if dof <= 0 or not self._large():
-            return 0.0
-        return 0.5 * STEP_FRACTION ** 2 * float(np.sum(w * r * r)) / dof
+        return _step_fraction_decrease(0.5 * float(np.sum(w * r * r)), len(r) - self.n_all) if self._large() else 0.0
 
     def _steps_by_cg(self) -> bool:
         """Large path (:data:`LARGE_PROBLEM`) for LM steps: only linear equalities and quadratic costs on the
@@ -1415,6 +1411,13 @@ def _leading_block(A, r: int) -> np.ndarray:
         src = (r + j) * n + r
         flat[j * m:(j + 1) * m] = flat[src:src + m]
     return flat[:m * m].reshape((m, m), order="F")
+
+
+def _step_fraction_decrease(cost: float, dof: int) -> float:
+    """½ f² σ̂² with σ̂² = 2·cost / dof (f = :data:`STEP_FRACTION`): the predicted decrease below which no
+    Gauss-Newton step moves a parameter by f of its u (:meth:`LeastSquaresProgram._negligible_decrease`); 0
+    without redundant readings (dof ≤ 0)."""
+    return STEP_FRACTION ** 2 * cost / dof if dof > 0 else 0.0
 
 
 def _factor_threads(dim: int):

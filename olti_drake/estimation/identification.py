@@ -17,7 +17,6 @@ machinery of :mod:`olti_drake.estimation.calibration`.
 Units: mm and degrees in every parameter, residual and Jacobian.
 """
 
-import dataclasses
 import os
 from dataclasses import dataclass, field
 from typing import List, Optional
@@ -201,8 +200,7 @@ class Identifier(LeastSquaresProgram):
         from olti_drake.io.budget import ReadingErrors
 
         c = self.data.commands
-        maps = (self.robot0.map1, self.robot0.map2)
-        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in maps]
+        coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
         on = [_on_nodes(cmd, g) for cmd, g in ((c.theta1_deg, coarse[0]), (c.theta2_deg, coarse[1]))]
         keep = on[0] & on[1]
         if keep.all() or not keep.any():
