@@ -32,12 +32,13 @@ import time
 import numpy as np
 
 from olti_drake.estimation import design as D
-from olti_drake.io.budget import load_budget, paper000_budget
+from olti_drake.io.budget import load_budget
 from olti_drake.io.csvio import load_campaign
 from olti_drake.estimation.identification import Identifier
-from olti_drake.model.plan import bidirectional_grid, load_plan
+from olti_drake.io.plan_io import load_plan
+from olti_drake.model.budget import ReadingErrors, paper000_budget
+from olti_drake.model.plan import bidirectional_grid
 from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo
-from olti_drake.io.budget import ReadingErrors
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
 from timing import best_of, cpu_busy  # noqa: E402

@@ -28,14 +28,14 @@ import os
 
 import numpy as np
 
+from olti_drake.model.budget import ReadingErrors, paper001_budget
 from olti_drake.report import figures
-from olti_drake.model.machine import MachineScenario, paper001_budget, simulate_machine_campaign, square_targets
+from olti_drake.model.machine import MachineScenario, simulate_machine_campaign, square_targets
 from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, align_to_commands, machine_campaign
 from olti_drake.sim.references import DigitalScale, LinearInterferometer, line_errors, on_line, remove_offset
 from olti_drake.estimation.station_estimation import (CentreOptions, RotaryStation, ZeroAngleOptions, estimate_rotation_centre,
                                            estimate_zero_angle, positioning_accuracy_um)
 from olti_drake.estimation.uncertainty import monte_carlo
-from olti_drake.io.budget import ReadingErrors
 
 #: 001 §3.2: where the linear interferometer measured (Y for the X line, X for the Y line), mm.
 LASER_LINES = {"x": 52.3, "y": 71.3}

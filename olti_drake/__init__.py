@@ -8,11 +8,11 @@ import pydrake; the modules that need it import it themselves.
 The public names below are loaded on first use (module ``__getattr__``), so
 ``import olti_drake`` stays light::
 
-    import olti_drake
+    import olti_drake as od
     from pydrake.solvers import Solve
-    ident = olti_drake.Identifier(olti_drake.load_campaign("data/paper000/campaign.csv"),
-                                  olti_drake.IdentificationOptions(model="errormap"))
-    result = Solve(ident.prog)   # the same parameters as ident.solve() (LM)
+    problem = od.calibration_problem("data/paper000/campaign.csv", model="errormap")  # any kind: robot=, machines
+    fit = problem.fit()                                   # LM
+    same = problem.identification(Solve(problem.prog))    # any solver's result, the same checks and covariance
 """
 
 import importlib
@@ -21,6 +21,8 @@ __version__ = "0.1.0"
 
 #: Public name -> the module that defines it.
 _PUBLIC = {
+    "calibration_problem": "olti_drake.estimation.problem",
+    "CalibrationProblem": "olti_drake.estimation.problem",
     "Identifier": "olti_drake.estimation.identification",
     "IdentificationOptions": "olti_drake.estimation.identification",
     "identify": "olti_drake.estimation.identification",

@@ -9,8 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from olti_drake.io.budget import Budget, Contributor, load_budget, paper000_budget
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
+from olti_drake.io.budget import load_budget
+from olti_drake.model.budget import Budget, Contributor, paper000_budget, paper001_budget
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.path.join(ROOT, "data")
@@ -48,6 +49,7 @@ def test_paper000_file_matches_table_2():
 
 def test_paper001_file_matches_table_4():
     b = load_budget(os.path.join(DATA, "budget_paper001.yaml"))
+    assert b == paper001_budget()  # the shipped file and the simulations' built-in default: one table
     by = {c.symbol: c for c in b.contributors}
     assert sorted(by) == ["u11", "u12", "u13", "u14", "u15", "u16", "u21", "u41", "u42", "u43", "u44"]
     assert all(c.k == 2.0 for c in b.contributors)
@@ -61,7 +63,7 @@ def test_paper001_file_matches_table_4():
     assert b.combined("beam_direction") == pytest.approx(
         1e-6 * np.sqrt(2.8**2 + 22.0**2 + 35.2**2 + 60.6**2) / 2, rel=1e-12)
     # Table 4: u4 < 0.01 µm on the reading -- the cosine error D ψ²/2 (std D u_ψ²/√2) even at D = 1 m.
-    from olti_drake.io.budget import ReadingErrors
+    from olti_drake.model.budget import ReadingErrors
     with_beam = ReadingErrors(b).std([1000.0])[0]
     without = np.hypot(b.combined("reading"), b.combined("pose"))
     assert um * np.sqrt(with_beam**2 - without**2) < 0.01
@@ -108,7 +110,7 @@ def test_typo_in_top_level_key_and_missing_file(tmp_path):
 
 # -- a budget that cannot be right is refused (issue 11, item 4) ------------------------------------------
 def test_budget_without_a_nonzero_contributor_is_refused_where_built_and_where_propagated():
-    from olti_drake.io.budget import ReadingErrors
+    from olti_drake.model.budget import ReadingErrors
 
     with pytest.raises(InputError, match="no contributors"):
         Budget("empty").validate()
@@ -137,7 +139,7 @@ def test_budget_without_a_nonzero_contributor_is_refused_where_built_and_where_p
     (float("nan"), "um", 1.0, "reading", False),
 ])
 def test_contributor_values_within_physical_bounds(value, unit, k, acts_on, ok):
-    from olti_drake.io.budget import MAX_ANGLE_RAD, MAX_LENGTH_MM
+    from olti_drake.model.budget import MAX_ANGLE_RAD, MAX_LENGTH_MM
 
     assert (MAX_LENGTH_MM, MAX_ANGLE_RAD) == (1000.0, pytest.approx(np.radians(10)))
     b = Budget("t", "", [Contributor("u1", "base", 1.0, "um"), Contributor("u9", "tested", value, unit, k, "B",

@@ -111,7 +111,7 @@ def _circle_constraint(ident, radius):
 
 
 def test_nonlinear_user_constraint_solved_by_nlp_and_refused_by_lm(data):
-    from olti_drake.io.csvio import InputError
+    from olti_drake.errors import InputError
 
     free = _ident(data, "dh").solve()
     radius = float(np.hypot(*free.reflectors_mm[0])) + 0.05  # 50 um off the free fit: the constraint binds
@@ -196,7 +196,8 @@ def test_uncertainty_with_a_user_variable_follows_its_constraint(data):
     """Linear propagation and Monte Carlo with a user variable: the trials obey the user's constraint
     (d0_0 = d0_1 through the shared offset) and the two methods agree on the parameters' u."""
     from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo
-    from olti_drake.io.budget import ReadingErrors, default_budget
+    from olti_drake.io.budget import default_budget
+    from olti_drake.model.budget import ReadingErrors
 
     ident = _ident(data, "dh")
     _shared_offset(ident)

@@ -144,7 +144,7 @@ def test_campaign_file_follows_the_shared_format():
 
 
 def test_plan_file_scenario_equals_generator(tmp_path):
-    from olti_drake.model.plan import save_plan
+    from olti_drake.io.plan_io import save_plan
     plan = bidirectional_grid(-40, 0, 20, 40, 100, 30)
     save_plan(plan, tmp_path / "plan.csv")
     s = _small()

@@ -226,6 +226,33 @@ def test_unreadable_model_is_one_line(tmp_path):
         load_serial_chain(xacro, "a")
 
 
+def test_model_files_that_crash_drake_are_one_line_naming_the_file(tmp_path):
+    """Crash class of issue 24: inverted joint limits ended in a Drake assertion (joint.h:159, raised as
+    SystemExit), a NaN origin gave Drake's message without the file. Both are now one line naming the file
+    (and the joint), URDF and SDFormat alike."""
+    import re
+
+    text = UR5.read_text()
+    limit = re.search(r'<limit[^>]*lower="([^"]+)"[^>]*upper="([^"]+)"', text).group(0)
+    swapped = re.sub(r'lower="[^"]+"', 'lower="2.0"', re.sub(r'upper="[^"]+"', 'upper="-2.0"', limit))
+    (tmp_path / "inverted.urdf").write_text(text.replace(limit, swapped, 1))
+    origin = re.search(r'<origin[^>]*xyz="([^"]+)"', text)
+    (tmp_path / "nan.urdf").write_text(text.replace(origin.group(0), origin.group(0).replace(origin.group(1),
+                                                                                               "nan 0 0"), 1))
+    (tmp_path / "inverted.sdf").write_text(
+        '<sdf version="1.9"><model name="m"><link name="a"/><link name="b"/>'
+        '<joint name="j1" type="revolute"><parent>a</parent><child>b</child>'
+        '<axis><xyz>0 0 1</xyz><limit><lower>1.5</lower><upper>-1.5</upper></limit></axis></joint>'
+        '</model></sdf>')
+    for name, message in (("inverted.urdf", r"joint 'shoulder_pan_joint' has its lower limit 2 above its upper "
+                                            r"limit -2"),
+                          ("nan.urdf", r"robot model .*nan.urdf: .*xyz"),
+                          ("inverted.sdf", r"joint 'j1' has its lower limit 1.5 above its upper limit -1.5")):
+        with pytest.raises(ValueError, match=message) as info:
+            load_serial_chain(tmp_path / name, "tool0" if name.endswith("urdf") else "b")
+        assert "\n" not in str(info.value) and str(tmp_path / name) in str(info.value)
+
+
 # -------------------------------------------------------------------- base set
 def test_ur5_base_set_has_4R_plus_3_parameters():
     """Position-only readings of a 6R arm: 4·6 + 3 = 27 identifiable parameters."""

@@ -46,7 +46,8 @@ def test_bad_plan_file_is_one_line_error(tmp_path):
 
 
 def test_refuses_to_overwrite_an_input(tmp_path):
-    from olti_drake.model.plan import bidirectional_grid, save_plan
+    from olti_drake.io.plan_io import save_plan
+    from olti_drake.model.plan import bidirectional_grid
     save_plan(bidirectional_grid(-40, 0, 20, 40, 100, 30), tmp_path / "campaign.csv")
     (tmp_path / "s.yaml").write_text("plan: !PlanFile {path: campaign.csv}\n")
     before = (tmp_path / "campaign.csv").read_bytes()

@@ -205,6 +205,39 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, mon
     assert path.read_text() == "old\n" and os.listdir(tmp_path) == ["r.json"]
 
 
+def test_force_never_replaces_what_is_not_a_regular_file(capsys, ws):
+    """Data loss class (issue 24): a device node, a FIFO, a socket or a symbolic link given as an output is
+    refused even with --force, before any work and again at the rename; nothing is replaced."""
+    import socket
+    import stat as st
+
+    from olti_drake.io import outputs
+
+    os.mkfifo(ws / "fifo")
+    (ws / "target.json").write_text("kept\n")
+    os.symlink(ws / "target.json", ws / "link.json")
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(ws / "sock"))
+    kinds = {"fifo": "a FIFO", "link.json": "a symbolic link", "sock": "a socket"}
+    if os.geteuid() == 0:  # (making a device node needs root: the case of the audit, /dev/null under --force)
+        os.mknod(ws / "null", 0o666 | st.S_IFCHR, os.makedev(1, 3))
+        kinds["null"] = "a device"
+    try:
+        for name, what in kinds.items():
+            code, out, err = _olti(capsys, "identify", CAMPAIGN, "--model", "dh", "--out", ws / name, "--force")
+            assert code == 2 and out == "", (name, out)
+            _one_error_line(err)
+            assert f"is {what}, not a regular file" in err, err
+        with pytest.raises(outputs.OutputError, match="a FIFO, not a regular file"):
+            outputs.write_text(ws / "fifo", "x")  # (the write checks again)
+        assert st.S_ISFIFO(os.lstat(ws / "fifo").st_mode) and os.path.islink(ws / "link.json")
+        assert (ws / "target.json").read_text() == "kept\n"
+        if "null" in kinds:
+            assert st.S_ISCHR(os.lstat(ws / "null").st_mode)
+    finally:
+        sock.close()
+
+
 def test_a_measurement_is_never_replaced_even_by_a_race(tmp_path):
     """The check before the work is repeated by the write itself: a campaign that appeared meanwhile stays."""
     from olti_drake.io import outputs

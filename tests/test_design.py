@@ -15,9 +15,9 @@ import sys
 import numpy as np
 import pytest
 
+from olti_drake.errors import InputError
 from olti_drake.estimation import design as D
-from olti_drake.io.budget import paper000_budget
-from olti_drake.io.csvio import InputError
+from olti_drake.model.budget import paper000_budget
 from olti_drake.model.errormap import sample_map
 from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import ScaraModel, forward_kinematics
@@ -106,7 +106,7 @@ def test_cached_evaluator_equals_a_fresh_identification(paper):
     # Through the public Identifier path by hand: synthetic campaign, truth as x.
     from olti_drake.estimation.identification import IdentificationOptions, Identifier
     from olti_drake.estimation.uncertainty import linear_covariance, prediction_std
-    from olti_drake.io.budget import ReadingErrors
+    from olti_drake.model.budget import ReadingErrors
 
     data, d0 = D.synthetic_campaign(model, D.measured_commands(plan), other)
     assert np.allclose(data.displacement_mm[data.reflector == 0][0], 0.0)

@@ -147,7 +147,7 @@ def _script(emu, robot, heads, layout):
 def test_host_retries_through_faults_on_every_line_and_gets_the_same_values(fault):
     """Seeded noise (budget on): the same requests give the same values with faults as without
     (a lost reply is resent from the stored one, never re-executed: no extra noise draw)."""
-    from olti_drake.io.budget import paper000_budget
+    from olti_drake.model.budget import paper000_budget
 
     opts = InterferometerOptions(beam_loss=False)
     results = []
@@ -358,12 +358,82 @@ def test_six_axis_hardware_station_on_one_port_per_head(tmp_path, six_axis_refer
 
 
 def test_six_axis_run_refuses_what_it_cannot_do_in_one_line(tmp_path):
-    for station, match in (("!Simulated {}", "olti simulate"), ("!Hardware {}", "head_ports"),
-                           ("!Hardware {robot_port: /dev/null, head_ports: [a, b]}", "4 in station order (got 2)")):
+    for station, extra, match in (("!Hardware {}", [], "head_ports"),
+                                  ("!Hardware {robot_port: /dev/null, head_ports: [a, b]}", [],
+                                   "4 in station order (got 2)"),
+                                  ("!Emulated {}", ["--meshcat"], "--meshcat: olti run shows the live view of SCARA")):
         proc = subprocess.run([sys.executable, "-m", "olti_drake.cli", "run", _six_axis(tmp_path, station), "--out",
-                               str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+                               str(tmp_path / "x"), *extra], capture_output=True, text=True, timeout=120)
         assert proc.returncode == 2 and proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1, proc.stderr
         assert match in proc.stderr and not os.path.exists(tmp_path / "x")
+
+
+def test_six_axis_simulated_station_runs_and_resumes_as_the_simulated_diagram(tmp_path):
+    """station: !Simulated under olti run: the readings of run_serial_campaign (olti simulate's diagram); with
+    noise, a campaign stopped twice and resumed reads what the uninterrupted one reads (the joints' last
+    command and directions and the laser's sample count are restored)."""
+    from olti_drake.hardware.runner import run
+    from olti_drake.sim.serial_scenario import load_serial_scenario
+    from olti_drake.sim.serial_station import prepare_serial, run_serial_campaign
+
+    path = tmp_path / "sim.yaml"
+    path.write_text(f"base: {SIX_AXIS}\nstation: !Simulated {{}}\nplan: {{step_deg: 60.0, poses_per_node: 1}}\n")
+    whole = run(str(path), str(tmp_path / "whole"), fsync=False)
+    assert whole.complete and whole.planned == whole.on_disk > 30
+    t = _columns(str(tmp_path / "whole"))
+    ref = run_serial_campaign(prepare_serial(load_serial_scenario(str(path)))).columns
+    for k in ["station", "valid", "plan_row"] + [f"dir{i + 1}" for i in range(6)]:
+        np.testing.assert_array_equal(t[k], ref[k], err_msg=k)
+    np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
+    out, done = str(tmp_path / "cut"), {"n": 0}
+    for k, stop_at in enumerate((9, 30)):
+        r = run(str(path), out, resume=k > 0, fsync=False, progress=lambda n, planned: done.update(n=n),
+                should_stop=lambda stop_at=stop_at: "test" if done["n"] >= stop_at else None)
+        assert r.stopped == "test" and r.on_disk == stop_at
+    assert run(str(path), out, resume=True, fsync=False).complete
+    cut = _columns(out)
+    np.testing.assert_array_equal(cut["step"], t["step"])
+    np.testing.assert_allclose(cut["displacement_mm"], t["displacement_mm"], rtol=0, atol=1e-12)
+    assert os.path.exists(os.path.join(out, "truth.json"))
+
+
+def test_six_axis_run_takes_an_extend_hook(tmp_path, six_axis_reference):
+    """run(extend=...) on the six-axis path: the hook gets the builder and the station, sequencer, steering and
+    recorder by keyword (as the SCARA's); a logger LeafSystem added there sees every reading of the run log."""
+    from pydrake.systems.framework import LeafSystem
+
+    from olti_drake.hardware.runner import run
+
+    class ReadingLogger(LeafSystem):
+        def __init__(self, period_s):
+            super().__init__()
+            self.rows = []
+            for name in ("displacement", "valid", "measure"):
+                self.DeclareVectorInputPort(name, 1)
+            self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._log)
+
+        def _log(self, context):
+            self.rows.append(tuple(self.get_input_port(i).Eval(context)[0] for i in range(3)))
+
+    seen = {}
+
+    def extend(builder, *, setup, station, sequencer, steering, recorder):
+        logger = builder.AddNamedSystem("reading_logger", ReadingLogger(setup.scenario.period_s))
+        builder.Connect(station.GetOutputPort("displacement"), logger.GetInputPort("displacement"))
+        builder.Connect(station.GetOutputPort("valid"), logger.GetInputPort("valid"))
+        builder.Connect(sequencer.GetOutputPort("measure"), logger.GetInputPort("measure"))
+        seen.update(logger=logger, steering=steering, recorder=recorder)
+
+    out = str(tmp_path / "run")
+    result = run(_six_axis(tmp_path), out, extend=extend, fsync=False)
+    assert result.complete and seen["steering"].get_name() == "pan_tilt_steering"
+    assert seen["recorder"].get_name() == "campaign_recorder"
+    rows = np.array(seen["logger"].rows)
+    rows = rows[rows[:, 2] > 0.5]
+    t, ref = _columns(out), _columns(six_axis_reference.out_dir)
+    assert len(rows) == len(t["step"]) == six_axis_reference.planned
+    np.testing.assert_allclose(rows[:, 0] * 1e3, t["displacement_mm"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
 
 
 def test_six_axis_beam_losses_are_reread_and_rezeroed_with_the_head_aimed_as_at_its_zero(tmp_path,

@@ -7,9 +7,9 @@ import os
 import numpy as np
 import pytest
 
+from olti_drake.errors import InputError
 from olti_drake.hardware.station import AddStation
 from olti_drake.sim.campaign import prepare, run_campaign
-from olti_drake.io.csvio import InputError
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.scenario import Emulated, ExactEstimate, Hardware, Scenario, Simulated, as_plain, load_scenario
 

@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from olti_drake.io.budget import paper000_budget
+from olti_drake.model.budget import paper000_budget
 from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
 from olti_drake.io.csvio import CampaignData, load_campaign
 from olti_drake.model.errormap import ErrorMap, HarmonicDeviation, NoDeviation, sample_map

@@ -167,7 +167,7 @@ def _noise_free_dh():
     """D-H identified from the seed-0 scenario's poses with the reading noise off (numpy twin of the diagram)."""
     import dataclasses
 
-    from olti_drake.io.budget import Budget
+    from olti_drake.model.budget import Budget
     from olti_drake.sim.campaign import simulate_vectorized
     from olti_drake.estimation.identification import IdentificationOptions, identify
     from olti_drake.report.validation import campaign_data

@@ -387,9 +387,9 @@ def test_an_unidentifiable_map_node_names_the_lines_commanding_it(tmp_path, caps
 
 
 def test_physical_bounds_are_stated_and_shared():
-    """One table of bounds (csvio.UNIT_BOUNDS) serves CSV columns, JSON keys and the CLI's lengths."""
+    """One table of bounds (olti_drake.units.UNIT_BOUNDS) serves CSV columns, JSON keys and the CLI's lengths."""
     from olti_drake.cli import args as cliargs
-    from olti_drake.io.csvio import unit_bound
+    from olti_drake.units import unit_bound
 
     assert unit_bound("theta1_deg") == 720.0 and unit_bound("x_cmd_mm") == 1e5 and unit_bound("dir1") == np.inf
     assert cliargs.MAX_MM == unit_bound("_mm")
@@ -397,7 +397,8 @@ def test_physical_bounds_are_stated_and_shared():
 
 def test_yaml_reader_accepts_repeated_keys_in_different_mappings_and_tags(tmp_path):
     """Only a key given twice in ONE mapping is refused: sibling mappings, nested tags and a BOM are fine."""
-    from olti_drake.io.csvio import InputError, read_yaml
+    from olti_drake.errors import InputError
+    from olti_drake.io.csvio import read_yaml
 
     ok = tmp_path / "ok.yaml"
     ok.write_bytes("\ufeffa: 1\nlist:\n- {name: x, v: 1}\n- {name: y, v: 2}\nstation: !Emulated {speed: fast}\n"

@@ -42,8 +42,8 @@ def test_the_installed_package_holds_its_run_time_files(installed):
                 "models/scara.sdf"):
         with open(os.path.join(ROOT, rel.replace("models/", "olti_drake/models/")), "rb") as f:
             assert (pkg / rel).read_bytes() == f.read(), rel
-    code = ("import olti_drake, olti_drake.model.machine as m, olti_drake.report.diagram_pictures as d; "
-            "print(olti_drake.__file__); print(d.DIAGRAMS_DIR); print(m.paper001_budget().name)")
+    code = ("import olti_drake, olti_drake.io.budget as b, olti_drake.report.diagram_pictures as d; "
+            "print(olti_drake.__file__); print(d.DIAGRAMS_DIR); print(b.default_budget('machine').name)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=installed,
                        env=dict(os.environ, PYTHONPATH=str(installed)))
     assert r.returncode == 0, r.stderr

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from olti_drake.io.budget import Budget, Contributor, paper000_budget
+from olti_drake.model.budget import Budget, Contributor, paper000_budget
 from olti_drake.model.instrument import (InterferometerOptions, beam_geometry, displacement_model,
                                        quantize, simulate_readings)
 

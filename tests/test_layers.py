@@ -11,7 +11,7 @@ PKG = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 
 #: What each layer may import besides itself (the top-level modules of olti_drake are open to all).
 ALLOWED = {
-    "model": {"io"},
+    "model": set(),
     "io": {"model"},
     "estimation": {"model", "io"},
     "sim": {"model", "io", "estimation"},

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d
 from olti_drake.model.volumetric3d import MachineConfig
@@ -133,7 +133,23 @@ def test_scenario_detection_and_bad_fields(tmp_path):
         assert not (tmp_path / "x" / "campaign.csv").exists()
 
 
-def test_olti_run_names_the_simulate_verb(tmp_path):
-    r = _olti("run", YAML, "--out", tmp_path / "r")
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "olti simulate" in r.stderr, r.stderr
-    assert r.stderr.count("\n") == 1
+def test_olti_run_on_the_simulated_station_writes_what_olti_simulate_writes(tmp_path):
+    """`olti run` takes the 3D scenario too (issue 22; its emulated and hardware stations:
+    tests/test_machine3d_run.py): on the scenario's simulated station its log holds the readings `olti
+    simulate` writes, in the same columns, followed by the run-log columns."""
+    from olti_drake.io.csvio import read_table
+
+    r = _olti("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "r", "--no-fsync")
+    assert r.returncode == 0 and "180 of 180 planned readings" in r.stdout, r.stderr
+    r = _olti("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "s")
+    assert r.returncode == 0, r.stderr
+    cols = ("station", "target", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "tool", "displacement_mm", "valid")
+    run, sim = (read_table(tmp_path / d / "campaign.csv", cols) for d in ("r", "s"))
+    for k in cols:
+        np.testing.assert_allclose(run[k], sim[k], rtol=0, atol=1e-9, err_msg=k)
+    header = [x for x in (tmp_path / "r" / "campaign.csv").read_text().splitlines() if not x.startswith("#")][0]
+    assert header.startswith(",".join(cols) + ",plan_row,step,session,status,reads,rezeros,time_utc,elapsed_s")
+    assert json.loads((tmp_path / "r" / "truth.json").read_text()) == json.loads((tmp_path / "s" / "truth.json")
+                                                                                 .read_text())
+    r = _olti("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "m", "--meshcat")
+    assert r.returncode == 2 and r.stderr.startswith("error: --meshcat") and r.stderr.count("\n") == 1, r.stderr

@@ -7,12 +7,13 @@ import json
 import numpy as np
 import pytest
 
+from olti_drake.errors import InputError
 from olti_drake.estimation.machine_design import (MachineStationInformation, check_design_space,
                                                   design_machine_stations)
 from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, machine_campaign
-from olti_drake.io.budget import ReadingErrors, default_budget
-from olti_drake.io.csvio import InputError
-from olti_drake.model.machine import write_machine_campaign
+from olti_drake.io.budget import default_budget
+from olti_drake.io.csvio import write_machine_campaign
+from olti_drake.model.budget import ReadingErrors
 from tests.test_cli_outputs import _olti
 
 STATIONS = np.array([[-300, -200, 0], [700, -250, 50], [600, 600, 300], [-200, 500, 400], [200, 150, 900.]])

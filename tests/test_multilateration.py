@@ -8,10 +8,11 @@ import sys
 import numpy as np
 import pytest
 
+from olti_drake.io.csvio import write_machine_campaign
+from olti_drake.model.budget import paper001_budget
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.estimation.calibration import UnidentifiableError
-from olti_drake.model.machine import (MachineScenario, paper001_budget, simulate_machine_campaign, square_targets,
-                                write_machine_campaign)
+from olti_drake.model.machine import MachineScenario, simulate_machine_campaign, square_targets
 from olti_drake.estimation.multilateration import (MultilaterationOptions, align_to_commands, load_machine_campaign,
                                         machine_campaign, multilaterate)
 
@@ -162,8 +163,8 @@ def test_duplicated_row_is_refused_naming_both_lines(tmp_path):
 
 
 def test_implausible_solution_is_named_and_residual_checked_against_the_budget(tmp_path):
-    from olti_drake.io.budget import Budget, Contributor
     from olti_drake.estimation.multilateration import Multilateration
+    from olti_drake.model.budget import Budget, Contributor
 
     data, _ = _campaign(tmp_path)
     ml = Multilateration(data)

@@ -4,10 +4,11 @@ simulated 3D campaign on pan/tilt heads, and 3D self-calibrating multilateration
 import numpy as np
 import pytest
 
+from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import UnidentifiableError
 from olti_drake.estimation.multilateration import load_machine_campaign, machine_campaign
-from olti_drake.io.csvio import InputError
-from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d, write_machine_campaign
+from olti_drake.io.csvio import write_machine_campaign
+from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,7 @@ def test_3d_simulation_is_seeded_and_reads_the_volumetric_truth(campaign3d):
     T, P, L0 = (np.asarray(truth[k]) for k in ("targets_mm", "stations_mm", "dead_paths_mm"))
     i, j, ok = cols["target"], cols["station"], cols["valid"] == 1
     model = np.linalg.norm(T[i] - P[j], axis=1) - L0[j]
-    from olti_drake.model.machine import paper001_budget
+    from olti_drake.model.budget import paper001_budget
 
     pose = paper001_budget().combined("pose")  # the head's radial error motion moves the beam origin (001 Table 4)
     assert ok.mean() > 0.95 and np.abs(model - cols["displacement_mm"])[ok].max() < 2e-3 + 5 * pose
@@ -93,7 +94,7 @@ def test_3d_recovers_targets_within_the_stated_uncertainty():
     and none beyond 4.5 u -- with the covariance from the residual variance and from the 001 Table 4 budget
     (the simulation's own noise: reading and head pose); the heads are found within 4 u."""
     from olti_drake.estimation.multilateration import align_to_commands, multilaterate
-    from olti_drake.model.machine import paper001_budget
+    from olti_drake.model.budget import paper001_budget
 
     cols, truth = simulate_machine_campaign_3d(Machine3DScenario(seed=2, grid=(6, 5, 4)))
     data = machine_campaign(cols)

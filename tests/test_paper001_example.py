@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake.model.machine import MachineScenario, paper001_budget, simulate_machine_campaign
+from olti_drake.model.budget import ReadingErrors, paper001_budget
+from olti_drake.model.machine import MachineScenario, simulate_machine_campaign
 from olti_drake.estimation.multilateration import Multilateration, machine_campaign
 from olti_drake.estimation.uncertainty import monte_carlo
-from olti_drake.io.budget import ReadingErrors
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "paper001_machine.py"

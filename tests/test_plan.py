@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake.model.plan import (BidirectionalGrid, Plan, bidirectional_grid, load_plan,
-                             save_plan)
+from olti_drake.io.plan_io import load_plan, save_plan
+from olti_drake.model.plan import BidirectionalGrid, Plan, bidirectional_grid
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "plan_paper000.csv"
 

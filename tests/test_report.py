@@ -320,7 +320,8 @@ def test_cli_dh_report_with_campaign_and_truth(paper, tmp_path, capsys):
 
 # -- machine tool (001) ------------------------------------------------------------------------------------
 def test_multilateration_report_renders_targets_and_uncertainties(paper, tmp_path, capsys):
-    from olti_drake.model.machine import MachineScenario, simulate_machine_campaign, write_machine_campaign
+    from olti_drake.io.csvio import write_machine_campaign
+    from olti_drake.model.machine import MachineScenario, simulate_machine_campaign
 
     cols, _ = simulate_machine_campaign(MachineScenario())
     write_machine_campaign(cols, tmp_path / "m.csv")

@@ -15,7 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from olti_drake.io.csvio import InputError, read_table
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import read_table
 
 PLANNED = 1056
 COLS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "valid", "step", "session",

@@ -4,8 +4,9 @@ import os
 
 import pytest
 
-from olti_drake.io.budget import load_budget, paper000_budget
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
+from olti_drake.io.budget import load_budget
+from olti_drake.model.budget import paper000_budget
 from olti_drake.sim.scenario import Scenario, as_plain, load_scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -90,7 +91,7 @@ def _campaign_bytes(scenario, out):
 
 def test_plan_and_budget_as_objects_or_files_give_identical_campaigns(tmp_path):
     """A Plan and a Budget object built in Python = the same plan and budget given as files."""
-    from olti_drake.io.budget import paper000_budget
+    from olti_drake.model.budget import paper000_budget
     from olti_drake.sim.scenario import PlanFile
 
     plan = Scenario().load_plan()

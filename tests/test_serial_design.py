@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg
 import scipy.spatial
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.estimation.serial_design import (StationInformation, candidate_points, design_stations,
                                                  evaluate_layout, gauge_rows, load_boxes, workspace_poses)
 from olti_drake.estimation.serial_plan import readable

@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.io.serial_io import (load_robot, load_serial_result, read_joint_table, read_serial_campaign,
                                      resolve_robot, serial_result_dict, serial_truth_dict, write_serial_campaign,
                                      write_serial_result)

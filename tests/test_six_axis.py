@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.sim import serial_station as ss
 from olti_drake.sim.serial_scenario import SerialScenario, load_serial_scenario, scenario_kind
 

@@ -4,10 +4,10 @@ start the multilateration converges from. Units: mm, µm, rad."""
 import numpy as np
 import pytest
 
+from olti_drake.model.budget import paper001_budget
 from olti_drake.model.errormap import NoDeviation
 from olti_drake.model.instrument import InterferometerOptions
-from olti_drake.model.machine import (MachineScenario, VolumetricError, paper001_budget, simulate_machine_campaign,
-                                square_targets)
+from olti_drake.model.machine import MachineScenario, VolumetricError, simulate_machine_campaign, square_targets
 from olti_drake.estimation.multilateration import Multilateration, MultilaterationOptions, machine_campaign
 from olti_drake.estimation.station_estimation import (PULSE_RAD, CentreOptions, RotaryStation, ZeroAngleOptions,
                                            estimate_rotation_centre, estimate_zero_angle, positioning_accuracy_um)

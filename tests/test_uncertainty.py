@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from figure_capture import annotations, captured_figures, errorbar, legend_labels
 
-from olti_drake.io.budget import Budget, load_budget
+from olti_drake.io.budget import load_budget
+from olti_drake.model.budget import Budget, ReadingErrors
 from olti_drake.sim.campaign import prepare, simulate_vectorized, write_campaign
 from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
 from olti_drake.sim.scenario import Scenario
-from olti_drake.io.budget import ReadingErrors
 from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.report.validation import campaign_data, random_commands
@@ -407,7 +407,7 @@ def test_adaptive_cap_reports_not_converged_and_omits_intervals(small):
 def test_each_contributor_is_drawn_with_its_own_distribution():
     """Normal: excess kurtosis 0; uniform (rectangular): -1.2. With 200 000 draws the sample excess kurtosis
     has a standard error of sqrt(24/n) = 0.011 (normal), so ±0.06 separates the two by far."""
-    from olti_drake.io.budget import Contributor
+    from olti_drake.model.budget import Contributor
 
     def kurtosis(distribution):
         b = Budget(name=distribution, contributors=[Contributor("u", "", 3.0, "um", 1.0, "B", "reading",
@@ -423,10 +423,72 @@ def test_each_contributor_is_drawn_with_its_own_distribution():
 def test_monte_carlo_refuses_trials_that_do_not_converge(small):
     """Reading errors of 10 mm (a budget in the wrong unit) drive trials beyond where the chord iteration
     re-solves them: before, their NaN or unconverged rows went into the standard uncertainties silently."""
-    from olti_drake.io.budget import Contributor
     from olti_drake.estimation.calibration import FitRefused
+    from olti_drake.model.budget import Contributor
 
     ident, x, _ = small
     wrong = Budget(name="mm", contributors=[Contributor("u", "", 10.0, "mm", 1.0, "B", "reading")])
     with pytest.raises(FitRefused, match=r"Monte Carlo refused, nothing written -- \d+ of 50 trials did not"):
         monte_carlo(ident, x, ReadingErrors(wrong), trials=50, seed=1, workers=1)
+
+
+def test_monte_carlo_workers_die_with_their_parent():
+    """Hang class of issue 24: ``kill -9`` of the process running the Monte Carlo left its workers on both cores.
+    The pool's workers now ask the kernel to end them with their parent (PR_SET_PDEATHSIG)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = ("import sys, time\n"
+              "from olti_drake.estimation.uncertainty import _pool\n"
+              "pool = _pool(2).__enter__()\n"
+              "futures = [pool.submit(time.sleep, 120) for _ in range(2)]\n"
+              "time.sleep(0.5)\n"
+              "print(' '.join(str(p) for p in pool._processes), flush=True)\n"
+              "time.sleep(120)\n")
+    p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        workers = [int(v) for v in p.stdout.readline().split()]
+        assert len(workers) == 2 and all(_running(w) for w in workers)
+    finally:
+        p.send_signal(signal.SIGKILL)
+        p.wait(timeout=30)
+    deadline = time.monotonic() + 20
+    while any(_running(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_running(w) for w in workers), "a Monte Carlo worker outlived its parent"
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie (an orphan's exit may wait for a reaper)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except FileNotFoundError:
+        return False
+
+
+def test_a_trial_count_beyond_reason_is_refused_before_any_work(tmp_path):
+    """Hang and memory class of issue 24: ``--trials 10000000000`` ran silently for ever. The option has an upper
+    bound, and below it the library refuses samples that would not fit in memory, naming the count and the size."""
+    import subprocess
+    import sys
+
+    from olti_drake.errors import InputError
+    from olti_drake.estimation.uncertainty import MAX_SAMPLE_BYTES, _check_sample_size
+
+    result = tmp_path / "r.json"
+    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", "data/paper000/campaign.csv", "--model",
+                          "dh", "--out", str(result)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    for trials, message in (("10000000000", "argument --trials: must be a whole number in [2, 100000000]"),
+                            ("90000000", "trials 90000000: the Monte Carlo samples of 12 parameters would take")):
+        run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "uncertainty", str(result),
+                              "data/paper000/campaign.csv", "--method", "mc", "--trials", trials, "--out",
+                              str(tmp_path / "u.json")], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2 and message in run.stderr and run.stderr.count("\n") == 1, run.stderr
+        assert not (tmp_path / "u.json").exists()
+    _check_sample_size(MAX_SAMPLE_BYTES // (8 * 49), 49, "trials")  # (just at the bound: taken)
+    with pytest.raises(InputError, match="max_trials 10956550: .* 49 parameters"):
+        _check_sample_size(MAX_SAMPLE_BYTES // (8 * 49) + 1, 49, "max_trials")

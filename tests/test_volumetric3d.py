@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from olti_drake.io.volumetric_io import write_tables
 from olti_drake.threads import single_thread_blas
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, VolumetricModel,
-                                           _rigid_columns, _rotations, axis_tables, chain_state,
-                                           command_jacobian, compensate, error_grid, motion_names,
-                                           motion_role, motion_unit, observability, synthetic_truth,
-                                           tool_positions, write_tables)
+                                           _rigid_columns, _rotations, axis_tables, chain_state, command_jacobian,
+                                           compensate, error_grid, motion_names, motion_role, motion_unit,
+                                           observability, synthetic_truth, tool_positions)
 
 ONE_TOOL = ((0.0, 0.0, 100.0),)
 TWO_TOOLS = ((0.0, 0.0, 100.0), (60.0, 40.0, 150.0))

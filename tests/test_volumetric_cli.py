@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from olti_drake.cli.verbs import main
-from olti_drake.io.budget import ReadingErrors, default_budget
-from olti_drake.model.machine import write_machine_campaign
+from olti_drake.io.budget import default_budget
+from olti_drake.io.csvio import write_machine_campaign
+from olti_drake.model.budget import ReadingErrors
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, motion_names, motion_unit,
                                            synthetic_truth, tool_positions)
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from olti_drake.cli.verbs import main
+from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.io.volumetric_io import load_volumetric_result
-from olti_drake.model.machine import write_machine_campaign
 from olti_drake.model.volumetric3d import ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, synthetic_truth
 from olti_drake.report.volumetric_report import grid_pitch_mm, volumetric_figures
 

@@ -144,7 +144,8 @@ def test_monte_carlo_of_a_calibration_solves_each_trial(ur5_problem):
     """Calibration programs (no batched residuals) go trial by trial: each trial is its own least-squares
     solution (a full fit of the same readings agrees), seeded, and the spread follows the linear method."""
     from olti_drake.estimation import uncertainty
-    from olti_drake.io.budget import ReadingErrors, default_budget
+    from olti_drake.io.budget import default_budget
+    from olti_drake.model.budget import ReadingErrors
 
     meas, gauge = ur5_problem
     cal = Calibration(meas, SolverOptions(), gauge, "synthetic UR5")

@@ -10,7 +10,7 @@ those of the option (mm, degrees). Only the standard library is imported: ``olti
 import argparse
 import math
 
-#: Largest plausible magnitude of a length given on the command line, mm (+-100 m, as csvio.UNIT_BOUNDS).
+#: Largest plausible magnitude of a length given on the command line, mm (+-100 m, as units.UNIT_BOUNDS).
 MAX_MM = 1e5
 
 

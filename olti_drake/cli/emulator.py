@@ -20,7 +20,8 @@ def main(argv=None) -> int:
         prog="python -m olti_drake.cli.emulator",
         description="Emulate the robot controller and the interferometer counter of a scenario on two "
                     "pseudo-terminals (docs/emulator.md).")
-    p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario)")
+    p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario); a 3D machine-tool "
+                                               "scenario (heads_mm) emulates its X, Y, Z controller and pan/tilt heads")
     p.add_argument("--robot", metavar="NAME|MODEL",
                    help="emulate an N-joint serial robot and its tracer heads instead of the SCARA: a robot name "
                         "(ur5) or a URDF/SDFormat file (with --tool-frame); protocol version 2")
@@ -68,7 +69,7 @@ def main(argv=None) -> int:
     try:
         for role, line in emu._lines.items():
             print(f"{role:8s}{line.path}" + (f"  ({line.link})" if line.link else ""), flush=True)
-        where = f"reflector {emu.reflector}" if a.robot is None else f"truth seed {emu.truth_seed}"
+        where = f"truth seed {emu.truth_seed}" if hasattr(emu, "truth_seed") else f"reflector {emu.reflector}"
         print(f"speed {emu.speed}, seed {emu.seed}, {where}; Ctrl-C stops", flush=True)
         while not signals and not emu.disconnected.is_set():
             time.sleep(0.1)
@@ -82,6 +83,11 @@ def main(argv=None) -> int:
 def _emulator(a, faults):
     """The SCARA emulator of a scenario, or with ``--robot`` the N-joint one (ValueError: one line)."""
     common = dict(speed=a.speed, faults=faults, link=a.link, latch_beam_loss=a.latch_beam_loss)
+    if a.robot is None and a.scenario is not None:
+        from olti_drake.sim.serial_scenario import scenario_kind
+
+        if scenario_kind(a.scenario) == "machine3d":
+            return _machine3d_emulator(a, common)
     if a.robot is None:
         if a.tool_frame is not None:
             raise ValueError("--tool-frame needs --robot")
@@ -94,6 +100,23 @@ def _emulator(a, faults):
                          "synthetic robot, --truth-seed)")
     return SerialEmulator(a.robot, tool_frame=a.tool_frame, truth_seed=a.truth_seed, seed=a.seed or 0,
                           encoder_resolution=0.0 if a.exact_encoder else DEFAULT_JOINT_RESOLUTION, **common)
+
+
+def _machine3d_emulator(a, common):
+    """The 3D machine emulator of a 3D machine-tool scenario (``heads_mm``): its X, Y, Z controller and a
+    pan/tilt head line per head, the truth the scenario's (as ``olti run`` with ``!Emulated`` starts it)."""
+    from olti_drake.hardware.machine3d_emulator import DEFAULT_AXIS_RESOLUTION_MM, Machine3DEmulator
+    from olti_drake.sim.machine3d_campaign import prepare_machine3d_campaign
+    from olti_drake.sim.machine3d_station import load_machine3d_scenario
+
+    if a.tool_frame is not None or a.reflector:
+        raise ValueError(f"{a.scenario}: a 3D machine-tool scenario: --tool-frame and --reflector do not apply "
+                         f"(the heads are the counters)")
+    doc = load_machine3d_scenario(a.scenario)
+    setup = prepare_machine3d_campaign(doc, f"scenario {a.scenario}")
+    return Machine3DEmulator(setup.machine.scenario, run=setup.run, budget=setup.machine.budget,
+                             seed=doc.seed if a.seed is None else a.seed,
+                             encoder_resolution=0.0 if a.exact_encoder else DEFAULT_AXIS_RESOLUTION_MM, **common)
 
 
 if __name__ == "__main__":

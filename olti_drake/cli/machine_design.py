@@ -12,8 +12,9 @@ def design(args) -> int:
                                                       design_targets, evaluate_machine_layout,
                                                       machine_design_document)
     from olti_drake.estimation.serial_design import candidate_points, load_boxes
-    from olti_drake.io.budget import ReadingErrors, budget_or_default
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.io.outputs import write_json
+    from olti_drake.model.budget import ReadingErrors
 
     targets = design_targets(args.result)
     n = args.reflectors if args.reflectors is not None else (

@@ -1,7 +1,8 @@
-"""``olti multilaterate`` and ``olti uncertainty`` of a machine-tool result, 2D (paper 001) or 3D (the
-machine tool in 3D, formats.md): argument handling and printing only; the work is in
-:mod:`olti_drake.estimation.multilateration` and :mod:`olti_drake.estimation.uncertainty`. mm.
-numpy is imported inside the verbs: ``olti --help`` builds the parser without it."""
+"""The machine-tool multilateration, 2D (paper 001) or 3D (the machine tool in 3D, formats.md): the summary of
+``olti multilaterate`` (whose route is :mod:`olti_drake.cli.identify`'s) and ``olti uncertainty`` of its result:
+argument handling and printing only; the work is in :mod:`olti_drake.estimation.multilateration` and
+:mod:`olti_drake.estimation.uncertainty`. mm. numpy is imported inside the verbs: ``olti --help`` builds the parser
+without it."""
 
 
 def _norm_um(v_mm):
@@ -11,92 +12,45 @@ def _norm_um(v_mm):
     return 1e3 * np.sqrt(np.sum(np.square(v_mm), axis=1))
 
 
-def _options(args, stations_mm=None, gauge=None, tool_offsets_mm=None):
-    from olti_drake.estimation.multilateration import MultilaterationOptions
-
-    return MultilaterationOptions(
-        stations_mm=stations_mm, gauge=gauge, tool_offsets_mm=tool_offsets_mm,
-        loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold, regularize=args.regularize,
-        solver=args.solver)
-
-
-def _default_gauge(args, data) -> str:
-    """``--gauge`` as given, checked against the campaign's dimension (first-two in 2D, first-three in 3D)."""
-    from olti_drake.estimation.multilateration import GAUGES_BY_DIM
-
-    gauge = args.gauge or "best-fit"
-    if gauge not in GAUGES_BY_DIM[data.dim]:
-        raise ValueError(f"--gauge {gauge}: a {data.dim}D campaign ({args.campaign}) takes "
-                         f"{' or '.join(GAUGES_BY_DIM[data.dim])}")
-    return gauge
-
-
-def _check_widths(args, data) -> None:
-    for option, value in (("--stations-mm", args.stations_mm), ("--tool-offsets-mm", args.tool_offsets_mm)):
-        if value is not None and any(len(v) != data.dim for v in value):
-            raise ValueError(f"{option}: {args.campaign} is a {data.dim}D campaign: give "
-                             f"{data.dim} coordinates per position (mm)")
-
-
-def cmd_multilaterate(args) -> int:
-    """001 Eq. 2-6 on a 2D or 3D machine-tool campaign: write RESULT.json, print a summary."""
-    from olti_drake.estimation.multilateration import load_machine_campaign, multilaterate
-    from olti_drake.io.outputs import preflight, write_json
-
-    preflight([args.out], [args.campaign, args.budget], force=getattr(args, "force", False))
-    data = load_machine_campaign(args.campaign)
-    _check_widths(args, data)
-    options = _options(args, args.stations_mm, _default_gauge(args, data), args.tool_offsets_mm)
-    if args.budget == "residuals":
-        budget = None
-    else:
-        from olti_drake.io.budget import budget_or_default
-
-        budget = budget_or_default(args.budget, "machine")
-    res = multilaterate(data, options, budget)
-    write_json(args.out, res.to_dict())
-    D = data.dim
+def summary(res, data) -> str:
+    """A short account of a multilateration (``res``, a MultilaterationResult) of the campaign ``data``."""
     dev = _norm_um(res.targets_mm - res.nominal_mm)
     U = 2 * _norm_um(res.targets_std_mm)
-    print(f"multilateration (001 Eq. 2-6, {D}D): {len(data)} readings, {data.n_targets} targets, {data.n_stations} "
-          f"stations, {len(res.fit.names)} parameters, solver {res.fit.solver}")
-    print(f"  target deviation from command: max {dev.max():.2f} um, mean {dev.mean():.2f} um; "
-          f"U (k = 2) of the 2-norm: max {U.max():.2f} um")
+    lines = [f"multilateration (001 Eq. 2-6, {data.dim}D): {len(data)} readings, {data.n_targets} targets, "
+             f"{data.n_stations} stations, {len(res.fit.names)} parameters, solver {res.fit.solver}",
+             f"  target deviation from command: max {dev.max():.2f} um, mean {dev.mean():.2f} um; "
+             f"U (k = 2) of the 2-norm: max {U.max():.2f} um"]
     for j, (P, L0) in enumerate(zip(res.stations_mm, res.dead_paths_mm)):
-        print(f"  station {j}: ({', '.join(f'{v:.4f}' for v in P)}) mm, dead path {L0:.4f} mm")
-    print(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
-          f"condition number {res.fit.condition_number:.3g}")
-    print(f"  gauge: {res.gauge}")
-    for note in res.fit.notes:
-        if note.startswith("tool offsets"):
-            print(f"  note: {note}")
-    for warning in res.fit.warnings:
-        print(f"  warning: {warning}")
+        lines.append(f"  station {j}: ({', '.join(f'{v:.4f}' for v in P)}) mm, dead path {L0:.4f} mm")
+    lines.append(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {res.fit.iterations} iterations, "
+                 f"condition number {res.fit.condition_number:.3g}")
+    lines.append(f"  gauge: {res.gauge}")
+    lines += [f"  note: {note}" for note in res.fit.notes if note.startswith("tool offsets")]
+    lines += [f"  warning: {warning}" for warning in res.fit.warnings]
     if res.fit.outliers:
-        print(f"  {len(res.fit.outliers)} suspect reading(s): "
-              + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
-    print(f"wrote {args.out}")
-    return 0
+        lines.append(f"  {len(res.fit.outliers)} suspect reading(s): "
+                     + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
+    return "\n".join(lines)
 
 
-def uncertainty_multilateration(args, t0, propagate) -> int:
+def uncertainty(args) -> int:
     """``olti uncertainty`` of a machine-tool result (001 §4.4, Fig. 14), 2D or 3D: targets, stations, dead
-    paths; ``propagate(ident, x, errors, args)`` is the verb's linear / Monte Carlo propagation."""
+    paths, by the verb's linear / Monte Carlo propagation (:func:`olti_drake.cli.propagate.propagate`)."""
     import time
 
     import numpy as np
 
+    from olti_drake.cli.propagate import campaign_note, propagate
     from olti_drake.estimation.multilateration import (Multilateration, MultilaterationOptions, load_machine_campaign,
                                                        load_result)
     from olti_drake.estimation.uncertainty import uncertainty_dict
-    from olti_drake.io.budget import ReadingErrors
     from olti_drake.io.budget import budget_or_default
     from olti_drake.io.csvio import check_campaign_matches
     from olti_drake.io.outputs import write_json
+    from olti_drake.model.budget import ReadingErrors
     from olti_drake.report.figures import plot_target_uncertainty
 
-    if args.maps:
-        raise ValueError("--maps (error maps with error bars) applies to SCARA error-map results only")
+    t0 = time.perf_counter()
     res = load_result(args.result)
     budget = budget_or_default(args.budget, "machine")
     data = load_machine_campaign(args.campaign)
@@ -104,15 +58,14 @@ def uncertainty_multilateration(args, t0, propagate) -> int:
     if np.shape(res["targets_mm"])[1] != D:
         raise ValueError(f"{args.result}: a {np.shape(res['targets_mm'])[1]}D result, but {args.campaign} is a "
                          f"{D}D campaign")
-    campaign_note = check_campaign_matches(res, data, args.result)
+    note = check_campaign_matches(res, data, args.result)
     ident = Multilateration(data, MultilaterationOptions(stations_mm=res["stations_mm"], gauge=res["gauge_kind"],
                                                          tool_offsets_mm=res.get("tool_offsets_mm")))
     x = np.concatenate([np.ravel(res["targets_mm"]), np.ravel(res["stations_mm"]), res["dead_paths_mm"]])
     if len(x) != len(ident.names):
         raise ValueError(f"{args.result}: its targets/stations do not match the campaign {args.campaign}")
     std, _, samples, extra, every = propagate(ident, x, ReadingErrors(budget), args)
-    if campaign_note:
-        extra["notes"] = list(extra.get("notes", [])) + [campaign_note]
+    campaign_note(extra, note)
     U = args.k * _norm_um(std[:D * data.n_targets].reshape(-1, D))
     norm = "sqrt(u_x^2 + u_y^2)" if D == 2 else "sqrt(u_x^2 + u_y^2 + u_z^2)"
     extra.update(gauge=res["gauge"], elapsed_s=round(time.perf_counter() - t0, 3),

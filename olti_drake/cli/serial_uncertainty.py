@@ -4,22 +4,22 @@
 import time
 
 
-def uncertainty(args, propagate) -> int:
-    """Standard uncertainties of every parameter of a serial result (linear or Monte Carlo, by ``propagate``, the
-    verb's own), and of the predicted tool point over ``--workspace-poses`` seeded poses (``--map``: slices)."""
+def uncertainty(args) -> int:
+    """Standard uncertainties of every parameter of a serial result (linear or Monte Carlo, by the verb's
+    propagation, :func:`olti_drake.cli.propagate.propagate`), and of the predicted tool point over
+    ``--workspace-poses`` seeded poses (``--map``: slices)."""
     import numpy as np
 
+    from olti_drake.cli.propagate import propagate
     from olti_drake.estimation.serial_uncertainty import (calibration_at_result, workspace_uncertainty,
                                                           zero_held_uncertainties)
     from olti_drake.estimation.uncertainty import uncertainty_dict
-    from olti_drake.io.budget import ReadingErrors, budget_or_default
+    from olti_drake.io.budget import budget_or_default
     from olti_drake.io.csvio import check_campaign_matches
     from olti_drake.io.outputs import write_json
     from olti_drake.io.serial_io import load_serial_result, read_serial_campaign
+    from olti_drake.model.budget import ReadingErrors
 
-    if args.maps:
-        raise ValueError("--maps is the SCARA figure; for a robot from a model file the maps with these error bars "
-                         "are in olti report RESULT.json UNC.json")
     t0 = time.perf_counter()
     res = load_serial_result(args.result, outside="clamp", identified=True)
     campaign = read_serial_campaign(args.campaign, res.model.chain.n_joints, robot=res.data["robot"]["file"])

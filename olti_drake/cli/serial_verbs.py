@@ -1,82 +1,17 @@
-"""The ``olti`` verbs for N-joint serial robots (``--robot FILE|ur5|scara``): identify, predict, compensate.
+"""The ``olti`` verbs for N-joint serial robots (``--robot FILE|ur5|scara``): predict, compensate.
 
-Dispatched from :mod:`olti_drake.cli.verbs` when ``--robot`` is given (identify) or the result names
-a robot (predict, compensate). Parsing and printing only; the work is in
-:mod:`olti_drake.estimation.serial_identification`, :mod:`olti_drake.estimation.serial_compensation`
-and :mod:`olti_drake.io.serial_io`. Units: mm and degrees.
+Dispatched from :mod:`olti_drake.cli.verbs` when the result is a serial robot's (its kind,
+:mod:`olti_drake.cli.kinds`); ``olti identify --robot`` is the one identify route
+(:mod:`olti_drake.cli.identify`). Parsing and printing only; the work is in
+:mod:`olti_drake.estimation.serial_compensation` and :mod:`olti_drake.io.serial_io`. Units: mm and degrees.
 """
 
 import os
-
-#: SCARA-only options of ``olti identify`` and their meaning with --robot.
-_SCARA_ONLY = (("grid1_deg", "--grid1-deg", "--grid-step-deg"), ("grid2_deg", "--grid2-deg", "--grid-step-deg"),
-               ("nominal_mm", "--nominal-mm", "the robot file's geometry and --tool-offset-mm"),
-               ("reflectors_mm", "--reflectors-mm", "the stations fitted to the nominal tool points"),
-               ("fix_reflectors", "--fix-reflectors", "the stations fitted to the nominal tool points"))
-
 
 def _preflight(args, files, inputs, dirs=()):
     from olti_drake.io.outputs import preflight
 
     preflight(files, inputs, force=getattr(args, "force", False), dirs=dirs, create_dirs=bool(dirs))
-
-
-def _robot_input(spec):
-    """The robot file an argument names, as an input never to be written (None for a shipped name)."""
-    from olti_drake.io.serial_io import SHIPPED_ROBOTS
-
-    return None if spec is None or spec.lower() in SHIPPED_ROBOTS else spec
-
-
-def identify(args) -> int:
-    """``olti identify CAMPAIGN.csv --robot FILE --tool-frame NAME --model dh|errormap --out RESULT.json``."""
-    from olti_drake.estimation.serial_identification import (SerialIdentificationOptions, identify_serial,
-                                                             summary)
-    from olti_drake.io.serial_io import (load_robot, read_serial_campaign, robot_reference, serial_result_dict,
-                                         write_serial_result)
-
-    for attr, flag, instead in _SCARA_ONLY:
-        if getattr(args, attr, None):
-            raise ValueError(f"{flag} is a SCARA option; with --robot the model uses {instead}")
-    if not args.tool_frame:
-        raise ValueError(f"--robot {args.robot}: give the tool frame with --tool-frame NAME")
-    if args.tool_offset_mm and len(args.tool_offset_mm) != 1:
-        raise ValueError(f"--tool-offset-mm: one point x,y,z (mm), got {len(args.tool_offset_mm)}")
-    _preflight(args, [args.out], [args.campaign, args.budget, _robot_input(args.robot)])
-    chain = load_robot(args.robot, args.tool_frame)
-    for note in chain.notes:  # said once, before the work (and kept in the result's notes)
-        print(f"note: {note}", flush=True)
-    campaign = read_serial_campaign(args.campaign, chain.n_joints, robot=args.robot)
-    options = SerialIdentificationOptions(
-        model=args.model, tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
-        grid_step_deg=15.0 if args.grid_step_deg is None else args.grid_step_deg, loss=args.loss, huber_k=args.huber_k,
-        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver,
-        compliance=args.compliance, drift=args.drift)
-    if args.budget:
-        from olti_drake.io.budget import load_budget
-
-        options.budget = load_budget(args.budget)
-    ident = identify_serial(chain, campaign, options)
-    result = serial_result_dict(kind=args.model, robot_file=robot_reference(args.robot, args.out),
-                                measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
-                                campaign_digest=campaign.digest(), notes=list(chain.notes) + ident.notes)
-    write_serial_result(args.out, result)
-    print(summary(ident))
-    print(f"wrote {args.out}")
-    return 0
-
-
-def is_serial_result(path) -> bool:
-    """Whether a result file names a robot (a serial robot's result); False when unreadable (the
-    SCARA loader then says why)."""
-    import json
-
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except (OSError, ValueError):
-        return False
-    return isinstance(data, dict) and isinstance(data.get("robot"), dict)
 
 
 def _commands(res, path, required=(), integer=(), valid_only=False):
@@ -123,7 +58,6 @@ def predict(args) -> int:
     from olti_drake.io.csvio import write_table
     from olti_drake.io.serial_io import header, load_serial_result, station_column
 
-    _preflight(args, [args.out], [args.commands, args.result])
     res = load_serial_result(args.result, outside=args.outside)
     _, cols = header(args.commands)
     distance = "displacement_mm" in cols and ("station" in cols or "reflector" in cols)
@@ -231,11 +165,3 @@ def compensate(args) -> int:
         point = write_identified_urdf(model, res.robot_path, args.urdf_out, f"Result: {args.result}.")
         print(f"wrote {args.urdf_out} (identified joint origins; tool point = link '{point}')")
     return 0
-
-
-def refuse_serial_result(path, verb: str) -> None:
-    """One line for a verb that does not take a serial robot's result (yet), instead of a SCARA key error."""
-    if is_serial_result(path):
-        raise ValueError(f"{path}: a serial robot's result (olti identify --robot); olti {verb} takes SCARA and "
-                         f"machine-tool results only so far -- its 'uncertainty' object holds the linear standard "
-                         f"uncertainties (k = 1) of every parameter")

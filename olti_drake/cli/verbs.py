@@ -135,15 +135,18 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
-    from olti_drake.sim.serial_station import is_serial_scenario, simulate_serial_command
-    if is_serial_scenario(args.scenario, args.scenario_name):  # a six-axis scenario (it has a `scheme`)
+    from olti_drake.sim.serial_scenario import scenario_kind
+
+    kind = scenario_kind(args.scenario, args.scenario_name)  # (sim.serial_scenario: the one place)
+    if kind == "serial":  # a six-axis scenario (it has a `scheme`)
+        from olti_drake.sim.serial_station import simulate_serial_command
         print(simulate_serial_command(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed,
                                       _progress(True), lambda: _serial_meshcat_view(args)))
         if args.meshcat and sys.stdin.isatty():
             input("press Enter to close the Meshcat view: ")
         return 0
-    from olti_drake.sim.machine3d_station import is_machine3d_scenario, simulate_machine3d_command
-    if is_machine3d_scenario(args.scenario, args.scenario_name):  # a 3D machine tool (it has `heads_mm`)
+    if kind == "machine3d":  # a 3D machine tool (it has `heads_mm`)
+        from olti_drake.sim.machine3d_station import simulate_machine3d_command
         print(simulate_machine3d_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
                                          args.seed, args.meshcat))
         return 0
@@ -158,9 +161,10 @@ def cmd_simulate(args) -> int:
 
 def cmd_plan(args) -> int:
     """The plan of a six-axis scenario and its predicted quality before any measurement."""
-    from olti_drake.sim.serial_station import is_serial_scenario, plan_command
+    from olti_drake.sim.serial_scenario import scenario_kind
+    from olti_drake.sim.serial_station import plan_command
 
-    if not is_serial_scenario(args.scenario, args.scenario_name):
+    if scenario_kind(args.scenario, args.scenario_name) != "serial":
         raise ValueError(f"{args.scenario}: olti plan reports six-axis (floor tracer) scenarios; the SCARA plan is "
                          f"data/plan_paper000.yaml (olti design evaluates it)")
     if args.out:
@@ -175,6 +179,7 @@ def cmd_demo(args) -> int:
         from olti_drake.report.six_axis_demo import run_six_axis_demo
         print("\n".join(run_six_axis_demo(args.out, args.force)))
         return 0
+    from olti_drake.cli.scara_verbs import identification_summary
     from olti_drake.report.figures import CAMPAIGN_FIGURES, write_campaign_figures
     from olti_drake.io.result import write_result
     from olti_drake.report.validation import (VALIDATION_FIGURES, campaign_data, validate_models, validation_table,
@@ -203,94 +208,18 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def identification_summary(ident) -> str:
-    """Parameters ± standard uncertainty (k = 1), residual RMS, iterations, conditioning."""
-    import numpy as np
-
-    m = ident.model
-    u = {n: s for n, s in zip(ident.names, ident.std)}
-    lines = [f"model {'errormap' if m.is_errormap else 'dh'}: {ident.n_readings} readings, "
-             f"{len(ident.names)} parameters, solver {ident.solver}",
-             f"  L1 = {m.L1_mm:.4f} +- {u['L1_mm']:.4f} mm, L2 = {m.L2_mm:.4f} +- {u['L2_mm']:.4f} mm (k = 1)"]
-    if m.is_errormap:
-        for axis, mp in (("J1", m.map1), ("J2", m.map2)):
-            s = np.array([u[n] for n in ident.names if n.startswith(axis + "_")])
-            back = mp.forward_deg - mp.reverse_deg
-            lines.append(f"  {axis} map: {mp.n_nodes} nodes {mp.grid_deg[0]:g}..{mp.grid_deg[-1]:g} deg, "
-                         f"deviation {1e3 * mp.values.min():.2f}..{1e3 * mp.values.max():.2f} mdeg, "
-                         f"mean backlash {1e3 * back.mean():.2f} mdeg, u up to {1e3 * s.max():.3f} mdeg")
-    else:
-        lines.append(f"  theta20 = {1e3 * m.theta20_deg:.3f} +- {1e3 * u['theta20_deg']:.3f} mdeg")
-    for j, (p, d0) in enumerate(zip(ident.reflectors_mm, ident.dead_paths_mm)):
-        lines.append(f"  P{j} = ({p[0]:.3f}, {p[1]:.3f}) mm, d0_{j} = {d0:.3f} mm")
-    lines.append(f"  residual RMS {1e3 * ident.residual_rms_mm:.2f} um, {ident.iterations} iterations, "
-                 f"condition number {ident.condition_number:.3g} (scaled, within the gauge)")
-    lines.append(f"  gauge: {ident.gauge}")
-    for note in ident.notes:
-        lines.append(f"  note: {note}")
-    res = getattr(ident, "resolution", None)
-    if res and res.get("done"):
-        lines.append(f"  resolution check: held-out readings at alternate nodes missed by the map on the others by RMS "
-                     f"{1e3 * res['held_out_rms_mm']:.1f} um ({res['ratio']:.1f} x the budget's reading u)")
-    elif res:
-        lines.append(f"  resolution check not possible: {res['why']}")
-    for warning in getattr(ident, "warnings", []):
-        lines.append(f"  warning: {warning}")
-    if ident.outliers:
-        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in ident.outliers[:10])
-        more = f" and {len(ident.outliers) - 10} more" if len(ident.outliers) > 10 else ""
-        lines.append(f"  {len(ident.outliers)} suspect reading(s) beyond the outlier threshold: {shown}{more}")
-    return "\n".join(lines)
-
-
 def cmd_identify(args) -> int:
-    if args.model == "volumetric":
-        from olti_drake.cli.volumetric_verbs import identify
-        return identify(args)
-    if args.tool_offsets_mm or args.knot_spacing_mm or args.topology != "serial" or args.pitch_mm:
-        raise ValueError("--tool-offsets-mm, --knot-spacing-mm, --topology and --pitch-mm apply to --model volumetric")
-    if args.robot or args.tool_frame:
-        from olti_drake.cli.serial_verbs import identify
+    """campaign CSV -> calibration_problem -> fit -> result document -> written (olti_drake.cli.identify)."""
+    from olti_drake.cli.identify import identify
 
-        if not args.robot:
-            raise ValueError("--tool-frame needs --robot FILE (an N-joint robot model)")
-        return identify(args)
-    for flag, value in (("--tool-offset-mm", args.tool_offset_mm), ("--grid-step-deg", args.grid_step_deg),
-                        ("--compliance", args.compliance or None), ("--drift", args.drift or None)):
-        if value is not None:
-            raise ValueError(f"{flag} needs --robot FILE --tool-frame NAME (a serial robot); the SCARA path uses "
-                             f"--nominal-mm and --grid1-deg/--grid2-deg")
-    from olti_drake.io.csvio import load_campaign
-    from olti_drake.estimation.identification import IdentificationOptions, identify, parse_grid
-    from olti_drake.io.result import write_result
-
-    _check_outputs(args, [args.out], [args.campaign, args.budget])
-    nominal = args.nominal_mm[0] if args.nominal_mm else (325.0, 225.0)
-    options = IdentificationOptions(
-        model=args.model, nominal_L1_mm=nominal[0], nominal_L2_mm=nominal[1],
-        grid1_deg=parse_grid(args.grid1_deg, "--grid1-deg") if args.grid1_deg else None,
-        grid2_deg=parse_grid(args.grid2_deg, "--grid2-deg") if args.grid2_deg else None,
-        reflectors_mm=args.reflectors_mm,
-        fix_reflectors=args.fix_reflectors, loss=args.loss, huber_k=args.huber_k,
-        outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
-    if args.budget:
-        from olti_drake.io.budget import load_budget
-
-        options.budget = load_budget(args.budget)
-    if options.fix_reflectors and options.reflectors_mm is None:
-        raise ValueError("--fix-reflectors needs --reflectors-mm")
-    data = load_campaign(args.campaign)
-    ident = identify(data, options)
-    write_result(ident, args.out)
-    print(identification_summary(ident))
-    print(f"wrote {args.out}")
-    return 0
+    return identify(args, args.model)
 
 
 def cmd_multilaterate(args) -> int:
-    from olti_drake.cli.machine_verbs import cmd_multilaterate as run
+    """001 Eq. 2-6 on a 2D or 3D machine-tool campaign: the identify route with model multilateration."""
+    from olti_drake.cli.identify import identify
 
-    return run(args)
+    return identify(args, "multilateration")
 
 
 def _add_force(p):
@@ -311,99 +240,19 @@ def _add_solver_options(p):
                    help="lm: Levenberg-Marquardt steps as Drake programs (default); nlp: Drake NLP solver")
 
 
+def _result_verb(args, verb: str, files=(), inputs=()) -> int:
+    """A verb on a result: its kind asked once (olti_drake.cli.kinds: any result file, old ones included; the
+    options that do not apply to it refused), the outputs checked, the kind's body run."""
+    from olti_drake.cli.kinds import handler, result_kind_of
+
+    kind = result_kind_of(args, verb)
+    if files:
+        _check_outputs(args, files, inputs)
+    return handler(verb, kind)(args)
+
+
 def cmd_predict(args) -> int:
-    if _result_format(args.result) == "olti-volumetric/1":
-        from olti_drake.cli.volumetric_verbs import predict
-        return predict(args)
-    from olti_drake.io.csvio import load_commands
-    from olti_drake.io.csvio import write_table
-    from olti_drake.io.result import load_result
-
-    from olti_drake.cli.serial_verbs import is_serial_result, predict
-
-    if is_serial_result(args.result):
-        return predict(args)
-    _check_outputs(args, [args.out], [args.result, args.commands])
-    from olti_drake.model.errormap import OutsideGridError
-
-    model, _, _, _ = load_result(args.result, outside=args.outside)
-    cmd, lines = load_commands(args.commands)
-    try:
-        p = model.positions(cmd)
-    except OutsideGridError as e:
-        raise ValueError(f"{args.commands}:{lines[e.row]}: {e} -- or run with --outside clamp") from None
-    cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg, "dir1": cmd.dir1, "dir2": cmd.dir2,
-            "x_mm": p[:, 0], "y_mm": p[:, 1]}
-    write_table(args.out, cols, {"dir1": "%d", "dir2": "%d", "x_mm": "%.6f", "y_mm": "%.6f"},
-                comments=[f"olti predict: {args.result} applied to {args.commands}; mm and degrees"])
-    print(f"predicted {len(cmd)} positions; wrote {args.out}")
-    return 0
-
-
-def _result_format(path) -> str:
-    """The ``format`` of a result JSON ('' when unreadable: the loader then says why)."""
-    import json
-
-    try:
-        with open(path, encoding="utf-8") as f:
-            return str(json.load(f).get("format", ""))
-    except (OSError, ValueError, AttributeError):
-        return ""
-
-
-def _propagate(ident, x, errors, args):
-    """(std, cov or None, samples for coverage intervals or None, extra dict, all samples or None) by the
-    method of ``args`` (linear or mc); the intervals only when enough trials make them reliable."""
-    import numpy as np
-
-    from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo, trials_for_intervals
-
-    if args.method == "linear":
-        cov = linear_covariance(ident, x, errors)
-        return (np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, None,
-                {"method_detail": "linear propagation through the identification Jacobian (JCGM 100), "
-                                  "budget reading errors"}, None)
-    tty = sys.stderr.isatty()
-
-    def report(done, total):
-        sys.stderr.write(f"\r  Monte Carlo: {done} trials" + (" (adaptive, at most " if args.adaptive else " of ")
-                         + f"{total}{')' if args.adaptive else ''}")
-        sys.stderr.flush()
-
-    mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
-                     adaptive=args.adaptive, max_trials=args.max_trials, coverage=args.coverage,
-                     progress=report if tty else None)
-    if tty:
-        sys.stderr.write("\n")
-    notes = list(mc.notes)
-    if not mc.intervals_adequate:
-        notes.append(f"coverage intervals not reported: {len(mc.samples)} trials "
-                     + ("did not stabilize them (JCGM 101 §7.9)" if args.adaptive else
-                        f"are fewer than the 10^4/(1 - p) = {trials_for_intervals(args.coverage)} JCGM 101 §7.2.2 "
-                        f"asks for p = {args.coverage:g} (use --adaptive or more --trials)"))
-    return (mc.samples.std(axis=0, ddof=1), None, mc.samples if mc.intervals_adequate else None,
-            {"method_detail": "Monte Carlo (JCGM 101): budget errors drawn for every reading, the problem "
-                              "re-solved per trial", "trials": int(len(mc.samples)), "seed": args.seed,
-             "adaptive": bool(args.adaptive), "converged": bool(mc.converged), "notes": notes,
-             **({"max_trials": args.max_trials} if args.adaptive else {})}, mc.samples)
-
-
-def _uncertainty_multilateration(args, t0) -> int:
-    """``olti uncertainty`` of a machine-tool result, 2D or 3D (olti_drake.cli.machine_verbs)."""
-    from olti_drake.cli.machine_verbs import uncertainty_multilateration
-
-    return uncertainty_multilateration(args, t0, _propagate)
-
-
-def _campaign_note(extra: dict, note: str) -> None:
-    """Add the campaign-digest note (older results carry no digest) to the uncertainty file's notes."""
-    if note:
-        extra["notes"] = list(extra.get("notes", [])) + [note]
-
-
-def _print_notes(extra: dict) -> None:
-    for note in extra.get("notes", []):
-        print(f"  note: {note}")
+    return _result_verb(args, "predict", [args.out], [args.result, args.commands])
 
 
 def cmd_uncertainty(args) -> int:
@@ -413,101 +262,15 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
-    if _result_format(args.result) == "olti-volumetric/1":
-        raise ValueError(f"{args.result}: a volumetric result carries its linear uncertainties (key 'uncertainty', "
-                         f"k = 1); olti uncertainty takes SCARA and multilateration results")
-    import types
-
-    import numpy as np
-
-    from olti_drake.io.budget import budget_or_default
-    from olti_drake.io.csvio import check_campaign_matches, load_campaign
-    from olti_drake.io.csvio import read_json
-    from olti_drake.report.figures import plot_identified_maps, plot_prediction_uncertainty_map, prediction_uncertainty_map
-    from olti_drake.io.outputs import write_json
-    from olti_drake.estimation.identification import identifier_at_result
-    from olti_drake.estimation.uncertainty import uncertainty_dict
-    from olti_drake.io.budget import ReadingErrors
-
-    _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
+    from olti_drake.cli.kinds import handler, result_kind_of
     from olti_drake.estimation.uncertainty import round_trials
 
+    kind = result_kind_of(args, "uncertainty")
+    _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
     if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
         raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
-    from olti_drake.cli.serial_verbs import is_serial_result
-
-    if is_serial_result(args.result):
-        from olti_drake.cli.serial_uncertainty import uncertainty
-
-        return uncertainty(args, _propagate)
-    if _result_format(args.result) == "olti-multilateration/1":
-        return _uncertainty_multilateration(args, time.perf_counter())
-    budget = budget_or_default(args.budget, "scara")
-    data = load_campaign(args.campaign)
-    campaign_note = check_campaign_matches(read_json(args.result, None), data, args.result)
-    ident, x = identifier_at_result(args.result, data)
-    model = ident.split(x)[0]
-    if (args.map or args.maps) and not model.is_errormap:
-        raise ValueError(f"{args.result}: --map and --maps need an error-map result (model 'errormap')")
-
-    t0 = time.perf_counter()
-    errors = ReadingErrors(budget)
-    u_reading = errors.std(ident.beam_lengths(x))
-    std, cov, samples, extra, every = _propagate(ident, x, errors, args)
-    _campaign_note(extra, campaign_note)
-    pmap = prediction_uncertainty_map(ident, x, cov, every) if model.is_errormap else None
-    elapsed = time.perf_counter() - t0
-    extra.update(budget_file=args.budget or "built-in paper 000 Table 2",
-                 result=args.result, campaign=args.campaign, elapsed_s=round(elapsed, 3),
-                 reading_std_median_mm=float(np.median(u_reading)), reading_std_max_mm=float(np.max(u_reading)))
-    if pmap is not None:
-        U = args.k * pmap["u_mm"]
-        extra["prediction_expanded_mm"] = {
-            "k": args.k, "max": float(np.nanmax(U)), "mean": float(np.nanmean(U)),
-            "points": int(np.isfinite(U[0]).sum()),
-            "what": "k * sqrt(u_x^2 + u_y^2) of predicted positions on an XY grid inside the map range, "
-                    "approach directions +1 and -1 (001 Fig. 14)"}
-    unc = uncertainty_dict(ident, std, args.method, budget, k=args.k, samples=samples,
-                           coverage=args.coverage, extra=extra)
-    write_json(args.out, unc)
-
-    u = dict(zip(ident.names, std))
-    print(f"uncertainty ({args.method}) of {args.result} ({'errormap' if model.is_errormap else 'dh'}, "
-          f"{len(ident.names)} parameters) on {len(data)} readings of {args.campaign}; budget {budget.name!r}"
-          + (f"; {len(every)} trials, seed {args.seed}" if every is not None else "")
-          + f"; {elapsed:.2f} s")
-    print(f"  reading standard uncertainty (k = 1): median {1e3 * np.median(u_reading):.2f} um, "
-          f"max {1e3 * np.max(u_reading):.2f} um")
-    print(f"  L1: u = {1e3 * u['L1_mm']:.2f} um, L2: u = {1e3 * u['L2_mm']:.2f} um (k = 1); "
-          f"U (k = {args.k:g}): {1e3 * args.k * u['L1_mm']:.2f} um, {1e3 * args.k * u['L2_mm']:.2f} um")
-    if model.is_errormap:
-        ranges = []
-        for axis in ("J1", "J2"):
-            s = np.array([v for n, v in u.items() if n.startswith(axis + "_")])
-            ranges.append(f"{axis} map nodes u = {1e3 * s.min():.3f}..{1e3 * s.max():.3f} mdeg")
-        print("  " + ", ".join(ranges) + " (k = 1)")
-    else:
-        print(f"  theta20: u = {1e3 * u['theta20_deg']:.3f} mdeg (k = 1)")
-    n = ident.n_robot
-    sP, sd = std[n:n + 2 * ident.n_t], std[n + 2 * ident.n_t:]
-    print(f"  reflectors: u = {1e3 * sP.min():.2f}..{1e3 * sP.max():.2f} um, dead paths: u = "
-          f"{1e3 * sd.min():.2f}..{1e3 * sd.max():.2f} um (k = 1)")
-    if pmap is not None:
-        p = extra["prediction_expanded_mm"]
-        print(f"  predicted positions over the workspace map ({p['points']} points x 2 approach directions): "
-              f"U (k = {args.k:g}) max {1e3 * p['max']:.2f} um, mean {1e3 * p['mean']:.2f} um")
-    _print_notes(extra)
-    print(f"wrote {args.out}")
-    label = "Monte Carlo" if every is not None else "linear"
-    if args.map:
-        plot_prediction_uncertainty_map(pmap, args.map, args.k, f"{label}, budget {budget.name}")
-        print(f"wrote {args.map}")
-    if args.maps:
-        identified = types.SimpleNamespace(model=model, names=list(ident.names), std=std)
-        plot_identified_maps(identified, None, args.maps, std=std, method=label)
-        print(f"wrote {args.maps}")
-    return 0
+    return handler("uncertainty", kind)(args)
 
 
 def cmd_design(args) -> int:
@@ -519,94 +282,7 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
-    from olti_drake.io.csvio import read_json
-
-    kind = read_json(args.result, ("olti-result/1", "olti-multilateration/1", "olti-volumetric/1"), "a result")
-    if kind["format"] != "olti-result/1":  # a machine tool in 3D: heads placed in 3D boxes
-        from olti_drake.cli.machine_design import design
-
-        _check_outputs(args, [args.out], [args.result, args.regions, args.budget])
-        return design(args)
-    if isinstance(kind.get("robot"), dict):
-        from olti_drake.cli.serial_design import design
-
-        _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
-        return design(args)
-    from olti_drake.io.budget import budget_or_default
-    from olti_drake.estimation.design import (DesignReport, LayoutEvaluator, candidate_grid, design_layout,
-                                              evaluate_layout, load_regions, measured_commands, workspace_commands)
-    from olti_drake.io.outputs import write_json
-    from olti_drake.model.plan import bidirectional_grid, load_plan
-    from olti_drake.io.result import load_result
-
-    _check_outputs(args, [args.out], [args.result, args.plan, args.regions, args.budget])
-    model, P, _, _ = load_result(args.result, outside="clamp")
-    plan = load_plan(args.plan) if args.plan else bidirectional_grid()
-    plan_name = args.plan or "paper 000 plan (Eq. 11-12, built in)"
-    budget = budget_or_default(args.budget, "scara")
-    regions = load_regions(args.regions)
-    n = len(P) if args.reflectors is None else args.reflectors
-    if n < 3:
-        raise ValueError(f"--reflectors must be >= 3 (000 §3.2.2 Remark 1), got {n}"
-                         + ("" if args.reflectors is not None else f" (the result {args.result} has {len(P)})"))
-    cmd = measured_commands(plan)
-    if model.is_errormap:
-        ws = workspace_commands(model, args.workspace_step_mm, option="--workspace-step-mm")
-    else:  # a D-H model has no map range: the plan's angle ranges
-        ws = workspace_commands((cmd.theta1_deg, cmd.theta2_deg), args.workspace_step_mm, model.L1_mm, model.L2_mm,
-                                option="--workspace-step-mm")
-    candidates = candidate_grid(regions, args.step_mm, option="--step-mm")
-
-    t0 = time.perf_counter()
-    current = evaluate_layout(LayoutEvaluator(model, plan, len(P), ws), P, budget)
-    tty = sys.stderr.isatty()
-
-    def report(start, sweep, cost):
-        sys.stderr.write(f"\r  designing: start {start + 1}/{args.starts}, sweep {sweep + 1}, "
-                         f"{args.criterion} u = {1e3 * cost:.2f} um   ")
-        sys.stderr.flush()
-
-    ev = LayoutEvaluator(model, plan, n, ws)
-    res = design_layout(model, plan, candidates, n, budget, ws, args.criterion, seed=args.seed, starts=args.starts,
-                        max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
-                        clearance_mm=args.clearance_mm, base_radius_mm=args.base_radius_mm, evaluator=ev,
-                        progress=report if tty else None)
-    if tty:
-        sys.stderr.write("\n")
-    designed = evaluate_layout(ev, res.reflectors_mm, budget)
-    elapsed = time.perf_counter() - t0
-    doc = DesignReport(args.criterion, budget, args.budget or "built-in paper 000 Table 2", args.result, plan_name,
-                       args.regions, current, designed, res, args.seed, args.starts, args.max_sweeps, args.step_mm,
-                       {"min_separation_mm": args.min_separation_mm, "clearance_mm": args.clearance_mm,
-                        "base_radius_mm": args.base_radius_mm}, args.workspace_step_mm, len(ws), elapsed)
-    improvement = doc.improvement
-
-    print(f"reflector layout design (000 §3.2.2 Remark 2) by linear propagation (JCGM 100), budget {budget.name!r}")
-    print(f"  truth: {args.result} ({'errormap' if model.is_errormap else 'dh'}); plan: {plan_name}, "
-          f"{len(cmd)} measured poses per reflector")
-    print(f"  cost: predicted-position u = sqrt(u_x^2 + u_y^2) over {len(ws) // 4} workspace points x 4 approach "
-          f"directions ({args.workspace_step_mm:g} mm grid inside the "
-          f"{'map range' if model.is_errormap else 'plan angle ranges'})")
-    print(f"  candidates: {len(res.candidates_mm)} on a {args.step_mm:g} mm grid in {len(regions)} region(s) of "
-          f"{args.regions}; {int(res.feasible.sum())} feasible ({res.rejected['clearance']} within "
-          f"{args.clearance_mm:g} mm of the arm, {res.rejected['base']} with a beam within {args.base_radius_mm:g} mm "
-          f"of the J1 axis); separation >= {args.min_separation_mm:g} mm")
-    print(f"  {'layout':22s}{'max u':>10s}{'mean u':>10s}{'max U(k=2)':>12s}   (um)")
-    for label, c in (("current (result)", current), (f"designed ({n} refl.)", designed)):
-        if "max_u_mm" in c:
-            print(f"  {label:22s}{1e3 * c['max_u_mm']:10.2f}{1e3 * c['mean_u_mm']:10.2f}"
-                  f"{1e3 * c['max_U_k2_mm']:12.2f}")
-        else:
-            print(f"  {label:22s}  not identifiable: {c['not_identifiable']}")
-    if improvement is not None:
-        print(f"  improvement ({args.criterion} u, current / designed): {improvement:.2f}x")
-    for name, c in (("current", current), ("designed", designed)):
-        print(f"  {name} positions (mm): " + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in c["reflectors_mm"]))
-    print(f"  coordinate exchange: {args.starts} start(s), seed {args.seed}, {res.evaluations} layouts evaluated, "
-          f"{elapsed:.1f} s")
-    write_json(args.out, doc.to_dict())
-    print(f"wrote {args.out}")
-    return 0
+    return _result_verb(args, "design", [args.out], [args.result, args.plan, args.regions, args.budget])
 
 
 def cmd_diagrams(args) -> int:
@@ -641,43 +317,9 @@ def cmd_report(args) -> int:
 
 
 def cmd_compensate(args) -> int:
-    """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted)."""
-    if _result_format(args.result) == "olti-volumetric/1":
-        from olti_drake.cli.volumetric_verbs import compensate
-        return compensate(args)
-    from olti_drake.cli.serial_verbs import compensate, is_serial_result
-
-    if is_serial_result(args.result):
-        return compensate(args)
-    if args.urdf_out:
-        raise ValueError("--urdf-out needs the result of a robot model file (olti identify --robot)")
-    from olti_drake.estimation.compensation import compensate_file, write_commands, write_tables
-    from olti_drake.io.result import load_result
-
-    tables = [os.path.join(args.tables, f"{a}_compensation.csv") for a in ("J1", "J2")] if args.tables else []
-    _check_outputs(args, [args.out] + tables, [args.result, args.targets], dirs=[args.tables] if args.tables else [],
-                   create_dirs=True)
-    model, _, _, _ = load_result(args.result, outside=args.outside)
-    if args.tables and not model.is_errormap:
-        raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is 'dh'")
-    comp, lines = compensate_file(model, args.targets, elbow=args.elbow)
-    write_commands(comp, args.out, comments=[
-        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
-        "executed with dir1, dir2 these commands put the end effector on x_mm, y_mm by the model (000 Eq. 3, 7)"])
-    c = comp.commands
-    print(f"compensated {len(c)} targets ({'errormap' if model.is_errormap else 'dh'} model): "
-          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm")
-    print(f"  theta1* {c.theta1_deg.min():.4f}..{c.theta1_deg.max():.4f} deg, "
-          f"theta2* {c.theta2_deg.min():.4f}..{c.theta2_deg.max():.4f} deg")
-    flagged = lines[comp.needs_approach.any(axis=1)]
-    if flagged.size:
-        shown = ", ".join(str(n) for n in flagged[:10]) + (" ..." if flagged.size > 10 else "")
-        print(f"  note: {flagged.size} target(s) reverse an axis by less than its backlash; approach them with an "
-              f"overrun move in the stated direction (lines {shown})")
-    print(f"wrote {args.out}")
-    for path in write_tables(model, args.tables, f" from {args.result}") if args.tables else []:
-        print(f"wrote {path}")
-    return 0
+    """Commands that put the end effector on the targets by the identified model (000 Eq. 3 with Eq. 7, inverted);
+    each kind's body checks its outputs (the tables it writes depend on the result)."""
+    return _result_verb(args, "compensate")
 
 
 def _stop_on_signals():
@@ -718,6 +360,10 @@ def cmd_run(args) -> int:
         if value:
             resume_hint += f" {flag} {shlex.quote(value)}"
     scenario = load_run_scenario(args.scenario, args.scenario_name, args.scenario_text)
+    from olti_drake.cli.kinds import refuse_inapplicable
+    from olti_drake.sim.serial_scenario import scenario_kind
+
+    refuse_inapplicable("run", scenario_kind(scenario), args)  # --meshcat draws the SCARA's arm
     should_stop, restore = _stop_on_signals()
     try:
         extend, rate = _meshcat_view(args)
@@ -749,6 +395,11 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(EXIT_BAD_INPUT, f"error: {self.prog}: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
+#: Most Monte Carlo trials an option takes: 10^8 trials of the paper problem would run for days (the library
+#: refuses below that when the samples would not fit in memory: estimation.uncertainty.MAX_SAMPLE_BYTES).
+MAX_TRIALS_OPTION = 100_000_000
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -879,8 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("mc", "linear"), required=True,
                    help="mc: Monte Carlo (JCGM 101); linear: Jacobian propagation (JCGM 100)")
     p.add_argument("--budget", help="budget YAML (e.g. data/budget_paper001.yaml; default: 000 Table 2)")
-    p.add_argument("--trials", type=cliargs.integer(2), default=1000, help="Monte Carlo trials (default 1000; "
-                                                            "ignored with --adaptive)")
+    p.add_argument("--trials", type=cliargs.integer(2, MAX_TRIALS_OPTION), default=1000,
+                   help="Monte Carlo trials (default 1000; ignored with --adaptive; the samples must fit in 4 GiB)")
     p.add_argument("--k", type=cliargs.coverage_factor, default=2.0, help="coverage factor of 'expanded' (default 2)")
     p.add_argument("--coverage", type=cliargs.probability, default=0.95,
                    help="probability of the Monte Carlo coverage intervals (default 0.95)")
@@ -890,9 +541,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--adaptive", action="store_true",
                    help="Monte Carlo until every estimate, standard uncertainty and coverage-interval endpoint "
                         "is stable to 2 significant digits of u (JCGM 101 §7.9), at most --max-trials")
-    p.add_argument("--max-trials", type=cliargs.integer(2), default=50_000,
-                   help="cap on the trials of --adaptive (default 50000: ~30 s on the paper problem at the "
-                        "benchmark's 0.6 s per 1000 trials); ending there unstable is reported as converged: false")
+    p.add_argument("--max-trials", type=cliargs.integer(2, MAX_TRIALS_OPTION), default=50_000,
+                   help="cap on the trials of --adaptive (default 50000: a few minutes on the paper problem); "
+                        "ending there unstable is reported as converged: false")
     p.add_argument("--map", help="PNG: U(k) of predicted positions over the workspace (001 Fig. 14 style)")
     p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=400,
                    help="robots from a model file: seeded workspace poses where the predicted tool point's u is "
@@ -1067,7 +718,7 @@ def main(argv=None) -> int:
     except BrokenPipeError:
         _quiet_stdout()
         return 1
-    except ValueError as e:              # bad input (csvio.InputError and outputs.OutputError included)
+    except ValueError as e:              # bad input (errors.InputError and outputs.OutputError included)
         msg = " ".join(str(e).split()) or type(e).__name__
         print(f"error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT

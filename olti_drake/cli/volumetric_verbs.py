@@ -1,50 +1,21 @@
 """The volumetric (3-axis machine, 21 ISO 230-1 error motions) side of ``olti identify``, ``predict`` and
 ``compensate`` (docs/machine_3d.md): read the files, call the layers below, write, print a summary.
 
-``olti identify CAMPAIGN.csv --model volumetric`` (estimation.volumetric), ``olti predict R.json
-POINTS.csv`` and ``olti compensate R.json WANTED.csv [--tables DIR]`` on an ``olti-volumetric/1``
-result (io.volumetric_io). Units: mm, µrad. Bad input raises ValueError (one line; verbs.main prints it).
+The summary of ``olti identify CAMPAIGN.csv --model volumetric`` (whose route is :mod:`olti_drake.cli.identify`'s),
+``olti predict R.json POINTS.csv`` and ``olti compensate R.json WANTED.csv [--tables DIR]`` on an
+``olti-volumetric/1`` result (io.volumetric_io). Units: mm, µrad. Bad input raises ValueError (one line;
+verbs.main prints it).
 """
 
 import os
 
 import numpy as np
 
-#: The options of the SCARA identification that mean nothing to the volumetric model (refused, not ignored).
-_SCARA_ONLY = ("grid1_deg", "grid2_deg", "nominal_mm", "reflectors_mm", "fix_reflectors")
-
 
 def _preflight(args, files, inputs, dirs=()):
     from olti_drake.io.outputs import preflight
 
     preflight(files, [i for i in inputs if i], force=getattr(args, "force", False), dirs=dirs, create_dirs=bool(dirs))
-
-
-def identify(args) -> int:
-    """``olti identify CAMPAIGN.csv --model volumetric``: the 21 error motions, stations, dead paths, u."""
-    from olti_drake.estimation.multilateration import load_machine_campaign
-    from olti_drake.estimation.volumetric import VolumetricOptions, identify_volumetric, volumetric_campaign
-    from olti_drake.io.budget import budget_or_default
-    from olti_drake.io.outputs import write_json
-
-    given = [o for o in _SCARA_ONLY if getattr(args, o, None)]
-    if given:
-        raise ValueError(f"--{given[0].replace('_', '-')} applies to the SCARA models (dh, errormap), not to "
-                         f"--model volumetric")
-    _preflight(args, [args.out], [args.campaign, args.budget])
-    data = volumetric_campaign(load_machine_campaign(args.campaign))
-    options = VolumetricOptions(tool_offsets_mm=args.tool_offsets_mm, knot_spacing_mm=args.knot_spacing_mm,
-                                topology=args.topology, pitch_mm=args.pitch_mm or 10.0, loss=args.loss,
-                                huber_k=args.huber_k, outlier_threshold=args.outlier_threshold,
-                                regularize=args.regularize, solver=args.solver)
-    budget = budget_or_default(args.budget, "machine")
-    options.budget = budget
-    res = identify_volumetric(data, options, budget)
-    doc = res.to_dict()
-    write_json(args.out, doc)
-    print(summary(res, doc, data))
-    print(f"wrote {args.out}")
-    return 0
 
 
 def summary(res, doc: dict, data) -> str:
@@ -85,7 +56,8 @@ def summary(res, doc: dict, data) -> str:
 
 def _read_points(path, names, n_tools: int):
     """(points (M, 3) mm, tool (M,), file lines) of a CSV with the three ``names`` and an optional ``tool``."""
-    from olti_drake.io.csvio import InputError, check_finite, read_table
+    from olti_drake.errors import InputError
+    from olti_drake.io.csvio import check_finite, read_table
 
     t = read_table(path, names, ("tool",), integer=("tool",))
     check_finite(t, path, names)
@@ -108,7 +80,6 @@ def predict(args) -> int:
     from olti_drake.io.volumetric_io import load_volumetric_result
     from olti_drake.model.volumetric3d import predict_positions
 
-    _preflight(args, [args.out], [args.result, args.commands])
     res = load_volumetric_result(args.result)
     cfg = res.model.config
     c, tool, lines = _read_points(args.commands, ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm"), len(cfg.tools))
@@ -140,8 +111,8 @@ def compensate(args) -> int:
     """``olti compensate R.json WANTED.csv``: machine commands that put the tool on the wanted points;
     ``--tables DIR``: the per-axis error-motion tables and the 3D grid of positioning-error vectors."""
     from olti_drake.io.csvio import write_table
-    from olti_drake.io.volumetric_io import load_volumetric_result
-    from olti_drake.model.volumetric3d import compensate as invert, write_tables
+    from olti_drake.io.volumetric_io import load_volumetric_result, write_tables
+    from olti_drake.model.volumetric3d import compensate as invert
 
     if args.outside == "clamp":
         raise ValueError("--outside clamp: a compensated command beyond the identified travel would rest on error "

@@ -11,9 +11,13 @@ station P_j with dead path L0_j) read the same thing: d = ‖p − P_j‖ − d0
   ``names``, ``start_vector()``, ``residuals(x) -> (r, sparse dr/dx)``, ``beam_lengths(x)`` and
   ``layout(v)`` -- e.g. :class:`olti_drake.model.serial.DistanceMeasurement` on an N-joint
   :class:`~olti_drake.model.serial.SerialPositionModel`, with the gauge of
-  :func:`olti_drake.model.serial.find_gauge`. The SCARA :class:`~olti_drake.estimation.identification.Identifier`
-  and the 2D :class:`~olti_drake.estimation.multilateration.Multilateration` are the same program with
-  their residuals written in place (batched for the Monte Carlo).
+  :func:`olti_drake.model.serial.find_gauge`; or :class:`olti_drake.model.measurements.StationDistanceMeasurement`
+  on the free points of 001 (:class:`olti_drake.model.free_points.FreePoints`), with a named gauge of
+  :mod:`olti_drake.model.gauges` -- the 2D/3D :class:`~olti_drake.estimation.multilateration.Multilateration`.
+  The distance residual itself (:func:`distance_rows_nd`, batched for the Monte Carlo) lives in
+  :mod:`olti_drake.model.measurements`. The SCARA :class:`~olti_drake.estimation.identification.Identifier` is
+  the same measurement on the SCARA's closed form (:class:`olti_drake.model.scara.ScaraPositionModel`, 000 Eq. 3
+  and 7) with its J1 gauge (:func:`olti_drake.model.gauges.scara_gauge`).
 
 The least-squares program every calibration is (:class:`LeastSquaresProgram` below): Nonlinear least squares on a Drake MathematicalProgram -- the solver machinery the models share.
 
@@ -60,8 +64,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import lapack
 
-from olti_drake.io.budget import ReadingErrors
-from olti_drake.io.errors import InputError
+from olti_drake.errors import InputError
+from olti_drake.model.budget import ReadingErrors
+from olti_drake.model.measurements import lengths
 from olti_drake.threads import (blas_threads, in_parallel, single_thread_blas, symmetric_times, triangular_inverse,
                                 triangular_solve)
 
@@ -578,12 +583,14 @@ class LeastSquaresProgram:
     def _fit(self) -> "Fit":
         o = self.options
         self._solver_used = "lm: Levenberg-Marquardt, steps solved by Drake"
-        defer = o.solver == "lm" and self.n_all > REUSE_ABOVE
+        given = getattr(self, "_given", None)
+        defer = given is None and o.solver == "lm" and self.n_all > REUSE_ABOVE
         try:
             for _ in range(len(self.names)):
                 try:
                     self.check_identifiability(defer=defer)
-                    x, iterations, weights = self._solve_lm() if o.solver == "lm" else self._solve_nlp()
+                    x, iterations, weights = (self._solve_given(*given) if given is not None else
+                                              self._solve_lm() if o.solver == "lm" else self._solve_nlp())
                     self._confirm_identifiable()
                     break
                 except UnidentifiableError as e:
@@ -595,6 +602,34 @@ class LeastSquaresProgram:
             within, self._within0 = getattr(self, "_within0", None), None  # (n x n): done with it
             if within is not None:
                 within.wait()
+
+    def given_solution(self, z, solver: str):
+        """Context: :meth:`fit` (and a model's ``solve`` built on it) takes ``z`` (over all decision variables,
+        model units) as the solution another solver found (``solver`` names it), instead of solving -- the same
+        identifiability check, covariance, outliers and acceptance (a solution off the minimum is refused by
+        what it is: e.g. a parameter a reading cannot determine, or an implausible value)."""
+        import contextlib
+
+        @contextlib.contextmanager
+        def given():
+            self._given = (np.asarray(z, dtype=float).copy(), solver)
+            try:
+                yield self
+            finally:
+                self._given = None
+        return given()
+
+    def _solve_given(self, z, solver: str):
+        """:meth:`_fit`'s step for a solution found elsewhere (:meth:`given_solution`): its residuals, Jacobian
+        and the loss's weights there."""
+        if z.shape != (self.n_all,) or not np.all(np.isfinite(z)):
+            raise InputError(f"{self.source}: the solution of {solver} has {z.size} values for the program's "
+                             f"{self.n_all} decision variables, or non-finite ones")
+        r, J = self.residuals(z[:len(self.names)])
+        self._final = (z, r, J)
+        self._solver_used = solver
+        self._stop = (True, f"{solver} reports success")
+        return z, 0, self._weights(r)
 
     def _weights(self, r):
         if self.options.loss == "l2":
@@ -1460,44 +1495,6 @@ def _listing(names, most=8) -> str:
     return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
-def distance_rows(p, pcols, dpx, dpy, P, d0, station, readings, station_col: int, dead_path_col: int):
-    """The distance residual of both papers in 2D (000 Eq. 10, 001 Eq. 3); see :func:`distance_rows_nd`.
-
-    ``dpx``, ``dpy``: (K, m) the position model's ∂p_x, ∂p_y (broadcastable).
-    """
-    return distance_rows_nd(p, pcols, (dpx, dpy), P, d0, station, readings, station_col, dead_path_col)
-
-
-def distance_rows_nd(p, pcols, dp, P, d0, station, readings, station_col: int, dead_path_col: int):
-    """The distance residual of both papers, r = ‖p − P_j‖ − d0_j − d (000 Eq. 10, 001 Eq. 3), batched, mm,
-    in D = 2 or 3 dimensions (001 Eq. 3 with p_i, P_j in R^D).
-
-    Args:
-        p: (T, K, D) the position of every reading in T parameter vectors, mm.
-        pcols, dp: (K, m) the position model's parameter columns and, per coordinate c < D, the
-            matching (T, K, m) ∂p_c (broadcastable).
-        P, d0: (T, N, D) stations and (T, N) dead paths; ``station`` (K,) the station of each reading.
-        readings: (K,) or (T, K) the readings d, mm.
-        station_col, dead_path_col: where P_0x and d0_0 sit in the parameter vector (P_j's D coordinates
-            consecutive).
-
-    Returns:
-        r (T, K); cols (K, m + D + 1) shared by the trials; vals (T, K, m + D + 1): u·∂p, −u on P_j, −1 on
-        d0_j (u the unit vector from P_j to p).
-    """
-    D = p.shape[-1]
-    diff = p - P[:, station]
-    dist = np.hypot.reduce(diff, axis=-1)  # = np.hypot(dx, dy) bit for bit in 2D
-    u = diff / dist[..., None]
-    r = dist - d0[:, station] - readings
-    dr_dp = u[..., :1] * dp[0]
-    for c in range(1, D):
-        dr_dp = dr_dp + u[..., c:c + 1] * dp[c]
-    cols = np.column_stack([pcols] + [station_col + D * station + c for c in range(D)] + [dead_path_col + station])
-    vals = np.concatenate([dr_dp, -u, -np.ones(r.shape + (1,))], axis=-1)
-    return r, cols, vals
-
-
 class Calibration(LeastSquaresProgram):
     """The calibration program of a measurement (see the module docstring), units of the measurement (mm, deg).
 
@@ -1516,10 +1513,17 @@ class Calibration(LeastSquaresProgram):
             self.prog.AddLinearEqualityConstraint(np.asarray(gauge.A, float), np.asarray(gauge.b, float),
                                                   self.variables).evaluator().set_description("gauge")
             self.gauge = gauge.sentence
+        if hasattr(measurement, "residual_rows"):  # batched residuals: the Monte Carlo's fast path (uncertainty)
+            self.residual_rows = measurement.residual_rows
 
     @property
     def source(self) -> str:
         return self._source
+
+    def implausible(self, x) -> list:
+        """The measurement's (its stations, its position model's values) physically impossible values of x."""
+        check = getattr(self.measurement, "implausible", None)
+        return check(np.asarray(x, dtype=float)) if check is not None else []
 
     def residuals(self, x):
         return self.measurement.residuals(np.asarray(x, dtype=float))
@@ -1549,10 +1553,10 @@ def station_fit(points_mm, readings_mm, start_mm=None):
         P, L0 = sol[:D], sol[D]
     else:
         P = np.asarray(start_mm, dtype=float)
-        L0 = np.mean(np.hypot.reduce(p - P, axis=1) - d)
+        L0 = np.mean(lengths(p - P) - d)
     for _ in range(20):
         diff = p - P
-        dist = np.hypot.reduce(diff, axis=1)
+        dist = lengths(diff)  # (= np.hypot.reduce bit for bit, faster)
         J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
         # D + 1 unknowns, the points spread (checked above): the normal equations, ~5x cheaper than lstsq here.
         step = np.linalg.solve(J.T @ J, -(J.T @ (dist - L0 - d)))

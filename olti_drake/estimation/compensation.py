@@ -58,7 +58,8 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, check_finite, check_values, read_table, write_table
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import check_finite, check_values, read_table, write_table
 from olti_drake.model.errormap import GRID_TOLERANCE_DEG, MOTION_TOLERANCE_DEG, ErrorMap
 from olti_drake.model.scara import JointCommands, ScaraModel, inverse_kinematics
 

@@ -43,13 +43,16 @@ from typing import Callable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from olti_drake.io.budget import Budget
+from olti_drake.errors import InputError
+from olti_drake.formats import DESIGN as FORMAT
 from olti_drake.io.csvio import CampaignData
-from olti_drake.io.csvio import InputError, read_yaml, unit_bound
+from olti_drake.io.csvio import read_yaml
 from olti_drake.estimation.identification import UnidentifiableError
+from olti_drake.model.budget import Budget
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, JointCommands, ScaraModel, workspace_grid
 from olti_drake.model.plan import Plan
 from olti_drake.threads import single_thread_blas
+from olti_drake.units import unit_bound
 
 #: Default minimum distance between two reflectors, mm.
 MIN_SEPARATION_MM = 100.0
@@ -278,7 +281,7 @@ class LayoutEvaluator:
         Raises UnidentifiableError when the campaign cannot determine the parameters.
         """
         from olti_drake.estimation.uncertainty import linear_covariance, prediction_std
-        from olti_drake.io.budget import ReadingErrors
+        from olti_drake.model.budget import ReadingErrors
 
         errors = budget if isinstance(budget, ReadingErrors) else ReadingErrors(budget)
         ident, x = self.identifier(reflectors_mm)
@@ -511,8 +514,7 @@ def design_layout(model: ScaraModel, plan, candidates_mm, n_reflectors: int, bud
                         start_costs, int(seed), rejected)
 
 
-# -- the design document (DESIGN.json) -------------------------------------------------------------------
-FORMAT = "olti-design/1"
+# -- the design document (DESIGN.json; FORMAT: olti_drake.formats.DESIGN) ------------------------------------
 
 
 def layout_costs(u) -> dict:

@@ -4,8 +4,14 @@
 * Error-map model (Eq. 6-10): e = [L1, L2, Δθ1,map(·, ±1), Δθ2,map(·, ±1), P, d0]
   (θ20 absorbed in the J2 map).
 
-Both minimize Σ (‖p̂(k) − P_j‖ − d0_j − d_j(k))² (Eq. 5 / Eq. 10) with the
-residuals and analytic Jacobians of :mod:`olti_drake.model.scara`.
+Both minimize Σ (‖p̂(k) − P_j‖ − d0_j − d_j(k))² (Eq. 5 / Eq. 10) on the one calibration engine:
+:class:`Identifier` is the :class:`~olti_drake.estimation.calibration.Calibration` of the SCARA closed form
+(:class:`olti_drake.model.scara.ScaraPositionModel`: Eq. 3 with Eq. 4 or Eq. 7-9, analytic Jacobian) read by the
+shared distance measurement (:class:`olti_drake.model.measurements.StationDistanceMeasurement`, the reflectors
+P_j and dead paths ``d0_j``: Eq. 5 / 10) with the gauge of :func:`olti_drake.model.gauges.scara_gauge`. What is
+the SCARA's own stays here: the campaign checks, the start (the reflectors fitted on the nominal model, or
+given), known reflectors as bounds, the implausible values, the readings near an untouched map node, the
+under-resolution check of the map (Eq. 8-9) and the :class:`Identification`.
 
 :attr:`Identifier.prog` holds one named decision variable per parameter
 (``L1_mm``, ``J2_reverse_deg[3]``, ``P0_x_mm``, ``d0_0_mm``, ...) and the gauge
@@ -23,12 +29,16 @@ from typing import List, Optional
 
 import numpy as np
 
+from olti_drake.errors import InputError
 from olti_drake.io.csvio import CampaignData
-from olti_drake.io.csvio import InputError, check_spread, unit_bound
+from olti_drake.io.csvio import check_spread
 from olti_drake.model.errormap import ErrorMap
-from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, rows_to_csr
+from olti_drake.model.gauges import scara_gauge
+from olti_drake.model.measurements import StationDistanceMeasurement
+from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM, ScaraModel, ScaraPositionModel
 from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError  # noqa: F401 (re-exported)
-from olti_drake.estimation.calibration import deferred_covariance, distance_rows, lazy_covariance, station_fit
+from olti_drake.estimation.calibration import Calibration, deferred_covariance, lazy_covariance, station_fit
+from olti_drake.units import unit_bound
 
 
 @dataclass
@@ -78,6 +88,8 @@ class Identification:
     campaign: dict = field(default_factory=dict)
     #: Error-map models: the under-resolution check (:meth:`Identifier.resolution_check`), None if not possible.
     resolution: Optional[dict] = None
+    #: The user's own decision variables (added to ``prog``), by name: their solved values (``Fit.extra``).
+    extra: dict = field(default_factory=dict)
 
     @property
     def residual_rms_mm(self) -> float:
@@ -133,34 +145,68 @@ def parse_grid(text: str, name: str) -> np.ndarray:
     return g
 
 
-class Identifier(LeastSquaresProgram):
+class Identifier(Calibration):
     """The identification problem of 000 §3 for one campaign and model.
 
-    Build it, optionally add constraints/costs to :attr:`prog` (its decision
-    variables are :attr:`variables`, named as :attr:`names`), then call
-    :meth:`solve`.
+    The :class:`~olti_drake.estimation.calibration.Calibration` of :attr:`measurement`, the shared distance
+    measurement (:class:`~olti_drake.model.measurements.StationDistanceMeasurement`, 000 Eq. 5 / 10: r =
+    ‖p̂(k) − P_j‖ − d0_j − d_j(k), mm) of the SCARA position model :attr:`model`
+    (:class:`~olti_drake.model.scara.ScaraPositionModel`: one pose per reading), with the gauge of
+    :func:`~olti_drake.model.gauges.scara_gauge` (its sentence: :attr:`gauge`). Build it, optionally add
+    constraints/costs to :attr:`prog` (its decision variables are :attr:`variables`, named as :attr:`names`),
+    then call :meth:`solve`. Batched residuals for the Monte Carlo: :meth:`residual_rows`.
     """
 
     rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
     untouched_hint = "set a coarser map grid"
+    #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
+    LENGTH_FACTOR = ScaraPositionModel.LENGTH_FACTOR
+    #: A joint deviation (map node, theta20) beyond this is no positioning deviation, deg.
+    MAX_DEVIATION_DEG = ScaraPositionModel.MAX_DEVIATION_DEG
 
     def __init__(self, data: CampaignData, options: IdentificationOptions = None):
-        self.data = data
         o = options or IdentificationOptions()
         if o.model not in ("dh", "errormap"):
             raise InputError(f"model must be 'dh' or 'errormap', got {o.model!r}")
         self.options = o
+        self._data = data
         self._check_reflectors()
         self.robot0 = self._robot_start()
         self.n_t = data.n_reflectors
         self.n_robot = len(self.robot0.parameter_names())
-        self._declare(self.robot0.parameter_names() + [f"P{j}_{c}_mm" for j in range(self.n_t) for c in "xy"]
-                      + [f"d0_{j}_mm" for j in range(self.n_t)], o)
-        self.x0 = self._initial_guess()
-        self.gauge = self._add_gauge()
+        model = ScaraPositionModel(self.robot0, data.commands)
+        measurement = self._measurement(data, *self._start_reflectors(model.positions()), model)
+        gauge = scara_gauge(self.robot0, len(measurement.names), o.fix_reflectors)
+        super().__init__(measurement, o, gauge if len(gauge.b) else None, data.source or "campaign")
+        self.gauge = gauge.sentence
         if o.fix_reflectors:
             idx = slice(self.n_robot, self.n_robot + 2 * self.n_t)
             self.prog.AddBoundingBoxConstraint(self.x0[idx], self.x0[idx], self.variables[idx])
+
+    def _measurement(self, data: CampaignData, P, d0, model=None) -> StationDistanceMeasurement:
+        """000 Eq. (10) of the campaign's readings: the robot at its commands (one pose per reading, ``model``:
+        built when not given) from the reflectors (Nt, 2) mm with dead paths d0 (Nt,) mm to start."""
+        model = ScaraPositionModel(self.robot0, data.commands) if model is None else model
+        return StationDistanceMeasurement(model, model.all_poses, data.reflector, data.displacement_mm, P, d0,
+                                          self.n_t, dead_path="d0")
+
+    @property
+    def model(self) -> ScaraPositionModel:
+        """The position model: 000 Eq. (3) with Eq. (4) or Eq. (7)-(9) at the campaign's commands."""
+        return self.measurement.model
+
+    @property
+    def data(self) -> CampaignData:
+        """The campaign. Setting another of the same commands and reflectors (e.g. other readings: the layout
+        design's synthetic campaigns) re-reads it; the program, its start and gauge stay."""
+        return self._data
+
+    @data.setter
+    def data(self, data: CampaignData):
+        self._data = data
+        _, P, d0 = self.measurement.split(self.x0)
+        self.measurement = self._measurement(data, P, d0)
+        self.residual_rows = self.measurement.residual_rows
 
     def solve(self) -> "Identification":
         """Check identifiability, solve, estimate uncertainty and flag outliers (000 Eq. 5 / 10)."""
@@ -173,7 +219,7 @@ class Identifier(LeastSquaresProgram):
         warnings = list(f.warnings) + ([resolution["warning"]] if resolution and "warning" in resolution else [])
         return Identification(model, P, d0, f.names, f.x, f.std, deferred_covariance(f), f.residuals, f.iterations,
                               f.condition_number, self.gauge, f.solver, f.outliers, f.notes, len(f.residuals),
-                              f.converged_by, warnings, campaign_digest(self.data), resolution)
+                              f.converged_by, warnings, campaign_digest(self.data), resolution, dict(f.extra))
 
     def at_solution(self, x, r, J) -> None:
         """The under-resolution check of an error map (:meth:`resolution_check`), run by :meth:`fit`."""
@@ -197,7 +243,7 @@ class Identifier(LeastSquaresProgram):
         fit's solution, with the fine fit's last residuals and Jacobian: no evaluation, no second program.
         """
         from olti_drake.estimation.calibration import RESIDUAL_WARNING_RATIO, _rms
-        from olti_drake.io.budget import ReadingErrors
+        from olti_drake.model.budget import ReadingErrors
 
         c = self.data.commands
         coarse = [np.union1d(m.grid_deg[::2], m.grid_deg[-1:]) for m in (self.robot0.map1, self.robot0.map2)]
@@ -248,28 +294,11 @@ class Identifier(LeastSquaresProgram):
         kept.append(np.arange(at, len(self.names)))
         return sp.block_diag(blocks, format="csr"), np.concatenate(kept)
 
-    #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
-    LENGTH_FACTOR = 2.0
-    #: A joint deviation (map node, theta20) beyond this is no positioning deviation, deg.
-    MAX_DEVIATION_DEG = 10.0
-
     def implausible(self, x) -> list:
         """Link lengths not positive or outside [1/f, f] x nominal (f = :attr:`LENGTH_FACTOR`); joint deviations
-        beyond :attr:`MAX_DEVIATION_DEG`; non-finite reflectors or dead paths."""
-        o, out = self.options, []
-        for name, nominal in (("L1", o.nominal_L1_mm), ("L2", o.nominal_L2_mm)):
-            v = x[self.names.index(f"{name}_mm")]
-            if not v > 0:
-                out.append(f"{name} = {v:.6g} mm is not a positive length")
-            elif nominal > 0 and not nominal / self.LENGTH_FACTOR <= v <= nominal * self.LENGTH_FACTOR:
-                out.append(f"{name} = {v:.6g} mm is more than {self.LENGTH_FACTOR:g} x off its nominal "
-                           f"{nominal:g} mm (readings in mm? the right --nominal-mm?)")
-        dev = np.abs(x[2:self.n_robot])
-        if dev.size and dev.max() > self.MAX_DEVIATION_DEG:
-            i = 2 + int(np.argmax(dev))
-            out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no positioning "
-                       f"deviation")
-        return out
+        beyond :attr:`MAX_DEVIATION_DEG` (:meth:`ScaraPositionModel.implausible`). The reflectors are bounded where
+        the campaign is read (their readings' spread, :meth:`_check_reflectors`)."""
+        return self.model.implausible(np.asarray(x, dtype=float)[:self.n_robot])
 
     def default_budget(self):
         """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
@@ -285,11 +314,6 @@ class Identifier(LeastSquaresProgram):
         from olti_drake.io.result import uncertainty_layout
 
         return uncertainty_layout(self.robot0, v)
-
-    def beam_lengths(self, x, residuals=None) -> np.ndarray:
-        """Reflector distance ‖p̂(k) − P_j‖ of every reading at x, mm (the budget's cosine error scales with it)."""
-        r = self.residual_rows(np.asarray(x)[None])[0][0] if residuals is None else residuals
-        return r + x[self.n_robot + 2 * self.n_t:][self.data.reflector] + self.data.displacement_mm
 
     def _explain(self, error: UnidentifiableError) -> UnidentifiableError:
         """A map node no reading touches is also named by the campaign lines that command that axis near it
@@ -359,11 +383,12 @@ class Identifier(LeastSquaresProgram):
 
     def split(self, x):
         """Parameter vector -> (ScaraModel, reflectors (Nt, 2) mm, dead paths (Nt,) mm)."""
-        n = self.n_robot
-        return (self.robot0.with_parameters(x[:n]), x[n:n + 2 * self.n_t].reshape(-1, 2), x[n + 2 * self.n_t:])
+        xm, P, d0 = self.measurement.split(x)
+        return self.robot0.with_parameters(xm), P, d0
 
     def residual_rows(self, X, displacement_mm=None):
-        """Eq. (10) residuals of T parameter vectors at once, Jacobian row-compressed.
+        """Eq. (10) residuals of T parameter vectors at once, Jacobian row-compressed
+        (:meth:`StationDistanceMeasurement.residual_rows`).
 
         Args:
             X: (T, n) parameter vectors (layout of :attr:`names`).
@@ -374,47 +399,23 @@ class Identifier(LeastSquaresProgram):
             vals (T, K, m) the matching dr/dx entries: the robot's few non-zeros
             (kinematics), −u on P_j, −1 on d0_j, u the unit vector from P_j to p̂(k).
         """
-        X = np.atleast_2d(X)
-        n, n_t, j = self.n_robot, self.n_t, self.data.reflector
-        p, cols, dx, dy = self.robot0.jacobian_rows(self.data.commands, X[:, :n])
-        P = X[:, n:n + 2 * n_t].reshape(len(X), n_t, 2)
-        d = self.data.displacement_mm if displacement_mm is None else displacement_mm
-        return distance_rows(p, cols, dx, dy, P, X[:, n + 2 * n_t:], j, d, n, n + 2 * n_t)
+        return self.measurement.residual_rows(X, displacement_mm)
 
-    def residuals(self, x):
-        """Eq. (10) residuals r_k = ‖p̂(k) − P_j‖ − d0_j − d_j(k) (mm) and the sparse dr/dx."""
-        r, cols, vals = self.residual_rows(np.asarray(x)[None])
-        return r[0], rows_to_csr(cols, vals[0], len(self.names))
-
-    # -- start and gauge -----------------------------------------------------------------------
-    def _initial_guess(self) -> np.ndarray:
-        """Nominal robot, reflectors/dead paths fitted per reflector on the nominal model."""
+    # -- start -----------------------------------------------------------------------------------
+    def _start_reflectors(self, p):
+        """Reflectors (Nt, 2) and dead paths (Nt,) mm to start: fitted per reflector on the nominal model (its
+        positions p (K, 2) mm at the commands; :func:`~olti_drake.estimation.calibration.station_fit`), from
+        ``reflectors_mm`` when given (which ``fix_reflectors`` keeps)."""
         o = self.options
-        p = self.robot0.positions(self.data.commands)
         P0 = None if o.reflectors_mm is None else np.asarray(o.reflectors_mm, dtype=float).reshape(-1, 2)
         if P0 is not None and len(P0) != self.n_t:
             raise InputError(f"reflectors_mm gives {len(P0)} positions but the campaign has {self.n_t} reflectors")
         fits = [station_fit(p[self.data.reflector == j], self.data.displacement_mm[self.data.reflector == j],
                                None if P0 is None else P0[j]) for j in range(self.n_t)]
         P = np.array([f[0] for f in fits]) if P0 is None or not o.fix_reflectors else P0
-        d0 = np.array([f[1] for f in fits])
-        return np.concatenate([self.robot0.parameter_vector(), P.ravel(), d0])
+        return P, np.array([f[1] for f in fits])
 
-    def _add_gauge(self) -> str:
-        if self.options.model == "dh":
-            return ("none needed: the D-H model has no J1 offset, so X lies along the arm at theta1* = 0 "
-                    "(formats.md frame)")
-        if self.options.fix_reflectors:
-            return "fixed by the known reflector positions (no free rotation about J1)"
-        m = self.robot0.map1
-        at = float(np.clip(0.0, m.grid_deg[0], m.grid_deg[-1]))
-        w = (m.weights([at, at], [1.0, -1.0]).toarray().sum(axis=0) / 2)[None, :]
-        self.prog.AddLinearEqualityConstraint(w, [0.0], self.variables[2:2 + 2 * m.n_nodes]).evaluator(
-        ).set_description("gauge")
-        return (f"rotation about J1 fixed by the constraint (dtheta1({at:g} deg, +1) + dtheta1({at:g} deg, -1))/2 = 0: "
-                f"X lies along the arm at theta1* = {at:g} deg, mean of both approach directions")
 
-    # -- linear algebra shared by the solvers and the uncertainty ----------------------------
 def identify(data: CampaignData, options: IdentificationOptions = None) -> Identification:
     """Identify the model of ``options.model`` from the campaign (000 Eq. 5 or Eq. 10)."""
     return Identifier(data, options).solve()

@@ -31,12 +31,13 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from olti_drake.estimation.multilateration import FORMAT as MULTILATERATION_FORMAT
+from olti_drake.errors import InputError
+from olti_drake.formats import DESIGN as FORMAT
 from olti_drake.estimation.multilateration import _gauge_rows, affine_rank, counting_bound, load_result
 from olti_drake.estimation.station_information import Sandwich, predicted_u, station_sandwich
-from olti_drake.io.budget import ReadingErrors
-from olti_drake.io.csvio import InputError, read_json
-from olti_drake.model.volumetric3d import AXES, FORMAT as VOLUMETRIC_FORMAT
+from olti_drake.io.documents import read_result
+from olti_drake.model.budget import ReadingErrors
+from olti_drake.model.volumetric3d import AXES
 
 #: A candidate closer than this to a target cannot aim at it (the beam direction is undefined), mm.
 MIN_RANGE_MM = 1.0
@@ -62,9 +63,9 @@ class DesignTargets:
 def design_targets(path) -> DesignTargets:
     """The targets of a 3D multilateration result or of a volumetric result (module docstring); one-line
     errors naming the file for anything else (a 2D result, a SCARA result)."""
-    raw = read_json(path, (MULTILATERATION_FORMAT, VOLUMETRIC_FORMAT), "a 3D machine-tool result")
+    kind, _ = read_result(path, ("multilateration", "volumetric"), "the station design of a 3D machine tool")
     name = str(path)
-    if raw["format"] == VOLUMETRIC_FORMAT:
+    if kind == "volumetric":
         return _volumetric_targets(path)
     raw = load_result(path)
     T = np.asarray(raw["targets_mm"], float)
@@ -170,9 +171,6 @@ def evaluate_machine_layout(info: MachineStationInformation, stations_mm, criter
     from olti_drake.estimation.serial_design import evaluate_layout
 
     return evaluate_layout(info, np.atleast_2d(np.asarray(stations_mm, float)), criterion)
-
-
-FORMAT = "olti-design/1"
 
 
 def machine_design_document(design, current, targets: DesignTargets, *, budget_name: str, result: str, regions: str,

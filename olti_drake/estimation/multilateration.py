@@ -1,5 +1,11 @@
-"""Self-calibrating multilateration of paper 001 §2.3 (Eq. 2-6), on the shared least-squares program,
+"""Self-calibrating multilateration of paper 001 §2.3 (Eq. 2-6), on the one calibration program,
 in D = 2 dimensions (the paper's table) or D = 3 (the machine tool in 3D, formats.md).
+
+:class:`Multilateration` is :class:`~olti_drake.estimation.calibration.Calibration` over the free points of 001
+(:class:`olti_drake.model.free_points.FreePoints`), the shared distance measurement
+(:class:`olti_drake.model.measurements.StationDistanceMeasurement`, 001 Eq. 3) and a named gauge
+(:func:`olti_drake.model.gauges.free_points_gauge`); this module adds the campaign reader, the counting and
+geometry checks, the start (001 §2.3) and the result.
 
 Unknowns (Eq. 4): the target positions p_i ∈ R^D, the station (rotary-table or
 pan/tilt-head interferometer) positions P_j ∈ R^D and the dead paths L0_j;
@@ -32,24 +38,22 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import (InputError, check_finite, check_indices, check_no_duplicate_rows, check_spread, check_values,
-                    json_numbers, read_json,
-                    read_table)
-from olti_drake.model.scara import rows_to_csr
-from olti_drake.estimation.calibration import distance_rows_nd, station_fit  # noqa: F401 (station_fit re-exported)
-from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.errors import InputError
+from olti_drake.formats import MULTILATERATION_RESULT as FORMAT, result_header
+from olti_drake.io.csvio import (check_finite, check_indices, check_no_duplicate_rows, check_spread, check_values,
+                                 json_numbers, read_json, read_table)
+from olti_drake.model.free_points import FreePoints, fit_tool_offsets
+from olti_drake.model.gauges import GAUGES, GAUGES_BY_DIM  # noqa: F401 (re-exported)
+from olti_drake.model.gauges import check_gauge_kind, free_points_gauge, gauge_rows
+from olti_drake.model.measurements import StationDistanceMeasurement
+from olti_drake.estimation.calibration import station_fit  # noqa: F401 (station_fit re-exported)
+from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError
 from olti_drake.threads import single_thread_blas
 
-FORMAT = "olti-multilateration/1"
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
 #: The command columns of a D-dimensional campaign: the first D of these (3D when ``z_cmd_mm`` is present).
 COMMAND_COLUMNS = ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm")
-#: The gauges of each dimension; ``GAUGES`` is every name.
-GAUGES_BY_DIM = {2: ("best-fit", "first-two"), 3: ("best-fit", "first-three")}
-GAUGES = ("best-fit", "first-two", "first-three")
-#: ∂p/∂(p coordinates) of a free point in D dimensions: the identity, as the rows of
-#: :func:`calibration.distance_rows_nd`.
-_UNITS = {D: tuple(np.eye(D)) for D in (2, 3)}
+#: The gauges of each dimension (``GAUGES_BY_DIM``; ``GAUGES`` is every name): :mod:`olti_drake.model.gauges`.
 
 
 @dataclass(frozen=True)
@@ -202,7 +206,7 @@ class MultilaterationResult:
         std = f.std
         tools = {} if self.tool_offsets_mm is None else {"tools": self.tools.tolist(),
                                                           "tool_offsets_mm": self.tool_offsets_mm.tolist()}
-        return {"format": FORMAT, "targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
+        return {**result_header("multilateration"), "targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
                 "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge": self.gauge, "gauge_kind": self.gauge_kind,
                 "residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
                 "commands_mm": self.commands_mm.tolist(), **tools,
@@ -239,68 +243,59 @@ def _flat_name(dim: int) -> str:
     return "line" if dim == 2 else "plane"
 
 
-class Multilateration(LeastSquaresProgram):
-    """The self-calibrating multilateration problem (001 Eq. 2-6) as a Drake MathematicalProgram, 2D or 3D.
+class Multilateration(Calibration):
+    """The self-calibrating multilateration problem (001 Eq. 2-6) as a Drake MathematicalProgram, 2D or 3D: the
+    one :class:`~olti_drake.estimation.calibration.Calibration` over the free points of 001
+    (:class:`~olti_drake.model.free_points.FreePoints`: the targets p_i, at the commands plus the tool offsets to
+    start), read by the shared distance measurement
+    (:class:`~olti_drake.model.measurements.StationDistanceMeasurement`: stations P_j, dead paths L0_j, 001 Eq. 3)
+    with a named gauge of :mod:`olti_drake.model.gauges` (``options.gauge``).
+
+    What is the multilateration's own stays here: the counting (001 Eq. 4) and geometry checks before the
+    program is built, the start (tool offsets relative to tool 0, stations from the nominal targets, 001 §2.3),
+    the messages' hints and :meth:`solve` into a :class:`MultilaterationResult`.
 
     Variables ``p{i}_x_mm``, ``p{i}_y_mm`` (, ``p{i}_z_mm``), ``P{j}_x_mm`` … , ``L0_{j}_mm``. The Jacobian
-    is sparse (a reading touches one target and one station): :meth:`residuals` returns it as CSR.
+    is sparse (a reading touches one target and one station): :meth:`residuals` returns it as CSR. Units: mm.
     """
 
     rank_hint = "check the station layout: stations on one line with the targets cannot locate them"
     untouched_hint = "every target needs readings from the stations"
 
-    def __init__(self, data: MachineCampaign, options: MultilaterationOptions = None):
-        o = options or MultilaterationOptions()
-        if o.gauge not in GAUGES_BY_DIM[data.dim]:
-            raise InputError(f"gauge must be one of {', '.join(GAUGES_BY_DIM[data.dim])} for a {data.dim}D "
-                             f"campaign, got {o.gauge!r}")
-        self.data = data
-        self.dim = D = data.dim
-        self._check_counts()
-        self._check_geometry_of_targets()
-        n_i, n_j = data.n_targets, data.n_stations
-        axes = "xyz"[:D]
-        self._declare([f"p{i}_{c}_mm" for i in range(n_i) for c in axes]
-                      + [f"P{j}_{c}_mm" for j in range(n_j) for c in axes] + [f"L0_{j}_mm" for j in range(n_j)], o)
-        self.tool_offsets_mm = self._tool_offsets()
-        self.nominal_mm = data.commands_mm + (0.0 if self.tool_offsets_mm is None else self.tool_offsets_mm[data.tool])
-        self.x0 = self._initial_guess()
-        self._check_geometry_of_stations(self.x0)
-        self.gauge = self._add_gauge()
-
-    #: A station farther than this many command spans from the command centroid is absurd.
-    STATION_SPANS = 100.0
-    #: A target estimated farther than this fraction of the command span from its command is absurd.
-    TARGET_SPAN_FRACTION = 0.1
+    #: A station farther than this many command spans from the command centroid is absurd
+    #: (:attr:`StationDistanceMeasurement.STATION_SPANS`).
+    STATION_SPANS = StationDistanceMeasurement.STATION_SPANS
+    #: A target estimated farther than this fraction of the command span from its command is absurd
+    #: (:attr:`FreePoints.TARGET_SPAN_FRACTION`).
+    TARGET_SPAN_FRACTION = FreePoints.TARGET_SPAN_FRACTION
     #: Stations whose extent across their best line (2D) or plane (3D) is below this fraction of their
     #: extent along it are on it (singular values of the centred positions).
     FLAT_STATIONS = 1e-4
 
+    def __init__(self, data: MachineCampaign, options: MultilaterationOptions = None):
+        o = options or MultilaterationOptions()
+        check_gauge_kind(o.gauge, data.dim)
+        self.data = data
+        self.dim = data.dim
+        self._check_counts()
+        self._check_geometry_of_targets()
+        notes = []
+        self.tool_offsets_mm = self._tool_offsets(o, notes)
+        self.model = FreePoints(data.commands_mm, data.tool, self.tool_offsets_mm)  # the position model
+        self.nominal_mm = self.model.nominal_mm
+        stations, dead_paths = self._start_stations(o)
+        measurement = StationDistanceMeasurement(self.model, data.target, data.station, data.displacement_mm,
+                                                 stations, dead_paths, data.n_stations, dead_path="L0")
+        self.measurement = measurement
+        self._check_geometry_of_stations(measurement.start_vector())
+        gauge = free_points_gauge(o.gauge, self.nominal_mm, len(measurement.names))
+        super().__init__(measurement, o, gauge, data.source or "campaign")
+        self.notes.extend(notes)
+
     def _split(self, x):
         """(targets (N_i, D), stations (N_j, D), dead paths (N_j,)) of a parameter vector."""
-        n_i, n_j, D = self.data.n_targets, self.data.n_stations, self.dim
-        x = np.asarray(x)
-        return (x[:D * n_i].reshape(-1, D), x[D * n_i:D * n_i + D * n_j].reshape(-1, D), x[D * n_i + D * n_j:])
-
-    def implausible(self, x) -> list:
-        """Stations beyond :attr:`STATION_SPANS` command spans from the command centroid, or targets more than
-        :attr:`TARGET_SPAN_FRACTION` of the span off their nominal positions (a machine's errors are far
-        smaller)."""
-        c = self.nominal_mm
-        span = max(float(np.ptp(c, axis=0).max()), 1e-9)
-        out = []
-        targets, stations, _ = self._split(x)
-        far = np.hypot.reduce(stations - c.mean(axis=0), axis=1)
-        if far.max() > self.STATION_SPANS * span:
-            j = int(np.argmax(far))
-            out.append(f"station {j} lies {far[j]:.6g} mm from the command centroid, over {self.STATION_SPANS:g} "
-                       f"x the command span {span:g} mm")
-        off = np.hypot.reduce(targets - c, axis=1)
-        if off.max() > self.TARGET_SPAN_FRACTION * span:
-            i = int(np.argmax(off))
-            out.append(f"target {i} is estimated {off[i]:.6g} mm from its command, over "
-                       f"{self.TARGET_SPAN_FRACTION:g} x the command span {span:g} mm")
-        return out
+        xm, stations, dead = self.measurement.split(x)
+        return xm.reshape(-1, self.dim), stations, dead
 
     def default_budget(self):
         """The budget given to :meth:`solve`, else 001 Table 4: the residual is compared with its reading u."""
@@ -364,46 +359,9 @@ class Multilateration(LeastSquaresProgram):
                 f"gauge; raise or lower {'one station off the line' if D == 2 else 'one or two heads off the plane'})",
                 [f"P{j}_{c}_mm" for j in range(d.n_stations) for c in "xyz"[:D]])
 
-    def residual_rows(self, X, displacement_mm=None):
-        """Eq. (3) of 001 for T parameter vectors at once, Jacobian row-compressed (for the Monte Carlo).
-
-        Args:
-            X: (T, n) parameter vectors (layout of :attr:`names`), mm.
-            displacement_mm: readings ΔL_ij (K,) or per trial (T, K), mm; default the campaign's.
-
-        Returns:
-            r (T, K) = ‖p_i − P_j‖ − L0_j − ΔL_ij, mm; cols (K, 2D + 1) parameter indices shared by all
-            trials (p_i coordinates; P_j coordinates; L0_j); vals (T, K, 2D + 1) the matching dr/dx entries
-            (u, −u, −1), u the unit vector from P_j to p_i.
-        """
-        X = np.atleast_2d(X)
-        d, D = self.data, self.dim
-        n_i, n_j = d.n_targets, d.n_stations
-        p = X[:, :D * n_i].reshape(len(X), n_i, D)[:, d.target]  # free points: the position model is x itself
-        P = X[:, D * n_i:D * n_i + D * n_j].reshape(len(X), n_j, D)
-        readings = d.displacement_mm if displacement_mm is None else displacement_mm
-        pcols = np.column_stack([D * d.target + c for c in range(D)])
-        return distance_rows_nd(p, pcols, _UNITS[D], P, X[:, D * n_i + D * n_j:], d.station, readings,
-                                D * n_i, D * n_i + D * n_j)
-
-    def residuals(self, x):
-        """Eq. (3) of 001: r = ‖p_i − P_j‖ − L0_j − ΔL_ij (mm) and the sparse Jacobian."""
-        r, cols, vals = self.residual_rows(np.asarray(x)[None])
-        return r[0], rows_to_csr(cols, vals[0], len(self.names))
-
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "station": int(self.data.station[k]),
                 "target": int(self.data.target[k])}
-
-    def layout(self, v) -> dict:
-        """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
-        targets, stations, dead = self._split(np.asarray(v, dtype=float))
-        return {"targets_mm": targets.tolist(), "stations_mm": stations.tolist(), "dead_paths_mm": dead.tolist()}
-
-    def beam_lengths(self, x, residuals=None) -> np.ndarray:
-        """‖p_i − P_j‖ of every reading at x, mm."""
-        r = self.residuals(x)[0] if residuals is None else residuals
-        return r + self._split(x)[2][self.data.station] + self.data.displacement_mm
 
     def _station_fits(self, points_mm, rows, S=None):
         """(P_j, L0_j) of every station from known points (N_i, D) at the readings ``rows`` (bool mask)."""
@@ -419,11 +377,12 @@ class Multilateration(LeastSquaresProgram):
                                           f"targets it reads lie on one {_flat_name(D)} ({e})", names) from None
         return fits
 
-    def _tool_offsets(self):
+    def _tool_offsets(self, o: MultilaterationOptions, notes: list):
         """Nominal tool offsets (M, D) mm: given, zero for a one-tool 3D campaign, estimated for several (relative
         to tool 0: stations from tool 0's targets at their commands, then each tool's common offset by
-        Gauss-Newton on its readings); None for a 2D campaign without tools (the 2D result is unchanged)."""
-        d, D, o = self.data, self.dim, self.options
+        Gauss-Newton on its readings, :func:`~olti_drake.model.free_points.fit_tool_offsets`; said in
+        ``notes``); None for a 2D campaign without tools (the 2D result is unchanged)."""
+        d, D = self.data, self.dim
         if o.tool_offsets_mm is not None:
             t = np.asarray(o.tool_offsets_mm, dtype=float).reshape(-1, D)
             if len(t) < d.n_tools:
@@ -433,39 +392,22 @@ class Multilateration(LeastSquaresProgram):
         if d.n_tools == 1:
             return None if D == 2 else np.zeros((1, D))
         fits = self._station_fits(d.commands_mm, d.tool[d.target] == 0)
-        P = np.array([f[0] for f in fits])
-        L0 = np.array([f[1] for f in fits])
-        t = np.zeros((d.n_tools, D))
-        for m in range(1, d.n_tools):
-            sel = d.tool[d.target] == m
-            if not sel.any():
-                continue
-            c, j, reading = d.commands_mm[d.target[sel]], d.station[sel], d.displacement_mm[sel]
-            for _ in range(30):
-                diff = c + t[m] - P[j]
-                dist = np.hypot.reduce(diff, axis=1)
-                step = np.linalg.lstsq(diff / dist[:, None], -(dist - L0[j] - reading), rcond=None)[0]
-                t[m] += step
-                if np.max(np.abs(step)) < 1e-10:
-                    break
-        self.notes.append("tool offsets estimated from the data relative to tool 0 (mm): "
-                          + "; ".join(",".join(f"{v:.4f}" for v in row) for row in t))
+        t = fit_tool_offsets(d.commands_mm, d.tool, d.target, d.station, d.displacement_mm,
+                             np.array([f[0] for f in fits]), np.array([f[1] for f in fits]), d.n_tools)
+        notes.append("tool offsets estimated from the data relative to tool 0 (mm): "
+                     + "; ".join(",".join(f"{v:.4f}" for v in row) for row in t))
         return t
 
-    def _initial_guess(self) -> np.ndarray:
-        """Targets at their nominal positions (commands, 001 §2.3, plus tool offsets), stations from the data
-        or the given estimates."""
-        d, o, D = self.data, self.options, self.dim
+    def _start_stations(self, o: MultilaterationOptions):
+        """Stations (N_j, D) and dead paths (N_j,) mm to start: fitted to the targets at their nominal positions
+        (001 §2.3: the commands plus the tool offsets), from the given estimates ``o.stations_mm`` when there
+        are (e.g. the rotation-centre estimates of 001 §2.2)."""
+        d, D = self.data, self.dim
         S = None if o.stations_mm is None else np.asarray(o.stations_mm, dtype=float).reshape(-1, D)
         if S is not None and len(S) != d.n_stations:
             raise InputError(f"stations_mm gives {len(S)} positions but the campaign has {d.n_stations} stations")
         fits = self._station_fits(self.nominal_mm, np.ones(len(d), dtype=bool), S)
-        return np.concatenate([self.nominal_mm.ravel(), np.ravel([f[0] for f in fits]), [f[1] for f in fits]])
-
-    def _add_gauge(self) -> str:
-        A, b, text = _gauge_rows(self.options.gauge, self.nominal_mm, len(self.names))
-        self.prog.AddLinearEqualityConstraint(A, b, self.variables).evaluator().set_description("gauge")
-        return text
+        return np.array([f[0] for f in fits]).reshape(-1, D), np.array([f[1] for f in fits])
 
     def solve(self, budget=None) -> MultilaterationResult:
         """Check counts and geometry, solve Eq. (2) of 001, and propagate the uncertainty.
@@ -484,7 +426,7 @@ class Multilateration(LeastSquaresProgram):
             f = self.fit()
             if budget is not None:
                 from olti_drake.estimation.uncertainty import linear_covariance  # builds on this layer
-                from olti_drake.io.budget import ReadingErrors
+                from olti_drake.model.budget import ReadingErrors
 
                 f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
                 f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
@@ -498,53 +440,8 @@ class Multilateration(LeastSquaresProgram):
 
 def _gauge_rows(kind: str, c, n: int):
     """(A, b, sentence) of the gauge over n parameters whose first D N_i are the targets, from the nominal
-    target positions c (N_i, D) mm: D translations and D(D − 1)/2 rotations fixed."""
-    n_i, D = c.shape
-    if kind == "best-fit":
-        rel = c - c.mean(axis=0)
-        # Σ (p_i − c_i) = 0 (no mean translation); Σ rel_i × (p_i − c_i) = 0 (no mean rotation about the
-        # centroid): in 2D the z component only, in 3D all three.
-        rot = [(0, 1)] if D == 2 else [(1, 2), (2, 0), (0, 1)]
-        A = np.zeros((D + len(rot), n))
-        for k in range(D):
-            A[k, k:D * n_i:D] = 1.0
-        for r, (a, e) in enumerate(rot):  # (rel × d)_axis = rel_a d_e − rel_e d_a
-            A[D + r, a:D * n_i:D], A[D + r, e:D * n_i:D] = -rel[:, e], rel[:, a]
-        b = A[:, :D * n_i] @ c.ravel()
-        if D == 2:
-            return A, b, ("two translations and the rotation fixed by linear constraints: the estimated targets "
-                          "have no mean translation and no mean rotation (about the command centroid) from their "
-                          "command positions -- the frame best fits the commands")
-        return A, b, ("three translations and three rotations fixed by linear constraints: the estimated targets "
-                      "have no mean translation and no mean rotation (about the centroid of their nominal "
-                      "positions, the commands plus the tool offsets) from their nominal positions -- the frame "
-                      "best fits the commands")
-    if D == 2:
-        A = np.zeros((3, n))
-        e = c[1] - c[0]
-        A[0, 0], A[1, 1] = 1.0, 1.0
-        A[2, 2], A[2, 3] = -e[1], e[0]  # target 1 on the line through p*_0 along p*_1 − p*_0
-        b = np.array([c[0, 0], c[0, 1], -e[1] * c[0, 0] + e[0] * c[0, 1]])
-        return A, b, ("origin fixed at target 0's command position and the X direction along the command "
-                      "direction from target 0 to target 1 (target 1 constrained to that line)")
-    # The third target: the first whose command is off the line of targets 0 and 1 (a grid's first few
-    # lie on one line).
-    e1 = c[1] - c[0]
-    normals = np.cross(e1, c - c[0])
-    off = np.flatnonzero(np.linalg.norm(normals, axis=1) > 1e-6 * np.linalg.norm(e1) * np.ptp(c, axis=0).max())
-    if not off.size or not np.linalg.norm(e1):
-        raise InputError("gauge first-three: every target command lies on the line of targets 0 and 1; use best-fit")
-    k = int(off[0])
-    normal = normals[k]
-    across = np.linalg.svd(e1[None])[2][1:]  # two directions across e1: target 1 stays on the line
-    A = np.zeros((6, n))
-    A[0:3, 0:3] = np.eye(3)
-    A[3:5, 3:6] = across
-    A[5, 3 * k:3 * k + 3] = normal  # target k stays in the plane of the three commands
-    b = np.concatenate([c[0], across @ c[0], [normal @ c[0]]])
-    return A, b, (f"origin fixed at target 0's nominal position, the X direction along the command direction "
-                  f"from target 0 to target 1 (target 1 constrained to that line) and the XY plane through the "
-                  f"nominal positions of targets 0, 1 and {k} (target {k} constrained to it)")
+    target positions c (N_i, D) mm (:func:`olti_drake.model.gauges.gauge_rows`)."""
+    return gauge_rows(kind, c, n)
 
 
 def load_result(path) -> dict:

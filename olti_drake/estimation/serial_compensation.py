@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.model.errormap import OutsideGridError
 
 #: A compensated tool point must be on its target by the model to this, mm.

@@ -31,13 +31,16 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.linalg
 
+from olti_drake.errors import InputError
+from olti_drake.formats import DESIGN as FORMAT
 from olti_drake.estimation.design import BASE_RADIUS_MM, CLEARANCE_MM, beam_axis_distances
 from olti_drake.estimation.serial_plan import PlanRules, readable
 from olti_drake.estimation.station_information import predicted_u, station_information
-from olti_drake.io.csvio import InputError, read_yaml, unit_bound
+from olti_drake.io.csvio import read_yaml
 from olti_drake.model.chain import plane_frame
 from olti_drake.model.serial import DistanceMeasurement, SerialPositionModel, find_gauge
 from olti_drake.threads import single_thread_blas
+from olti_drake.units import unit_bound
 
 #: Default minimum distance between two stations, mm.
 MIN_SEPARATION_MM = 300.0
@@ -289,9 +292,6 @@ def evaluate_layout(info: StationInformation, stations_mm, criterion: str = "max
     return {"stations_mm": np.atleast_2d(stations_mm).tolist(), "readings": list(map(int, counts)),
             "max_u_mm": float(np.max(u)), "mean_u_mm": float(np.mean(u)),
             "cost_mm": float(np.max(u) if criterion == "max" else np.mean(u))}
-
-
-FORMAT = "olti-design/1"
 
 
 def design_document(design: StationDesign, current: Optional[dict], *, budget_name: str, u_reading_mm: float,

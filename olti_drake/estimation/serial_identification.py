@@ -29,9 +29,9 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
+from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
-from olti_drake.io.csvio import InputError
 from olti_drake.model.chain import plane_frame, robot_plane
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
@@ -295,11 +295,17 @@ def identify_serial(chain, campaign, options: SerialIdentificationOptions) -> Se
     """Identify the model ``options.model`` of ``chain`` from ``campaign`` (io.serial_io.SerialCampaign).
 
     Raises (one line) before solving when the campaign cannot identify a parameter (named), unless
-    ``options.regularize``; refuses a fit that did not converge (calibration.FitRefused). When parameters
-    were left out because the start's tool point lies on a joint axis and the fitted tool point does not
-    (:data:`TOOL_RESTART_MM`), the model is rebuilt around the fitted tool point and identified again, and
-    the notes say so."""
-    ident = _choose_sides(chain, campaign, options, _identify_once(chain, campaign, options))
+    ``options.regularize``; refuses a fit that did not converge (calibration.FitRefused). The program is
+    re-built around the first fit where that fit shows a better start (:func:`_refined`)."""
+    return serial_problem(chain, campaign, options)[1](pristine=True)
+
+
+def _refined(chain, campaign, options, ident: SerialIdentification) -> SerialIdentification:
+    """The identification again around what the first fit showed: a planar robot's stations off its plane on
+    their sides (:func:`_choose_sides`); a model rebuilt around the fitted tool point when parameters were left
+    out because the start's tool point lies on a joint axis and the fitted one does not (:data:`TOOL_RESTART_MM`),
+    the notes saying so."""
+    ident = _choose_sides(chain, campaign, options, ident)
     unseen = _unseen_at_start(ident.model)
     if not unseen:
         return ident
@@ -347,6 +353,14 @@ def _choose_sides(chain, campaign, options, ident: SerialIdentification) -> Seri
 
 
 def _identify_once(chain, campaign, options: SerialIdentificationOptions, above=()) -> SerialIdentification:
+    return serial_problem(chain, campaign, options, above)[1]()
+
+
+def serial_problem(chain, campaign, options: SerialIdentificationOptions, above=()):
+    """The calibration program of an N-joint campaign at its start, before the solve: (SerialCalibration,
+    finish) -- ``finish()`` fits it (naming what the readings cannot see, or regularizing it with
+    ``options.regularize``) and returns the :class:`SerialIdentification`. The program's notes say what was
+    dropped and why. ``above``: a planar robot's stations placed above its plane (:func:`_choose_sides`)."""
     meas, notes, off_plane = build_problem(chain, campaign, options, above)
     try:
         gauge = find_gauge(meas)
@@ -360,19 +374,25 @@ def _identify_once(chain, campaign, options: SerialIdentificationOptions, above=
               f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
     if campaign.dirs is None and options.model == "errormap":
         notes.append("one-directional campaign (no dir columns): single-branch maps, no backlash identified")
-    # fit() checks identifiability first (one factorization: at thousands of unknowns the check's own is reused
-    # by the solver and the covariance); what it cannot see is named, or regularized and fitted again.
-    for _ in range(len(cal.names)):
-        try:
-            fit = cal.fit()
-            break
-        except UnidentifiableError as e:
-            if not options.regularize or not e.names:
-                raise InputError(f"{campaign.source}: {e}") from None
-            notes.append(_regularize(cal, [n for n in e.names if n in cal.names]))
-    else:  # (each round adds priors to what was named: all are determined long before this)
-        raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
-    return SerialIdentification(meas, fit, cal.gauge, notes, off_plane, tuple(above))
+
+    def finish(pristine: bool = False) -> SerialIdentification:
+        """The fit; ``pristine`` (nothing added to the program, no solution given): then :func:`_refined`."""
+        # fit() checks identifiability first (one factorization: at thousands of unknowns the check's own is
+        # reused by the solver and the covariance); what it cannot see is named, or regularized and fitted again.
+        said = list(notes)
+        for _ in range(len(cal.names)):
+            try:
+                fit = cal.fit()
+                break
+            except UnidentifiableError as e:
+                if not options.regularize or not e.names:
+                    raise InputError(f"{campaign.source}: {e}") from None
+                said.append(_regularize(cal, [n for n in e.names if n in cal.names]))
+        else:  # (each round adds priors to what was named: all are determined long before this)
+            raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
+        ident = SerialIdentification(meas, fit, cal.gauge, said, off_plane, tuple(above))
+        return _refined(chain, campaign, options, ident) if pristine else ident
+    return cal, finish
 
 
 def summary(ident: SerialIdentification) -> str:

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
+from olti_drake.model.propagation import predicted_std
 
 
 def calibration_at_result(result, campaign):
@@ -88,10 +89,7 @@ def tool_point_uncertainty(model, commands, dirs, cov=None, samples=None) -> tup
     if samples is not None:
         pts = np.stack([model.positions(commands, dirs, s) for s in samples])
         return p, pts.std(axis=0, ddof=1)
-    J = jac.tocsr()
-    JC = np.asarray(J @ cov)
-    var = np.asarray(J.multiply(JC).sum(axis=1)).ravel()
-    return p, np.sqrt(np.maximum(var, 0.0)).reshape(-1, 3)
+    return p, predicted_std(jac.tocsr(), cov, dim=3)
 
 
 def workspace_uncertainty(model, n_poses: int = 400, seed: int = 0, cov=None, samples=None) -> dict:

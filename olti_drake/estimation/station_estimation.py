@@ -44,7 +44,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from olti_drake.io.budget import Budget
+from olti_drake.model.budget import Budget
 from olti_drake.model.instrument import InterferometerOptions, simulate_readings
 
 #: Encoder pulses per revolution of the rotary table RT158A (001 Table 2).

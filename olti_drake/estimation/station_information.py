@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from olti_drake.model.propagation import predicted_variance
+
 
 def station_information(J_theta, unit_mm, weights) -> np.ndarray:
     """S (n, n) of one station (module docstring): ``J_theta`` (K, n) rows ∂d_k/∂θ (dense or scipy
@@ -79,9 +81,7 @@ def predicted_u(S, Z, GZ, dim: int = 3) -> np.ndarray:
     if lam[0] <= 1e-12 * max(lam[-1], 0.0) or lam[-1] <= 0:
         return np.full(len(GZ) // dim, np.inf)
     if sandwich:  # u² = diag(G Z K⁻¹ (Zᵀ M Z) K⁻¹ Zᵀ Gᵀ)
-        W = (GZ @ V / lam) @ V.T
-        u2 = np.sum((W @ (Z.T @ S.M @ Z)) * W, axis=1)
-    else:
-        w = (GZ @ V) / np.sqrt(lam)  # u² = Σ (G Z V)² / λ per row
-        u2 = np.sum(w ** 2, axis=1)
-    return np.sqrt(np.maximum(u2, 0.0).reshape(-1, dim).sum(axis=1))
+        u2 = predicted_variance((GZ @ V / lam) @ V.T, Z.T @ S.M @ Z, dim=dim)
+    else:  # u² = diag(G Z K⁻¹ Zᵀ Gᵀ), K⁻¹ = (V/√λ)(V/√λ)ᵀ
+        u2 = predicted_variance(GZ, factor=V / np.sqrt(lam), dim=dim)
+    return np.sqrt(u2.sum(axis=1))

@@ -27,9 +27,10 @@ from typing import Callable, Optional
 import numpy as np
 import scipy.sparse as sp
 
-from olti_drake.io.budget import Budget, ReadingErrors
+from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import FitRefused
-from olti_drake.io.csvio import InputError
+from olti_drake.model.budget import Budget, ReadingErrors
+from olti_drake.model.propagation import predicted_std
 from olti_drake.threads import single_thread_blas
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
@@ -191,6 +192,7 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
         raise InputError(f"trials must be >= 2, got {trials}")
     if adaptive and max_trials < 2 * round_trials(coverage):
         raise InputError(f"max_trials must be >= {2 * round_trials(coverage)} (two adaptive rounds), got {max_trials}")
+    _check_sample_size(max_trials if adaptive else trials, len(x), "max_trials" if adaptive else "trials")
     B, J = _solution_map(ident, x)
     distance = ident.beam_lengths(x)
     Q, q = ident.quadratic_costs()
@@ -244,13 +246,43 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     return MonteCarlo(samples, seed, stable or not adaptive, batches, notes, adequate, coverage)
 
 
+#: Largest array of Monte Carlo samples (trials x parameters, float64) a run may keep, bytes: beyond it a slip (a
+#: trial count with too many zeros) would take the machine's memory, or run for days, before failing.
+MAX_SAMPLE_BYTES = 4 * 2 ** 30
+
+
+def _check_sample_size(trials: int, n: int, option: str) -> None:
+    """Refuse, before any work, a run whose samples (trials x n doubles) exceed :data:`MAX_SAMPLE_BYTES`."""
+    size = 8.0 * trials * n
+    if size > MAX_SAMPLE_BYTES:
+        raise InputError(f"{option} {trials}: the Monte Carlo samples of {n} parameters would take "
+                         f"{size / 2 ** 30:.3g} GiB (at most {MAX_SAMPLE_BYTES / 2 ** 30:g} GiB, i.e. "
+                         f"{int(MAX_SAMPLE_BYTES // (8 * n))} trials); use fewer trials")
+
+
 def _pool(workers):
     import multiprocessing as mp
     import contextlib
 
     if workers <= 1:
         return contextlib.nullcontext(None)
-    return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+    return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=die_with_parent,
+                               initargs=(os.getpid(),))
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """A worker's first act: ask the kernel to end it when its parent dies (Linux ``PR_SET_PDEATHSIG``), so that
+    ``kill -9`` of ``olti uncertainty`` leaves no worker running its trials on the cores; if the parent is already
+    gone (it died before this ran), end now."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):  # (not Linux: no such call; the executor's own shutdown still applies)
+        pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
 
 
 def _round_summary(samples, coverage) -> np.ndarray:
@@ -280,8 +312,7 @@ def prediction_std(ident, cov, x, commands) -> np.ndarray:
     model = ident.robot0.with_parameters(x[:n])
     _, jx, jy = model.positions_and_jacobian(commands)
     C = cov[:n, :n]
-    var = [np.sum((j @ C) * j, axis=1) for j in (jx.toarray(), jy.toarray())]  # diag(J C Jᵀ)
-    return np.sqrt(np.maximum(np.column_stack(var), 0))
+    return np.column_stack([predicted_std(j, C) for j in (jx, jy)])
 
 
 def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, samples=None,
@@ -293,7 +324,9 @@ def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, sa
     ``intervals`` (enough trials, :attr:`MonteCarlo.intervals_adequate`), the
     probabilistically symmetric ``coverage_interval`` of probability ``coverage``.
     """
-    out = {"format": "olti-uncertainty/1", "method": method, "k": 1}
+    from olti_drake.formats import UNCERTAINTY
+
+    out = {"format": UNCERTAINTY, "method": method, "k": 1}
     out.update(ident.layout(std))
     out["expanded"] = dict(k=k, **ident.layout(k * std))
     if samples is not None and intervals:

@@ -13,7 +13,19 @@ i's command and tool: p_i = p(q_i, t_m; θ). Unknowns:
   taken as given, so are all offsets in a 1-tool campaign);
 * the station positions P_j (3D, mm) and dead paths L0_j (mm).
 
-Residual r_k = ‖p(q_i, t_m; θ) − P_j‖ − L0_j − ΔL_k (mm), analytic Jacobian.
+Residual r_k = ‖p(q_i, t_m; θ) − P_j‖ − L0_j − ΔL_k (mm, 001 Eq. (3)), analytic Jacobian.
+
+The one engine: :class:`VolumetricIdentification` is
+:class:`~olti_drake.estimation.calibration.Calibration` over the volumetric
+position model (:class:`olti_drake.model.volumetric3d.VolumetricPositionModel`:
+the tool points of the targets, the held motions taken out), read by the shared
+distance measurement (:class:`olti_drake.model.measurements.StationDistanceMeasurement`,
+001 Eq. (3)), with the representation's gauge
+(:func:`olti_drake.model.gauges.volumetric_gauge`). What is the volumetric
+machine's own stays here: the machine of the campaign (travel, knots, tools),
+the counting, the station start, the observability rules that decide which
+motions are held (:func:`separable_motions`) and :meth:`~VolumetricIdentification.solve`
+into a :class:`VolumetricResult`.
 
 Gauge: distances see neither a translation nor a rotation of the whole
 (machine + stations); the representation fixes both, by the named conditions
@@ -32,31 +44,25 @@ from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
-import scipy.sparse as sp
 
+from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import station_fit
-from olti_drake.estimation.calibration import LeastSquaresProgram, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError
 from olti_drake.estimation.multilateration import MachineCampaign
 from olti_drake.io.csvio import campaign_digest
-from olti_drake.io.csvio import InputError
-from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, MachineConfig, VolumetricModel,
-                                           motion_names, motion_role, motion_unit, observability)
+from olti_drake.model.gauges import VOLUMETRIC_GAUGE, VOLUMETRIC_GAUGE_CONDITIONS, volumetric_gauge
+from olti_drake.model.measurements import StationDistanceMeasurement
+# IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD: the motion values no machine has (re-exported)
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD,  # noqa: F401
+                                           MachineConfig, VolumetricModel, VolumetricPositionModel, motion_names,
+                                           motion_role, motion_unit, observability)
 
-#: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns.
-GAUGE_CONDITIONS = (
-    "E_XX, E_YY, E_ZZ = 0 at the travel start (origin: tool 0's point at the travel start)",
-    "tool 0's offset as given (the origin's translation)",
-    "E_AX, E_BX, E_CX, E_AY, E_BY, E_CY, E_AZ, E_BZ, E_CZ = 0 at the travel start (orientation)",
-    "E_YX, E_ZX = 0 at both ends of the X travel (x along X's reference straight line)",
-    "E_XY, E_ZY, E_XZ, E_YZ = 0 at both ends of their travel (reference straight lines through the end points)",
-    "no squareness of X (X defines x) and none of Y about x or y (Y's line in the xy plane: E_C0Y only)",
-)
-GAUGE = ("the rigid motion of the whole (3 translations, 3 rotations) is fixed in the representation: origin at "
-         "tool 0's point at the travel start, x along X's reference straight line, y in the plane of X's and Y's "
-         "lines (the named conditions in gauge_conditions); the stations are estimated in that frame")
+#: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns
+#: (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE_CONDITIONS`).
+GAUGE_CONDITIONS = VOLUMETRIC_GAUGE_CONDITIONS
+#: What the gauge fixes, in one sentence (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE`).
+GAUGE = VOLUMETRIC_GAUGE
 TOPOLOGIES = {"serial": (("X", "Y", "Z"), ()), "table-xy": (("Z",), ("Y", "X")), "table-yx": (("Z",), ("X", "Y"))}
-#: A linear error motion beyond this (mm), or an angular one beyond this (µrad), is no machine's: wrong units.
-IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD = 1.0, 1e4
 
 
 def volumetric_campaign(data, source: str = ""):
@@ -196,12 +202,19 @@ def separable_motions(model: VolumetricModel, commands_mm, tool, stations_mm) ->
     raise AssertionError("unreachable: every angular motion held")
 
 
-class VolumetricIdentification(LeastSquaresProgram):
-    """The distance residuals of a 3D campaign on the volumetric model, as a Drake MathematicalProgram.
+class VolumetricIdentification(Calibration):
+    """The distance residuals of a 3D campaign on the volumetric model, as a Drake MathematicalProgram: the one
+    :class:`~olti_drake.estimation.calibration.Calibration` over
+    :class:`~olti_drake.model.measurements.StationDistanceMeasurement` (001 Eq. (3): r_k = ‖p(q_i, t_m; θ) − P_j‖
+    − L0_j − ΔL_k, mm) of the tool points of :class:`~olti_drake.model.volumetric3d.VolumetricPositionModel`,
+    with the representation's gauge (:func:`~olti_drake.model.gauges.volumetric_gauge`: no constraint row).
 
     Variables: the free spline coefficients and squareness of the separable motions (names of
-    ``VolumetricModel.parameter_names()``), ``tool<m>_{x,y,z}_mm`` (m ≥ 1), ``P<j>_{x,y,z}_mm``,
-    ``L0_<j>_mm``. Observability is checked at construction (before solving).
+    ``VolumetricModel.parameter_names()``; mm, µrad), ``tool<m>_{x,y,z}_mm`` (m ≥ 1), ``P<j>_{x,y,z}_mm``,
+    ``L0_<j>_mm``. Observability is checked at construction (before solving): the motions the campaign cannot
+    separate are held at 0 (:attr:`held`, :func:`separable_motions`). :attr:`model` is the
+    :class:`~olti_drake.model.volumetric3d.VolumetricModel` (all its parameters), :attr:`position_model` the
+    position model of the campaign's targets (the free ones: :attr:`free_cols`, :attr:`n_model`).
     """
 
     rank_hint = "add stations, tool offsets or commands spread over the travel"
@@ -214,19 +227,20 @@ class VolumetricIdentification(LeastSquaresProgram):
         self.model = VolumetricModel(self.config, identify_tool_offsets=len(self.config.tools) > 1)
         self._check_counts()
         stations0, dead0 = self._station_start()
-        tool = data.tool
-        self.held, self.observability = separable_motions(self.model, data.commands_mm, tool, stations0)
-        held_cols = np.zeros(self.model.n_params, bool)
-        for n in self.held:
-            held_cols[self.model.slices[n]] = True
-        self.free_cols = np.flatnonzero(~held_cols)
-        model_names = [self.model.parameter_names()[i] for i in self.free_cols]
-        n_j = data.n_stations
-        self._declare(model_names + [f"P{j}_{c}_mm" for j in range(n_j) for c in "xyz"]
-                      + [f"L0_{j}_mm" for j in range(n_j)], o)
-        self.n_model = len(model_names)
-        self.x0 = np.concatenate([np.zeros(self.n_model), stations0.ravel(), dead0])
-        self.gauge = GAUGE
+        self.held, self.observability = separable_motions(self.model, data.commands_mm, data.tool, stations0)
+        self.position_model = VolumetricPositionModel(self.model, data.commands_mm, data.tool, held=tuple(self.held))
+        self.free_cols = self.position_model.free_cols
+        self.n_model = self.position_model.n_params
+        measurement = StationDistanceMeasurement(self.position_model, data.target, data.station, data.displacement_mm,
+                                                 stations0, dead0, data.n_stations, dead_path="L0")
+        gauge = volumetric_gauge(len(measurement.names))
+        # Fixed in the representation: no constraint row to add to the program (Calibration adds a gauge's rows).
+        super().__init__(measurement, o, gauge if len(gauge.b) else None, data.source or "campaign")
+        self.gauge = gauge.sentence
+        # The Monte Carlo re-solves the volumetric trials one by one (on :meth:`residuals`), as it always has: its
+        # batched chord iteration (on the measurement's ``residual_rows``) stops at a fixed 30 steps, short of the
+        # tolerance on these µrad-scaled unknowns.
+        self.__dict__.pop("residual_rows", None)
         self.notes.extend(f"{n}: {why}" for n, why in self.held.items())
         if o.tool_offsets_mm is None and data.n_tools > 1:
             self.notes.append("tool offsets not given (--tool-offsets-mm): started from the 3D multilateration's "
@@ -265,70 +279,21 @@ class VolumetricIdentification(LeastSquaresProgram):
     # -- the model ----------------------------------------------------------------------------------
     def theta(self, x) -> np.ndarray:
         """The model's full parameter vector (held motions 0) from the program's x."""
-        t = self.model.zeros()
-        t[self.free_cols] = np.asarray(x)[:self.n_model]
-        return t
+        return self.position_model.theta(x)
 
     def split(self, x):
         """(θ, stations (N_j, 3), dead paths (N_j,)) of x."""
-        n_j = self.data.n_stations
-        x = np.asarray(x, float)
-        return (self.theta(x), x[self.n_model:self.n_model + 3 * n_j].reshape(n_j, 3),
-                x[self.n_model + 3 * n_j:])
-
-    def residuals(self, x):
-        """r_k = ‖p(q_i, t_m; θ) − P_j‖ − L0_j − ΔL_k (mm, 001 Eq. (3) on the model) and the sparse Jacobian."""
-        d = self.data
-        theta, P, L0 = self.split(x)
-        p, J = self.model.jacobian(d.commands_mm, d.tool, theta)
-        diff = p[d.target] - P[d.station]
-        dist = np.linalg.norm(diff, axis=1)
-        u = diff / dist[:, None]
-        r = dist - L0[d.station] - d.displacement_mm
-        n_j, K = d.n_stations, len(r)
-        A = np.zeros((K, len(self.names)))
-        A[:, :self.n_model] = np.einsum("kc,kcp->kp", u, J[:, :, self.free_cols][d.target])
-        rows = np.arange(K)
-        for c in range(3):
-            A[rows, self.n_model + 3 * d.station + c] = -u[:, c]
-        A[rows, self.n_model + 3 * n_j + d.station] = -1.0
-        return r, sp.csr_matrix(A)
-
-    def beam_lengths(self, x, residuals=None) -> np.ndarray:
-        """‖p_i − P_j‖ of every reading at x, mm (for the budget's cosine error)."""
-        r = self.residuals(x)[0] if residuals is None else residuals
-        return r + self.split(x)[2][self.data.station] + self.data.displacement_mm
+        _, P, L0 = self.measurement.split(np.asarray(x, float))
+        return self.theta(x), P, L0
 
     def reading_label(self, k: int) -> dict:
         d = self.data
         return {"line": int(d.line[k]), "station": int(d.station[k]), "target": int(d.target[k])}
 
-    def layout(self, v) -> dict:
-        theta, P, L0 = self.split(v)
-        return {"model": theta.tolist(), "stations_mm": P.tolist(), "dead_paths_mm": L0.tolist()}
-
     def default_budget(self):
         from olti_drake.io.budget import default_budget
 
         return getattr(self, "_solve_budget", None) or default_budget("machine")
-
-    def implausible(self, x) -> list:
-        """Stations beyond 100 travel diagonals, or motion values no machine has (> 1 mm, > 1e4 µrad)."""
-        theta, P, _ = self.split(x)
-        span = float(np.linalg.norm(np.ptp(self.data.commands_mm, axis=0)))
-        out = []
-        far = np.linalg.norm(P - self.data.commands_mm.mean(axis=0), axis=1)
-        if far.max() > 100 * span:
-            out.append(f"station {int(np.argmax(far))} lies {far.max():.6g} mm from the command centroid, over 100 x "
-                       f"the travel diagonal {span:g} mm")
-        motions = self.model.motions(theta)
-        for a in AXES:
-            v = motions.evaluate(a, np.linspace(*self.config.travel_mm[a], 101))
-            for r, name in enumerate(motion_names(a)):
-                limit = IMPLAUSIBLE_MM if r < 3 else IMPLAUSIBLE_URAD
-                if np.abs(v[:, r]).max() > limit:
-                    out.append(f"{name} reaches {np.abs(v[:, r]).max():.6g} {motion_unit(name)} (over {limit:g})")
-        return out
 
     # -- solve ----------------------------------------------------------------------------------------
     def solve(self, budget=None) -> "VolumetricResult":

@@ -1,1 +1,1 @@
-"""hardware: the serial protocol, device drivers, the device emulator, the hardware station, the run log and the campaign runner."""
+"""hardware: the serial protocol, device drivers, the device emulators (SCARA, N-joint robot, 3D machine tool), the hardware station, the run log and the campaign runner."""

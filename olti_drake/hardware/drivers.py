@@ -24,7 +24,7 @@ from __future__ import annotations
 import importlib
 from typing import Protocol, Sequence
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.hardware.protocol import (SCARA_LAYOUT, AxisLayout, NakError, Pong, Position, ProtocolError, Reading,
                        Transport, decode_alarms, decode_axis, decode_info, decode_pong, decode_position,
                        decode_position_n, decode_reading, expect_ack, wait_fields)

@@ -30,9 +30,9 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
+from olti_drake.formats import RUN as FORMAT
 
-FORMAT = "olti-run/1"
 COLUMNS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "theta4_deg", "valid",
            "plan_row", "step", "session", "status", "reads", "rezeros", "time_utc", "elapsed_s")
 #: The files of a run directory: all measured data, never replaced (olti_drake.io.outputs).
@@ -53,12 +53,22 @@ def serial_columns(n_joints: int) -> tuple:
             tuple(f"dir{i + 1}" for i in range(n_joints)) + ("displacement_mm", "valid") + _LOG_COLUMNS)
 
 
+#: The 3D machine tool's campaign columns (formats.md "Machine tool in 3D", as ``olti simulate`` writes them).
+MACHINE3D_COLUMNS = ("station", "target", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "tool", "displacement_mm", "valid")
+
+
+def machine3d_columns() -> tuple:
+    """The columns of a 3D machine run log: the 3D machine campaign's (station = pan/tilt head, target,
+    x/y/z_cmd_mm, tool, displacement_mm, valid) and the run-log columns (``plan_row`` = the target)."""
+    return MACHINE3D_COLUMNS + _LOG_COLUMNS
+
+
 def _formats_of(columns) -> tuple:
     """The value formats of a log's columns (the SCARA's as they always were)."""
     if tuple(columns) == COLUMNS:
         return _FORMATS
-    head = tuple("%.12g" if c.startswith("theta") else "%.9f" if c == "displacement_mm" else "%d"
-                 for c in columns[:-len(_LOG_COLUMNS)])
+    head = tuple("%.12g" if c.startswith("theta") or c.endswith("_cmd_mm") else "%.9f" if c == "displacement_mm"
+                 else "%d" for c in columns[:-len(_LOG_COLUMNS)])
     return head + _LOG_FORMATS
 
 

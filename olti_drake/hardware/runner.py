@@ -4,10 +4,14 @@ The diagram is the campaign diagram of :mod:`olti_drake.sim.campaign` whatever
 the station (simulated, emulated or hardware); the recorder's sink writes
 every reading to :class:`~olti_drake.hardware.runlog.CampaignLog` as it arrives.
 
-A six-axis floor-tracer scenario (:mod:`olti_drake.sim.serial_scenario`, on an ``!Emulated``
-station) runs the same way on the N-joint diagram of :mod:`olti_drake.sim.serial_station`, its
-station the N-joint emulator behind the same hardware station (``_Serial``: the log's columns, where
-a record goes, the resumed state).
+A six-axis floor-tracer scenario (:mod:`olti_drake.sim.serial_scenario`) runs the same way on the
+N-joint diagram of :mod:`olti_drake.sim.serial_station`, its station simulated, the N-joint emulator
+or the real robot and heads behind the same hardware station (``_Serial``: the log's columns, where
+a record goes, the resumed state); a 3D machine-tool scenario (``heads_mm``:
+:mod:`olti_drake.sim.machine3d_station`) on the diagram of :mod:`olti_drake.sim.machine3d_campaign`,
+its station simulated, the 3D machine emulator or the real controller and pan/tilt heads
+(``_Machine3D``). Every kind takes an ``extend`` hook, called as
+``extend(builder, setup=, station=, sequencer=, steering=, recorder=)`` before the diagram is built.
 
 Resuming (``--resume``) after Ctrl-C, ``kill -9`` or a lost line starts the
 command sequence at the first planned reading not on disk and records only
@@ -28,7 +32,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 
 
 class RunInterrupted(Exception):
@@ -163,13 +167,8 @@ class _Serial(_Scara):
 
     def __init__(self, scenario):
         from olti_drake.hardware.runlog import serial_columns
-        from olti_drake.sim.scenario import Emulated, Hardware
         from olti_drake.sim.serial_station import prepare_serial
 
-        if not isinstance(scenario.station, (Emulated, Hardware)):
-            where = getattr(scenario, "source_file", None) or "scenario"
-            raise InputError(f"{where}: station: olti run takes a six-axis campaign on an !Emulated or !Hardware "
-                             f"station (simulated: olti simulate), got !{type(scenario.station).__name__}")
         self.scenario = scenario
         self.setup = s = prepare_serial(scenario)
         self.measured = np.asarray(s.measure, bool)
@@ -188,12 +187,22 @@ class _Serial(_Scara):
     def build(self, station_factory, extend, sink):
         from olti_drake.sim.serial_station import build_serial_diagram
 
+        hook = None
         if extend is not None:
-            raise InputError("olti run: the live view (--meshcat) is not available for six-axis campaigns yet")
-        diagram, rec, seq = build_serial_diagram(self.setup, station_factory=station_factory)
+            def hook(builder, setup, station, seq):     # the N-joint diagram's positional hook -> the keywords
+                def named(name):
+                    return builder.GetSubsystemByName(name) if builder.HasSubsystemNamed(name) else None
+                extend(builder, setup=setup, station=station, sequencer=seq, steering=named("pan_tilt_steering"),
+                       recorder=named("campaign_recorder"))
+        diagram, rec, seq = build_serial_diagram(self.setup, station_factory=station_factory, extend=hook)
         status = rec.GetInputPort("status")
         rec.on_record = lambda context, record: sink(record, status.Eval(context))
         return diagram, rec, seq
+
+    def resume_simulated(self, station, context, step: int, prev_cmd, prev_dir) -> None:
+        # The simulated N-joint station: the joints' last command and directions (deg), the laser's
+        # sample count (its noise is a function of it), as the SCARA's.
+        _resume_simulated_systems(station, context, step, prev_cmd, prev_dir)
 
     def step_of(self, record) -> int:
         n = self.setup.n_joints
@@ -220,6 +229,81 @@ class _Serial(_Scara):
         names = [f"theta{i + 1}_deg" for i in range(self.setup.n_joints)] + ["valid"]
         t = read_table(os.path.join(out_dir, "campaign.csv"), tuple(names))
         write_json(os.path.join(out_dir, "truth.json"), serial_truth_result(self.setup, t), measurement=True)
+
+
+class _Machine3D(_Scara):
+    """The same for a 3D machine-tool campaign (sim.machine3d_campaign): every row is a reading (head j,
+    target i: step = j x targets + i), the log's columns those of the 3D machine campaign."""
+
+    comment = ("olti_drake 3D machine campaign (olti run; formats.md \"Machine tool in 3D\"): mm; station = "
+               "pan/tilt head; target = command and tool; valid 0 = beam lost (kept); plan_row = target; "
+               "step/session/status/reads/rezeros/time: the run log (docs/runner.md)")
+
+    def __init__(self, scenario):
+        from olti_drake.hardware.runlog import machine3d_columns
+        from olti_drake.sim.machine3d_campaign import prepare_machine3d_campaign
+
+        self.scenario = scenario
+        where = getattr(scenario, "source_file", None)
+        self.setup = s = prepare_machine3d_campaign(scenario, f"scenario {where}" if where else "scenario")
+        self.columns = machine3d_columns()
+        self.measured = np.ones(s.n_steps, bool)
+        self.n_targets = len(s.run.commands_mm)
+        self._commands, self._dirs = s.commands_mm(), s.directions()
+
+    def fingerprint(self) -> str:
+        return self.setup.fingerprint()
+
+    def build(self, station_factory, extend, sink):
+        from olti_drake.hardware.runlog import MACHINE3D_COLUMNS
+        from olti_drake.sim.machine3d_campaign import build_machine3d_campaign_diagram
+
+        n = len(MACHINE3D_COLUMNS)   # the campaign's own columns: the recorder's row without the true tool point
+
+        def log(record, status):
+            sink(tuple(record[:n]) + (int(record[1]),), status)   # plan_row = the target
+
+        return build_machine3d_campaign_diagram(self.setup, station_factory, extend=extend, sink=log)
+
+    def step_of(self, record) -> int:
+        return int(record[0]) * self.n_targets + int(record[1])
+
+    def reflector_at(self, step: int) -> int:
+        j = self.setup.run.sequence["station"]
+        return int(j[min(step, len(j) - 1)])
+
+    def previous(self, step: int):
+        if step == 0:
+            return None, None
+        return self._commands[step - 1].copy(), self._dirs[step - 1].copy()
+
+    def resume_simulated(self, station, context, step: int, prev_cmd, prev_dir) -> None:
+        # The simulated 3D station has no approach state (the machine's truth has no backlash): only the
+        # laser's sample count, so a resumed simulation equals an uninterrupted one.
+        _resume_simulated_systems(station, context, step, None, None)
+
+    def write_truth(self, out_dir) -> None:
+        from olti_drake.io.csvio import read_table
+        from olti_drake.io.outputs import write_json
+        from olti_drake.sim.machine3d_campaign import machine3d_truth_result
+
+        if os.path.exists(os.path.join(out_dir, "truth.json")):
+            return
+        t = read_table(os.path.join(out_dir, "campaign.csv"), ("valid",))
+        write_json(os.path.join(out_dir, "truth.json"), machine3d_truth_result(self.setup, t["valid"]),
+                   measurement=True)
+
+
+def _resume_simulated_systems(station, context, step: int, prev_cmd, prev_dir) -> None:
+    """A simulated station (a Diagram) put where the uninterrupted campaign was at ``step``: its approach-
+    direction joints (``error_map_joint``) get the previous row's command and directions (deg/mm), its 3D
+    interferometer (the systems that ``DeclareReading``: state 0 is the sample count) the count ``step``."""
+    for system in station.GetSystems():
+        state = system.GetMyMutableContextFromRoot(context)
+        if system.get_name() == "error_map_joint" and prev_cmd is not None:
+            state.get_mutable_discrete_state_vector().SetFromVector(np.concatenate([prev_cmd, prev_dir]))
+        elif callable(getattr(system, "DeclareReading", None)):
+            state.get_mutable_discrete_state_vector().SetAtIndex(0, step)
 
 
 def _open_log(scenario_path, kind, out_dir, resume, fsync, planned_steps):
@@ -260,9 +344,8 @@ class _Steps:
         return int(self.mask.sum())
 
 
-def _resume_state(diagram, context, kind, step: int, log) -> None:
-    """Put the diagram where the uninterrupted campaign was at ``step`` (sequencer, station)."""
-    seq = diagram.GetSubsystemByName("plan_sequencer")
+def _resume_state(diagram, seq, context, kind, step: int, log) -> None:
+    """Put the diagram where the uninterrupted campaign was at ``step`` (sequencer ``seq``, station)."""
     seq.GetMyMutableContextFromRoot(context).get_mutable_discrete_state_vector().SetAtIndex(0, step)
     station = diagram.station
     j = kind.reflector_at(step)
@@ -278,12 +361,14 @@ def _resume_state(diagram, context, kind, step: int, log) -> None:
 
 
 def _load(scenario, base_dir=None):
-    """(Scenario, its file or None) of a Scenario or SerialScenario object, a YAML path or None (the
-    paper default); a six-axis file (``scheme``: sim.serial_scenario.scenario_kind) loads as one."""
+    """(Scenario, its file or None) of a Scenario, SerialScenario or Machine3DScenarioFile object, a YAML
+    path or None (the paper default); a six-axis file (``scheme``: sim.serial_scenario.scenario_kind) or a
+    3D machine-tool one (``heads_mm``) loads as one."""
+    from olti_drake.sim.machine3d_station import Machine3DScenarioFile
     from olti_drake.sim.scenario import Scenario, load_scenario
     from olti_drake.sim.serial_scenario import SerialScenario
 
-    if isinstance(scenario, (Scenario, SerialScenario)):
+    if isinstance(scenario, (Scenario, SerialScenario, Machine3DScenarioFile)):
         return scenario, getattr(scenario, "source_file", None)
     if scenario is None:
         return load_scenario(None), None
@@ -292,23 +377,28 @@ def _load(scenario, base_dir=None):
 
 def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = None):
     """The scenario ``olti run`` takes: a six-axis one (``SerialScenario``) when the file (or its named
-    scenario, or a base) has a ``scheme``, else the SCARA's (``load_scenario``)."""
+    scenario, or a base) has a ``scheme``, a 3D machine-tool one (``Machine3DScenarioFile``) when it has
+    ``heads_mm``, else the SCARA's (``load_scenario``)."""
     from olti_drake.sim.scenario import load_scenario
     from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 
-    kind = scenario_kind(path, name) if path is not None else "scara"
-    if kind == "machine3d":  # no hardware station for it yet: say so instead of a schema error
-        raise ValueError(f"scenario {path}: a 3D machine-tool scenario (heads_mm) is simulated only: "
-                         f"olti simulate {path} --out DIR")
+    kind = scenario_kind(path, name)
+    if kind == "machine3d":
+        from olti_drake.sim.machine3d_station import load_machine3d_scenario
+
+        doc = load_machine3d_scenario(path, name, text)
+        doc.source_file = os.fspath(path)
+        return doc
     if kind == "serial":
         return load_serial_scenario(path, name, text)
     return load_scenario(path, name, text)
 
 
 def _campaign_kind(scenario):
-    from olti_drake.sim.serial_scenario import SerialScenario
+    """The campaign of a loaded scenario, by its kind (:func:`~olti_drake.sim.serial_scenario.scenario_kind`)."""
+    from olti_drake.sim.serial_scenario import scenario_kind
 
-    return _Serial(scenario) if isinstance(scenario, SerialScenario) else _Scara(scenario)
+    return {"scara": _Scara, "serial": _Serial, "machine3d": _Machine3D}[scenario_kind(scenario)](scenario)
 
 
 def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[Callable[[], object]] = None,
@@ -317,15 +407,18 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
     """Run (or resume) the scenario's campaign on its station, logging every reading to ``out_dir``.
 
     ``scenario``: a :class:`~olti_drake.sim.scenario.Scenario`, a six-axis
-    :class:`~olti_drake.sim.serial_scenario.SerialScenario` (floor tracers, on an ``!Emulated``
-    station), a scenario YAML path, or None (the paper-000 default). ``should_stop()`` is polled
-    between simulator steps (from this
-    thread; it may read a flag another thread or a signal handler sets): a truthy value ends the
+    :class:`~olti_drake.sim.serial_scenario.SerialScenario` (floor tracers), a 3D machine tool's
+    :class:`~olti_drake.sim.machine3d_station.Machine3DScenarioFile`, a scenario YAML path, or None
+    (the paper-000 default); its ``station`` (simulated, emulated or hardware) takes the readings.
+    ``should_stop()`` is polled between simulator steps (from this thread; it may read a flag
+    another thread or a signal handler sets): a truthy value ends the
     session after the reading in progress is on disk, and the result says ``stopped`` (a string
     value is the reason recorded in ``run.json``, e.g. ``"SIGINT"``); ``resume=True`` continues.
     ``progress(on_disk, planned)`` is called after every reading; ``extend`` and
     ``realtime_rate`` as in :func:`~olti_drake.sim.campaign.run_campaign` (e.g. the Meshcat view
-    of :mod:`olti_drake.sim.meshcat_view`). Raises
+    of :mod:`olti_drake.sim.meshcat_view`, a logger): for every kind ``extend(builder, setup=,
+    station=, sequencer=, steering=, recorder=)`` adds systems before the diagram is built (the
+    N-joint diagram's ``steering`` is None robot-mounted). Raises
     :class:`~olti_drake.hardware.station.StationError` when the station fails (line lost, alarm,
     ...); every reading taken is on disk either way. Units: mm and degrees in the files.
     """
@@ -400,7 +493,7 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
         log.begin_session(start, station=_station_kind(scenario), resumed=bool(resume))
         simulator = Simulator(diagram)
         simulator.set_target_realtime_rate(realtime_rate)
-        _resume_state(diagram, simulator.get_mutable_context(), kind, start, log)
+        _resume_state(diagram, seq, simulator.get_mutable_context(), kind, start, log)
         simulator.set_monitor(monitor)
         simulator.Initialize()
         simulator.AdvanceTo((len(measured) - start) * scenario.period_s)

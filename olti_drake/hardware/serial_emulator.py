@@ -123,20 +123,26 @@ class SerialEmulator(Emulator):
         if heads_true is None:
             zeros = stream_rng(truth_seed, "emulator_truth", 1).normal(0.0, HEAD_ZERO_SIGMA_DEG, (k, 2))
             heads_true = PanTiltHeads(self.truth.stations_mm, zeros)
-        self.heads_true = heads_true
-        self.head_errors = list(head_errors) if head_errors is not None else [
+        head_errors = list(head_errors) if head_errors is not None else [
             harmonic_head_error(stream_seed(truth_seed, "emulator_truth", 2, h), head_error_mdeg)
             if head_error_mdeg else None for h in range(len(heads_true.centres_mm))]
         self.catseye_axis_tool = np.asarray(catseye_axis_tool, float)
         self.options = options or InterferometerOptions()
         self.budget = budget
-        self.head_layout = PAN_TILT_LAYOUT
-        self.roles = ("robot",) + tuple(f"head{h}" for h in range(len(heads_true.centres_mm)))
         self._noise = stream_rng(self.seed, "emulator_noise")
         layout = chain_layout(chain)
         limits = [(a.lower, a.upper) for a in layout.axes]
         self._init_robot(layout, limits, np.broadcast_to(speeds, n), settle_s, np.broadcast_to(encoder_resolution, n),
                          np.broadcast_to(home, n))
+        self._init_heads(heads_true, head_errors)
+
+    def _init_heads(self, heads_true: PanTiltHeads, head_errors) -> None:
+        """The head lines (after ``_init_robot``): true centres and zeros, each head's angular error
+        function (or None), the pan/tilt layout, the lines' roles, the counters' state."""
+        self.heads_true = heads_true
+        self.head_errors = list(head_errors)
+        self.head_layout = PAN_TILT_LAYOUT
+        self.roles = ("robot",) + tuple(f"head{h}" for h in range(len(heads_true.centres_mm)))
         self._heads = [_Head(np.zeros(2)) for _ in range(len(heads_true.centres_mm))]
         #: The heads' encoder resolution (deg): the robot's default, 0 (exact) when the robot's is.
         self.head_resolution = DEFAULT_JOINT_RESOLUTION if np.any(self.encoder_resolution > 0) else 0.0

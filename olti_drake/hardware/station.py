@@ -40,11 +40,12 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import AbstractStateIndex, BasicVector, LeafSystem
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.model.errormap import approach_directions
 from olti_drake.hardware.drivers import AlarmActive, DriverError
 from olti_drake.hardware.protocol import SCARA_LAYOUT, ProtocolError, expect_ack
 from olti_drake.sim.scenario import SEED_STREAMS, stream_seed
+from olti_drake.sim.serial_scenario import scenario_kind
 from olti_drake.sim.systems import ReadStatus, set_default_name
 
 M_TO_MM = 1e3
@@ -79,11 +80,14 @@ class HardwareStation(LeafSystem):
     ``policy``: a :class:`~olti_drake.sim.scenario.RunPolicy` (re-reads,
     re-zeroing, alarms). ``on_event(kind, **fields)``: told of every zeroing,
     re-read, re-zeroing, re-approach and alarm (``olti run`` logs them).
+    ``command_port``, ``selector_port``: the names of the first two inputs (the 3D machine tool's
+    station calls them ``target_command`` and ``station``, as its simulated station does).
     """
 
     def __init__(self, robot, counter, period_s: float,
                  set_reflector: Optional[Callable[[int], None]] = None, wait_ms: int = WAIT_MS,
-                 policy=None, on_event: Optional[Callable[..., None]] = None):
+                 policy=None, on_event: Optional[Callable[..., None]] = None,
+                 command_port: str = "joint_command", selector_port: str = "reflector"):
         from olti_drake.sim.scenario import RunPolicy
 
         super().__init__()
@@ -103,8 +107,8 @@ class HardwareStation(LeafSystem):
         self.revolute = np.array(self.layout.revolute)
         self.heads = callable(getattr(counter, "aim", None))
         self.s = _StateLayout(n)
-        self.DeclareVectorInputPort("joint_command", n)
-        self.DeclareVectorInputPort("reflector", 1)
+        self.DeclareVectorInputPort(command_port, n)
+        self.DeclareVectorInputPort(selector_port, 1)
         if self.heads:
             self.DeclareVectorInputPort("head_command", 2)
         self.DeclareDiscreteState(self.s.initial())
@@ -335,33 +339,61 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
     ``query_object``); an emulated or hardware station's ``close()`` releases its ports.
     ``session``: 0 for a campaign's first run, n for its n-th resumption (``olti run --resume``):
     an emulator then draws fresh noise.
+
+    The 3D machine tool (a :class:`~olti_drake.sim.machine3d_campaign.Machine3DCampaignSetup`, or the
+    simulated diagram's ``Machine3DSetup``): ``Simulated`` ->
+    :func:`~olti_drake.sim.machine3d_station.AddMachine3DStation`, ``Emulated`` -> the 3D machine
+    emulator (:class:`~olti_drake.hardware.machine3d_emulator.Machine3DEmulator`), ``Hardware`` ->
+    :func:`AddRealMachine3DStation`; the device stations have the simulated one's port names
+    (``target_command``, ``station``, ``head_command``; no ``tool`` input, no ``true_position``).
     """
     from olti_drake.sim.campaign import AddSimulatedStation
     from olti_drake.sim.scenario import Emulated, Hardware
 
-    serial = hasattr(setup, "n_joints")      # a six-axis setup (sim.serial_station.SerialSetup)
+    kind = scenario_kind(setup)
+    if kind == "machine3d":                  # the 3D machine tool
+        machine = _machine3d(setup)
+        cfg = getattr(setup.scenario, "station", None) if machine is not setup else None
+        if isinstance(cfg, Emulated):
+            return AddEmulatedStation(builder, setup, name, session)
+        if isinstance(cfg, Hardware):
+            return AddRealMachine3DStation(builder, setup, name)
+        from olti_drake.sim.machine3d_station import AddMachine3DStation
+        return AddMachine3DStation(builder, machine, name)
     if isinstance(setup.scenario.station, Emulated):
         return AddEmulatedStation(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):
-        if serial:
+        if kind == "serial":
             return AddRealSerialStation(builder, setup, name)
         return AddRealStation(builder, setup, console_prompt, name)
-    if serial:
+    if kind == "serial":
         from olti_drake.sim.serial_station import AddSimulatedSerialStation
         return AddSimulatedSerialStation(builder, setup, name)
     return AddSimulatedStation(builder, setup, name)
 
 
-def AddHardwareStation(builder, setup, devices, set_reflector=None, name: str = "station", policy=None):
+def AddHardwareStation(builder, setup, devices, set_reflector=None, name: str = "station", policy=None,
+                       **ports):
     """Add a :class:`HardwareStation` on ``devices`` = (robot, counter) drivers to ``builder``; returns it.
 
     Without ``set_reflector``, a counter driver that sets up the reflector itself (a test bench's
-    ``set_up_reflector``, the tracer heads' selection) does it."""
+    ``set_up_reflector``, the tracer heads' selection) does it. ``ports``: ``command_port``,
+    ``selector_port`` (:class:`HardwareStation`)."""
     robot, counter = devices
     set_reflector = set_reflector or getattr(counter, "set_up_reflector", None)
     station = builder.AddNamedSystem(name, HardwareStation(robot, counter, setup.scenario.period_s,
-                                                           set_reflector, policy=policy))
+                                                           set_reflector, policy=policy, **ports))
     return station
+
+
+def _machine3d(setup):
+    """The simulated 3D machine diagram's setup (``sim.machine3d_station.Machine3DSetup``) of a 3D machine
+    setup: a ``Machine3DCampaignSetup``'s ``machine``, or the diagram's setup itself."""
+    return getattr(setup, "machine", setup)
+
+
+#: The 3D machine station's input names (as its simulated station's).
+MACHINE3D_PORTS = dict(command_port="target_command", selector_port="station")
 
 
 #: Noise stream of an emulator started for a resumed session (sim.scenario.SEED_STREAMS).
@@ -373,15 +405,23 @@ def AddEmulatedStation(builder, setup, name: str = "station", session: int = 0):
 
     The SCARA emulator for a SCARA setup; for a six-axis floor-tracer setup (``sim.serial_station``'s,
     with ``heads_true``) the N-joint one (:func:`serial_emulator_for`), whose robot line announces
-    its joints and whose head lines are the counter (:class:`~olti_drake.hardware.drivers.TracerHeads`).
-    ``session`` > 0 (a resumed campaign) seeds the emulator's noise and faults afresh.
+    its joints and whose head lines are the counter (:class:`~olti_drake.hardware.drivers.TracerHeads`);
+    for a 3D machine setup the 3D machine emulator (:func:`machine3d_emulator_for`: X, Y, Z and the
+    pan/tilt heads, the same protocol). ``session`` > 0 (a resumed campaign) seeds the emulator's noise
+    and faults afresh.
     """
     from olti_drake.hardware.emulator import Emulator
 
     cfg = setup.scenario.station
     seed = None if session == 0 else stream_seed(setup.scenario.seed, STREAM_EMULATOR, session)
     closers = []
-    if hasattr(setup, "n_joints"):           # a six-axis setup: N joints, the heads as counters
+    kind = scenario_kind(setup)
+    if kind == "machine3d":                  # the 3D machine tool: X, Y, Z and a pan/tilt head per station
+        emu = machine3d_emulator_for(setup, seed, cfg).start()
+        closers.append(emu.stop)
+        station = _open_station(builder, setup, cfg, emu.robot_port, emu.head_ports, 115200, closers, None, name,
+                                machine3d=True)
+    elif kind == "serial":                   # a six-axis setup: N joints, the heads as counters
         emu = serial_emulator_for(setup, seed, cfg).start()
         closers.append(emu.stop)
         station = _open_station(builder, setup, cfg, emu.robot_port, emu.head_ports, 115200, closers, None, name)
@@ -413,6 +453,31 @@ def serial_emulator_for(setup, seed, cfg):
                           faults=cfg.faults(), latch_beam_loss=cfg.latch_beam_loss)
 
 
+def machine3d_emulator_for(setup, seed, cfg):
+    """The 3D machine emulator of a ``Machine3DCampaignSetup``: its planned run (truth, heads, head errors),
+    tools, cat's eye, interferometer and budget; ``seed`` None = the scenario's."""
+    from olti_drake.hardware.machine3d_emulator import Machine3DEmulator
+
+    m = setup.machine
+    return Machine3DEmulator(m.scenario, run=m.run, budget=m.budget,
+                             seed=setup.scenario.seed if seed is None else seed, speed=cfg.speed,
+                             faults=cfg.faults(), latch_beam_loss=cfg.latch_beam_loss)
+
+
+def AddRealMachine3DStation(builder, setup, name: str = "station"):
+    """Open a 3D machine campaign's controller (``robot_port``: three linear axes X, Y, Z announced in mm)
+    and pan/tilt heads (``head_ports``, one per head in the order of ``heads_mm``) and add the station
+    driving them (the head's aim selects the cat's eye: no prompt)."""
+    cfg = setup.scenario.station
+    n = len(setup.stations_mm)
+    if len(cfg.head_ports) != n or not cfg.robot_port:
+        raise InputError(f"station: !Hardware: a 3D machine campaign needs robot_port (the machine's controller) "
+                         f"and head_ports: one serial port per pan/tilt head, {n} in the order of heads_mm "
+                         f"(got {len(cfg.head_ports)})")
+    return _open_station(builder, setup, cfg, cfg.robot_port, list(cfg.head_ports), cfg.baud, [], None, name,
+                         machine3d=True)
+
+
 def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
     """Open the scenario's serial ports and add a station driving the real devices."""
     cfg = setup.scenario.station
@@ -434,12 +499,15 @@ def AddRealSerialStation(builder, setup, name: str = "station"):
     return _open_station(builder, setup, cfg, cfg.robot_port, list(cfg.head_ports), cfg.baud, [], None, name)
 
 
-def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name):
+def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name,
+                  machine3d: bool = False):
     """Open both devices with the scenario's drivers, add the station; close everything on failure.
 
     ``counter_port``: the counter's port, or a list of tracer heads' ports (one per station: the
     counter is then their :class:`~olti_drake.hardware.drivers.TracerHeads`).
     ``set_reflector(counter, j)`` readies reflector j (None: the station refuses a change).
+    ``machine3d``: the controller must announce three linear axes (X, Y, Z mm); the station's inputs
+    get the 3D machine station's names (:data:`MACHINE3D_PORTS`).
     """
     from olti_drake.hardware.drivers import TracerHeads, driver_class
 
@@ -460,13 +528,25 @@ def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, 
                 raise StationError(f"station: {e}") from None
             closers.append(devices[-1].close)
         robot, counter = devices[0], (TracerHeads(devices[1:]) if heads else devices[1])
+        if machine3d:
+            _check_machine_axes(robot, robot_port)
         # A counter driver that knows the reflector set-up (a test bench) does it; else the hook (operator).
         hook = getattr(counter, "set_up_reflector", None) or (
             None if set_reflector is None else (lambda j: set_reflector(counter, j)))
-        station = AddHardwareStation(builder, setup, (robot, counter), hook, name, policy=cfg.policy)
+        station = AddHardwareStation(builder, setup, (robot, counter), hook, name, policy=cfg.policy,
+                                     **(MACHINE3D_PORTS if machine3d else {}))
     except BaseException:
         for c in reversed(closers):
             c()
         raise
     station.closers = closers
     return station
+
+
+def _check_machine_axes(robot, port) -> None:
+    """A 3D machine's controller announces three linear axes (X, Y, Z in mm, in that order); else one line."""
+    layout = getattr(robot, "layout", None)
+    if layout is None or layout.n != 3 or any(layout.revolute):
+        got = "no axes" if layout is None else ", ".join(layout.labels)
+        raise StationError(f"station: the controller on {port} announces {got}; a 3D machine campaign needs three "
+                           f"linear axes X, Y, Z (mm)")

@@ -8,6 +8,9 @@ The SCARA campaign (:func:`load_campaign` below): Reading SCARA campaign files f
 
 Units: mm and degrees. Rows with ``valid`` = 0 are kept in the file and
 skipped here; every error names the file, the line and the column.
+
+Tables are written by :func:`write_table` (deterministic, atomic); the machine-tool campaign of 001
+(2D and 3D) by :func:`write_machine_campaign`.
 """
 
 from __future__ import annotations
@@ -19,24 +22,9 @@ from typing import Dict, Iterable, Sequence
 
 import numpy as np
 
-from olti_drake.io.errors import InputError  # noqa: E402,F401 (re-exported: every reader raises it)
+from olti_drake.errors import InputError
 from olti_drake.model.scara import JointCommands
-
-
-#: Physical bounds of the values the tool reads, by the unit suffix of the column or key: a commanded
-#: angle beyond two turns either way (+-720 deg) or a length, coordinate or displacement beyond +-100 m
-#: (1e5 mm) is not a measurement of a robot or a machine tool but a unit or typing slip; it is refused
-#: where it is read, naming the file, line and column, before it reaches a solver (where it would end as
-#: "not identifiable" or "SVD did not converge").
-UNIT_BOUNDS = {"_deg": 720.0, "_mm": 1e5}
-
-
-def unit_bound(column: str) -> float:
-    """The largest plausible magnitude of a value by its column's unit suffix (inf without one)."""
-    for suffix, bound in UNIT_BOUNDS.items():
-        if column.endswith(suffix):
-            return bound
-    return np.inf
+from olti_drake.units import unit_bound
 
 
 def read_text(path, what: str = "") -> str:
@@ -176,7 +164,8 @@ def data_digest(*columns) -> dict:
 
 def check_finite(table: Dict[str, np.ndarray], path, columns: Iterable[str], rows=None) -> None:
     """Raise naming file, line and column of the first value (in ``rows`` if given) that is not finite or
-    lies beyond the physical bound of its column's unit (:data:`UNIT_BOUNDS`: +-720 deg, +-1e5 mm)."""
+    lies beyond the physical bound of its column's unit (:data:`olti_drake.units.UNIT_BOUNDS`: +-720 deg,
+    +-1e5 mm)."""
     sel = np.arange(len(table["_line"])) if rows is None else np.flatnonzero(rows)
     for c in columns:
         v = table[c][sel]
@@ -261,8 +250,8 @@ def read_json(path, fmt, what: str = "") -> dict:
 def json_numbers(obj: dict, name, key: str, shape=(), positive: bool = False, label: str = "") -> np.ndarray:
     """The numbers under ``obj[key]`` of a JSON file as a float array, checked: present, numeric, of
     ``shape`` (a tuple, None for any length: ``(None, 2)`` is N x 2), every value finite, within the
-    bound of the key's unit suffix (:data:`UNIT_BOUNDS`) and, if ``positive``, > 0. One-line errors name
-    the file and the key (``label``: its dotted path, default ``key``)."""
+    bound of the key's unit suffix (:data:`olti_drake.units.UNIT_BOUNDS`) and, if ``positive``, > 0.
+    One-line errors name the file and the key (``label``: its dotted path, default ``key``)."""
     label = label or key
     where = f"{os.fspath(name)}: key '{label}'"
     if key not in obj:
@@ -323,6 +312,14 @@ def write_table(path, columns: Dict[str, Sequence], formats: Dict[str, str],
 def _fmt(fmt: str, v) -> str:
     s = fmt % v
     return "0" if s in ("-0", "-0.0") else s
+
+
+def write_machine_campaign(columns: dict, path) -> None:
+    """The machine-tool campaign CSV of formats.md (2D, or 3D when the columns have ``z_cmd_mm``): mm."""
+    fmt = {"station": "%d", "target": "%d", "x_cmd_mm": "%.6f", "y_cmd_mm": "%.6f", "z_cmd_mm": "%.6f",
+           "tool": "%d", "displacement_mm": "%.9f", "valid": "%d"}
+    write_table(path, {k: columns[k] for k in fmt if k in columns}, {k: v for k, v in fmt.items() if k in columns},
+                comments=["olti_drake machine-tool campaign (001, formats.md): mm; valid 0 = beam lost"])
 
 
 # ------------------------------------------------------------------- the SCARA campaign (formats.md)

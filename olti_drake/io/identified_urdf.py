@@ -18,7 +18,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 
 
 def _pose(origin):

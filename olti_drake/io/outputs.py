@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from typing import Iterable, Sequence
 
-from olti_drake.io.errors import InputError
+from olti_drake.errors import InputError
 
 #: File names that hold measured data (a campaign and its log), whatever the verb.
 MEASUREMENT_NAMES = ("campaign.csv", "truth.json", "events.jsonl", "run.json")
@@ -117,11 +118,28 @@ def preflight(files: Sequence, inputs: Iterable = (), force: bool = False, measu
         for i in ins:
             if _same_file(path, i):
                 raise OutputError(f"{path}: output would overwrite an input file ({i})")
+        _check_regular(path)
         if measured or is_measurement(path):
             raise OutputError(f"{path} exists and holds measured data, which olti never replaces "
                               f"(not even with --force); choose another --out")
         if not force:
             raise OutputError(f"{path} exists; pass --force to replace it (or choose another --out)")
+
+
+def _check_regular(path: str) -> None:
+    """An existing output must be a regular file: a device (``/dev/null``), a FIFO, a socket or a symbolic link
+    is never replaced by the rename, not even with ``--force`` (as root, ``--out /dev/null --force`` would
+    otherwise replace the machine's device node with a file)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISREG(mode):
+        return
+    what = ("a symbolic link" if stat.S_ISLNK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    raise OutputError(f"{path}: exists and is {what}, not a regular file; olti replaces only regular files (not "
+                      f"even with --force): choose another --out")
 
 
 @contextlib.contextmanager
@@ -149,6 +167,7 @@ def writing(path, mode: str = "w", measurement: bool = False, fsync: bool = Fals
                 if fsync:
                     os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
+        _check_regular(name)  # (again at the rename: it may have appeared since the preflight)
         if measurement:
             _link_new(tmp, name)
         else:

@@ -8,11 +8,11 @@ import os
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, json_numbers, read_json
+from olti_drake.errors import InputError
+from olti_drake.formats import ROBOT_RESULT as FORMAT, result_header
+from olti_drake.io.csvio import json_numbers, read_json
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import ScaraModel
-
-FORMAT = "olti-result/1"
 
 
 def _values(model: ScaraModel, P, d0) -> dict:
@@ -41,7 +41,7 @@ def uncertainty_layout(model: ScaraModel, v) -> dict:
 def result_dict(ident) -> dict:
     """The ``result.json`` object of an :class:`~olti_drake.estimation.identification.Identification`."""
     model = ident.model
-    out = {"format": FORMAT, "model": "errormap" if model.is_errormap else "dh"}
+    out = {**result_header("scara"), "model": "errormap" if model.is_errormap else "dh"}
     out.update(_values(model, ident.reflectors_mm, ident.dead_paths_mm))
     out["gauge"] = ident.gauge
     out["residual_rms_mm"] = ident.residual_rms_mm
@@ -81,7 +81,7 @@ def load_result(path, outside: str = "error", identified: bool = False):
     The schema is checked where it is read (formats.md): link lengths > 0 mm, reflectors N x 2 and dead
     paths N mm, map grids ascending with forward/reverse deviations of the same length (deg), the
     standard uncertainties (if any) of the same shapes and >= 0, and every number finite and within the
-    bound of its unit (``csvio.UNIT_BOUNDS``). A file of another kind (a machine-tool result, a campaign)
+    bound of its unit (``olti_drake.units.UNIT_BOUNDS``). A file of another kind (a machine-tool result, a campaign)
     is refused by its ``format``. Errors are one line naming the file and the key.
     """
     name = os.fspath(path)

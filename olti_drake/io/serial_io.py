@@ -29,11 +29,13 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
-from olti_drake.io.csvio import (InputError, check_finite, check_no_duplicate_rows, check_values, data_digest,
-                                 json_numbers, read_json, read_table, read_text, write_table)
+from olti_drake.errors import InputError
+from olti_drake.formats import ROBOT_RESULT as FORMAT, result_header
+from olti_drake.io.documents import result_kind
+from olti_drake.io.csvio import (check_finite, check_no_duplicate_rows, check_values, data_digest, json_numbers,
+                                 read_json, read_table, read_text, write_table)
 from olti_drake.io.resources import PACKAGE_DIR
 
-FORMAT = "olti-result/1"
 #: Robot models shipped with the package, by the name ``--robot`` and ``robot.file`` accept.
 SHIPPED_ROBOTS = {"ur5": "ur5.urdf", "scara": "scara.sdf"}
 #: A station's own unknowns (x, y, z, dead path) take 4 readings before one says anything about the robot.
@@ -152,7 +154,7 @@ def read_joint_table(path, n_joints: Optional[int] = None, required: Sequence[st
     Direction columns are optional but come all or none; they must be ±1. ``valid_only``: rows
     with ``valid`` = 0 are dropped (the file keeps them; counted in ``table['_skipped']``).
     Checks, each one line naming file, line and column: the joint count, numbers, finite values
-    within the unit bounds (csvio.UNIT_BOUNDS), a row identical to an earlier one.
+    within the unit bounds (olti_drake.units.UNIT_BOUNDS), a row identical to an earlier one.
     """
     name = os.fspath(path)
     n = joint_count(path, n_joints, robot)
@@ -332,7 +334,7 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     model = measurement.model
     chain = model.chain
     x = np.asarray(fit.x, float)
-    out = {"format": FORMAT, "model": kind,
+    out = {**result_header("serial"), "model": kind,
            "robot": {"file": robot_file, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)}}
     out.update(measurement.layout(x))
     if hasattr(measurement, "labels"):  # the campaign's station index of each row of stations_mm
@@ -435,11 +437,6 @@ class SerialResult:
         return np.arange(n) if labels is None else np.asarray(labels, int)
 
 
-def is_serial_result(data: dict) -> bool:
-    """Whether a result dict is a serial robot's (it names its robot)."""
-    return isinstance(data, dict) and isinstance(data.get("robot"), dict)
-
-
 def load_serial_result(path, outside: str = "error", identified: bool = False) -> SerialResult:
     """Read a serial robot's result.json (or a truth) and rebuild its model.
 
@@ -455,8 +452,10 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
 
     name = os.fspath(path)
     data = read_json(path, FORMAT, "a result (olti identify)")
-    if not is_serial_result(data):
-        raise InputError(f"{name}: missing key 'robot' (a serial robot's result names its robot file and tool frame)")
+    kind = result_kind(data, name)
+    if kind != "serial":
+        raise InputError(f"{name}: key 'kind' is {kind!r}, not a serial robot's result" if "kind" in data else
+                         f"{name}: missing key 'robot' (a serial robot's result names its robot file and tool frame)")
     if identified and data.get("truth"):
         raise InputError(f"{name}: a simulation truth, not an identified result (olti identify)")
     kind = data.get("model")

@@ -1,4 +1,5 @@
-"""The volumetric result ``olti-volumetric/1`` (formats.md, *Machine tool in 3D*): writer and loader.
+"""The volumetric result ``olti-volumetric/1`` (formats.md, *Machine tool in 3D*): writer and loader;
+and the compensation tables as CSV (:func:`write_tables`).
 
 The model part (ISO 230-1 names, representation, values at stated positions,
 tool offsets, squareness) is :func:`olti_drake.model.volumetric3d.motions_document`;
@@ -15,9 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, json_numbers, read_json
-from olti_drake.model.volumetric3d import (ALL_MOTIONS, FORMAT, SQUARENESS, VolumetricModel, model_from_document,
-                                           motions_document)
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import json_numbers, read_json, write_table
+from olti_drake.model.propagation import predicted_std
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, FORMAT, SQUARENESS, MachineConfig, VolumetricModel,
+                                           axis_tables, error_grid, model_from_document, motions_document)
 
 
 def motion_std(model: VolumetricModel, covariance, positions: dict) -> dict:
@@ -29,7 +32,7 @@ def motion_std(model: VolumetricModel, covariance, positions: dict) -> dict:
     for name in ALL_MOTIONS:
         s = model.slices[name]
         B = basis.basis(name[3], np.asarray(positions[name[3]], float))[:, model.free[name]]
-        out[name] = np.sqrt(np.maximum(np.sum((B @ C[s, s]) * B, axis=1), 0.0))
+        out[name] = predicted_std(B, C[s, s])
     return out
 
 
@@ -92,7 +95,7 @@ class VolumetricDocument:
         from olti_drake.model.volumetric3d import clamp_commands
 
         _, J = self.model.jacobian(clamp_commands(self.model.config, commands_mm), tool, self.params)
-        return np.sqrt(np.maximum(np.einsum("mip,pq,miq->mi", J, self.covariance, J), 0.0))
+        return predicted_std(J, self.covariance)
 
 
 def load_volumetric_result(path) -> VolumetricDocument:
@@ -133,3 +136,25 @@ def load_volumetric_result(path) -> VolumetricDocument:
         if np.any(v < 0):
             raise InputError(f"{name}: key 'uncertainty.error_motions.{motion}': a standard uncertainty is < 0")
     return VolumetricDocument(model, params, C, doc, name)
+
+
+def write_tables(directory, motions, config: MachineConfig, pitch_mm: float, grid_pitch_mm=None) -> list:
+    """Compensation tables as CSV in ``directory``: ``axis_X.csv``, ``axis_Y.csv``, ``axis_Z.csv``
+    (one row per position, the six motions in ISO 230-1 names with units) and, with
+    ``grid_pitch_mm``, ``grid_tool<m>.csv`` per tool (positioning-error vectors). Atomic writes;
+    the caller checks the outputs first (``olti_drake.io.outputs.preflight``). Returns the paths."""
+    paths = []
+    for axis, cols in axis_tables(motions, config, pitch_mm).items():
+        path = os.path.join(directory, f"axis_{axis}.csv")
+        fmt = {c: ("%.6f" if c == "position_mm" else "%.9f" if c.endswith("_mm") else "%.6f") for c in cols}
+        write_table(path, cols, fmt, comments=[f"olti_drake volumetric error motions of axis {axis} "
+                                               f"(ISO 230-1 names; mm, urad; docs/machine_3d.md)"])
+        paths.append(path)
+    for m in range(len(config.tools)) if grid_pitch_mm else ():
+        cols = error_grid(motions, config, grid_pitch_mm, tool=m)
+        path = os.path.join(directory, f"grid_tool{m}.csv")
+        write_table(path, cols, {c: "%.6f" if "cmd" in c else "%.9f" for c in cols},
+                    comments=[f"olti_drake positioning-error vectors of tool {m} (offset "
+                              f"{config.tools[m].tolist()} mm): actual - command - offset, mm"])
+        paths.append(path)
+    return paths

@@ -44,7 +44,7 @@ from typing import Callable, Optional, Tuple
 import numpy as np
 from scipy.optimize import least_squares
 
-from olti_drake.io.budget import Budget
+from olti_drake.model.budget import Budget
 from olti_drake.model.instrument import InterferometerOptions, quantize
 from olti_drake.model.chain import DEG, SerialChain
 

@@ -218,11 +218,12 @@ def load_serial_chain(path, tool_frame: str) -> SerialChain:
     if path.name.endswith(".xacro"):  # ROS macro files are not robot descriptions until expanded
         raise ValueError(f"robot model {path}: a xacro file; expand it first (xacro {path.name} > robot.urdf) and "
                          f"give the URDF")
+    _check_limits(path)
     plant = MultibodyPlant(0.0)
     parser = Parser(plant)
     try:
         instances = parser.AddModels(str(path))
-    except RuntimeError as exc:
+    except (RuntimeError, ValueError, SystemExit) as exc:  # (pydrake raises SystemExit for a failed Drake check)
         raise ValueError(f"robot model {path}: {_first_line(exc)}") from None
     root = _weld_root(plant, instances, path)
     plant.Finalize()
@@ -243,6 +244,34 @@ def load_serial_chain(path, tool_frame: str) -> SerialChain:
         fixed_mm=np.array(fixed), axes=np.array([j.revolute_axis() for j in joints]),
         notes=tuple(_geometry_notes(path, parser.package_map())), plant=plant,
         tool_frame_index=frame.index())
+
+
+def _check_limits(path: Path) -> None:
+    """Joint limits read before Drake sees them: a lower limit above the upper one (URDF ``<limit lower upper>``,
+    SDFormat ``<axis><limit><lower>/<upper>``) would end the process in a Drake assertion; refused naming the file
+    and the joint. A file that is not XML is left to Drake's parser (its message names the line)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError):
+        return
+    for joint in root.iter():
+        if _local(joint.tag) != "joint":
+            continue
+        limit = next((c for c in joint.iter() if _local(c.tag) == "limit"), None)
+        if limit is None:
+            continue
+        bounds = [limit.get(k) for k in ("lower", "upper")]
+        if bounds == [None, None]:  # SDFormat: the bounds are child elements
+            bounds = [next((c.text for c in limit if _local(c.tag) == k), None) for k in ("lower", "upper")]
+        try:
+            lower, upper = (float(b) for b in bounds)
+        except (TypeError, ValueError):
+            continue  # (absent or not a number: Drake's parser says so, naming the line)
+        if not lower <= upper:
+            raise ValueError(f"robot model {path}: joint '{joint.get('name')}' has its lower limit {lower:g} above "
+                             f"its upper limit {upper:g} (rad for a revolute joint): swap them")
 
 
 def _first_line(exc) -> str:

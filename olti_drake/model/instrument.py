@@ -22,7 +22,7 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 from scipy.optimize import least_squares
 
-from olti_drake.io.budget import Budget
+from olti_drake.model.budget import Budget
 from olti_drake.model.scara import DEG, forward_kinematics, inverse_kinematics
 
 

@@ -25,7 +25,8 @@ from typing import Union
 
 import numpy as np
 
-from olti_drake.io.csvio import write_table
+from olti_drake.formats import MULTILATERATION_RESULT
+from olti_drake.model.budget import paper001_budget
 from olti_drake.model.errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
 from olti_drake.model.instrument import InterferometerOptions, simulate_readings
 
@@ -83,13 +84,6 @@ def square_targets(size_mm: float = 100.0, step_mm: float = 20.0, origin_mm=(0.0
     if perimeter:
         keep = (X == 0) | (Y == 0) | (X == ticks[-1]) | (Y == ticks[-1])
     return np.column_stack([X[keep], Y[keep]]) + np.asarray(origin_mm, dtype=float)
-
-
-def paper001_budget():
-    """001 Table 4 (k = 2) as a :class:`~olti_drake.io.budget.Budget` (the shipped YAML's content)."""
-    from olti_drake.io.budget import default_budget
-
-    return default_budget("machine")
 
 
 @dataclass
@@ -198,7 +192,7 @@ def simulate_machine_campaign(scenario: MachineScenario, budget=None):
                                           budget or paper001_budget(), rng)
     cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
             "displacement_mm": np.where(valid, reading, np.nan), "valid": valid.astype(int)}
-    truth = {"format": "olti-multilateration/1", "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
+    truth = {"format": MULTILATERATION_RESULT, "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
              "dead_paths_mm": run.dead_paths_mm.tolist(), "commands_mm": cmd.tolist(),
              "gauge": "simulation truth: the machine's command frame", "residual_rms_mm": 0.0,
              "n_readings": int(valid.sum()), "stations_estimate_mm": Pe.tolist(), "seed": scenario.seed}
@@ -310,7 +304,7 @@ def machine_run_3d(scenario: Machine3DScenario) -> Machine3DRun:
 
 def machine3d_truth(scenario: Machine3DScenario, run: Machine3DRun, n_readings: int) -> dict:
     """The simulated truth of a 3D campaign (multilateration result layout, formats.md)."""
-    return {"format": "olti-multilateration/1", "targets_mm": run.actual_mm.tolist(),
+    return {"format": MULTILATERATION_RESULT, "targets_mm": run.actual_mm.tolist(),
             "stations_mm": run.heads_true.centres_mm.tolist(), "dead_paths_mm": run.dead_paths_mm.tolist(),
             "commands_mm": run.commands_mm.tolist(), "tools": run.tool.tolist(),
             "tool_offsets_mm": run.config.tools.tolist(),
@@ -345,11 +339,3 @@ def simulate_machine_campaign_3d(scenario: Machine3DScenario, budget=None):
             "tool": tool[i], "displacement_mm": np.where(beam.valid, beam.reading_mm, np.nan),
             "valid": beam.valid.astype(int)}
     return cols, machine3d_truth(s, run, beam.valid.sum())
-
-
-def write_machine_campaign(columns: dict, path) -> None:
-    """The machine-tool campaign CSV of formats.md (2D, or 3D when the columns have ``z_cmd_mm``)."""
-    fmt = {"station": "%d", "target": "%d", "x_cmd_mm": "%.6f", "y_cmd_mm": "%.6f", "z_cmd_mm": "%.6f",
-           "tool": "%d", "displacement_mm": "%.9f", "valid": "%d"}
-    write_table(path, {k: columns[k] for k in fmt if k in columns}, {k: v for k, v in fmt.items() if k in columns},
-                comments=["olti_drake machine-tool campaign (001, formats.md): mm; valid 0 = beam lost"])

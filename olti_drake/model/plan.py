@@ -10,29 +10,26 @@ Approach directions are not stored: they follow from the move sequence by the
 rule of Eq. (7) of 000 (:func:`olti_drake.model.errormap.approach_directions`).
 The first row is where the robot starts (the first approach is part of the plan).
 
-Files: CSV ``theta1_deg,theta2_deg,measure`` (``#`` comment lines, one header
-row), or a YAML :class:`BidirectionalGrid` mapping (``.yaml``/``.yml``).
+Plan files (CSV, or a YAML :class:`BidirectionalGrid` mapping) are read and written by
+:mod:`olti_drake.io.plan_io`.
 """
 
 # No "from __future__ import annotations": pydrake yaml_load_typed reads the
 # dataclass field types, and string annotations break it.
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from olti_drake.io.csvio import check_finite, check_values, read_table, read_yaml, unit_bound
 from olti_drake.model.errormap import MOTION_TOLERANCE_DEG, approach_directions
+from olti_drake.units import unit_bound
 
 #: Tolerance (deg) for "step divides the range".
 STEP_TOLERANCE_DEG = 1e-9
 #: Most measured poses of a generated plan (1000 x 1000): beyond it a step is a slip (a step in the wrong
 #: unit) that would build a plan of gigabytes; refused, naming the step, before anything is allocated.
 MAX_PLAN_POSES = 1_000_000
-
-COLUMNS = ("theta1_deg", "theta2_deg", "measure")
 
 
 class MeasuredPoses(NamedTuple):
@@ -195,64 +192,3 @@ class BidirectionalGrid:
         return bidirectional_grid(self.theta1_start, self.theta1_stop, self.theta1_step,
                                   self.theta2_start, self.theta2_stop, self.theta2_step,
                                   self.overrun_deg)
-
-
-# ---------------------------------------------------------------------------
-# File I/O
-
-
-def _fmt(x: float) -> str:
-    """Shortest of '%.15g' (prints -140 as '-140') and repr that round-trips exactly."""
-    s = "%.15g" % x
-    return s if float(s) == x else repr(float(x))
-
-
-def save_plan(plan: Plan, path) -> None:
-    """Write ``plan`` as CSV (angles in degrees, 000 §4.1 Eq. (11)-(12)).
-
-    One ``#`` comment line, header ``theta1_deg,theta2_deg,measure``, values
-    that round-trip exactly, measure as 0/1.
-    """
-    from olti_drake.io.outputs import writing
-
-    with writing(path, newline="") as f:
-        f.write("# olti_drake measurement plan (paper 000 sec. 4.1): commanded joint angles in "
-                "degrees, in execution order, row 1 = start; measure 1 = interferometer "
-                "reading, 0 = pass-through move; approach directions follow formats.md\n")
-        f.write(",".join(COLUMNS) + "\n")
-        for t1, t2, m in zip(plan.theta1_deg, plan.theta2_deg, plan.measure):
-            f.write(f"{_fmt(t1)},{_fmt(t2)},{int(m)}\n")
-
-
-def _load_yaml(path: Path) -> Plan:
-    from pydrake.common.yaml import yaml_load_typed
-
-    read_yaml(path, "plan")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
-    try:
-        grid = yaml_load_typed(schema=BidirectionalGrid, filename=str(path))
-        return grid.plan()
-    except Exception as exc:  # pydrake raises RuntimeError/KeyError/...: one line naming the file
-        msg = " ".join(str(exc).split())
-        raise ValueError(f"{path}: not a valid BidirectionalGrid plan: {msg}") from None
-
-
-def load_plan(path) -> Plan:
-    """Read a plan file: CSV (angles in degrees) or YAML :class:`BidirectionalGrid`.
-
-    CSV: ``#`` comment lines, one header row, columns in any order,
-    ``theta1_deg`` and ``theta2_deg`` required, ``measure`` (0/1) optional
-    (default 1), extra columns ignored. Errors are one-line ``ValueError``s
-    naming the file, the 1-based line and the column. (000 §4.1, Eq. (11)-(12).)
-    """
-    path = Path(path)
-    if path.suffix.lower() in (".yaml", ".yml"):
-        return _load_yaml(path)
-    t = read_table(path, COLUMNS[:2], optional=COLUMNS[2:])
-    check_finite(t, path, [c for c in COLUMNS if c in t])
-    if "measure" in t:
-        check_values(t, path, "measure", (0.0, 1.0))
-    measure = t["measure"] == 1.0 if "measure" in t else np.ones(len(t["_line"]), dtype=bool)
-    try:
-        return Plan(t["theta1_deg"], t["theta2_deg"], measure)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None

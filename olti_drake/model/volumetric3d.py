@@ -27,9 +27,13 @@ in short:
   ``A_k = Trans(q_k s_k + δ_k(q_k)) · Rx(E_Ak) Ry(E_Bk) Rz(E_Ck)``.
 
 :class:`MachineConfig` is the topology and travel; :class:`VolumetricModel` the
-spline model (``positions``, analytic ``jacobian``); :func:`synthetic_truth` a
-seeded truth outside the basis; :func:`observability` which motions a campaign
-separates; :func:`axis_tables`, :func:`error_grid`, :func:`compensate` the
+spline model (``positions``, analytic ``jacobian``); :class:`VolumetricPositionModel`
+the tool points of a campaign's targets on it, the position model that the
+distance measurement of 001 Eq. (3) reads
+(:class:`olti_drake.model.measurements.StationDistanceMeasurement`; its Jacobian a
+:class:`MotionJacobian`); :func:`synthetic_truth` a seeded truth outside the
+basis; :func:`observability` which motions a campaign separates (its distances by
+:func:`olti_drake.model.measurements.distance_rows_nd`); :func:`axis_tables`, :func:`error_grid`, :func:`compensate` the
 compensation helpers. Units: mm, µrad everywhere in this module.
 """
 
@@ -41,6 +45,9 @@ from typing import Dict, Sequence, Tuple
 import numpy as np
 from scipy.interpolate import BSpline
 
+from olti_drake.formats import VOLUMETRIC_RESULT, result_header
+from olti_drake.model.measurements import distance_rows_nd
+from olti_drake.model.scara import rows_to_csr
 from olti_drake.threads import single_thread_blas
 
 AXES = ("X", "Y", "Z")
@@ -215,10 +222,24 @@ def clamp_commands(config: MachineConfig, commands_mm) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- error motions
+def _real(values) -> np.ndarray:
+    """``values`` as a float array, or as the object array it is (AutoDiffXd entries: the Drake systems
+    differentiate the kinematics of this module, :class:`~olti_drake.sim.systems.VolumetricTool`)."""
+    a = np.asarray(values)
+    return a if a.dtype == object else a.astype(float)
+
+
+def _values(a) -> np.ndarray:
+    """The float values of a float or object (AutoDiffXd) array."""
+    if a.dtype != object:
+        return a
+    return np.array([v.value() if hasattr(v, "value") else float(v) for v in a.ravel()]).reshape(a.shape)
+
+
 def _offset_errors(config: MachineConfig, errors_mm) -> np.ndarray:
     """(n_tools, 3) tool-offset errors mm; tool 0's must be 0 (it is the origin's translation)."""
-    e = np.zeros((len(config.tools), 3)) if errors_mm is None else np.asarray(errors_mm, float)
-    if e.shape != (len(config.tools), 3) or not np.all(np.isfinite(e)) or np.any(e[0] != 0):
+    e = np.zeros((len(config.tools), 3)) if errors_mm is None else _real(errors_mm)
+    if e.shape != (len(config.tools), 3) or not np.all(np.isfinite(_values(e))) or np.any(_values(e)[0] != 0):
         raise ValueError(f"tool_offset_errors_mm: expected {len(config.tools)} finite [dx, dy, dz] with tool 0's "
                          f"= 0, got {np.asarray(errors_mm).tolist()}")
     return e
@@ -236,7 +257,7 @@ class SplineMotions:
                  tool_offset_errors_mm=None):
         self.config = config
         self.coefficients = coefficients
-        self.squareness_urad = np.asarray(squareness_urad, float)
+        self.squareness_urad = _real(squareness_urad)
         self.tool_offset_errors_mm = _offset_errors(config, tool_offset_errors_mm)
         self._splines = {a: BSpline(config.knots(a), np.eye(config.n_basis(a)), DEGREE, extrapolate=True)
                          for a in AXES}
@@ -351,7 +372,7 @@ def axis_directions(squareness_urad) -> Dict[str, Tuple[np.ndarray, Tuple[np.nda
     X defines the x direction; s_Y = Rz(E_C0Y) e_y; s_Z = Ry(E_B0Z) Rx(E_A0Z) e_z
     (exact rotations of the nominal directions, right-hand rule).
     """
-    c, b, a = np.asarray(squareness_urad, float) * URAD
+    c, b, a = _real(squareness_urad) * URAD
     zero = np.zeros(3)
     s_y = np.array([-np.sin(c), np.cos(c), 0.0])
     ds_y = (np.array([-np.cos(c), -np.sin(c), 0.0]), zero, zero)
@@ -480,19 +501,44 @@ class VolumetricModel:
         return np.zeros(self.n_params)
 
     def motions(self, params) -> SplineMotions:
-        """The :class:`SplineMotions` of a parameter vector."""
-        x = np.asarray(params, float)
+        """The :class:`SplineMotions` of a parameter vector (float, or AutoDiffXd: its motions and the
+        tool points of :func:`tool_positions` then carry the derivatives)."""
+        x = _real(params)
         if x.shape != (self.n_params,):
             raise ValueError(f"params: expected {self.n_params} values, got shape {x.shape}")
         coef = {}
         for name in ALL_MOTIONS:
-            full = np.zeros(self.config.n_basis(name[3]))
+            full = np.zeros(self.config.n_basis(name[3]), dtype=x.dtype)
             full[self.free[name]] = x[self.slices[name]]
             coef[name] = full
-        offsets = np.zeros((len(self.config.tools), 3))
+        offsets = np.zeros((len(self.config.tools), 3), dtype=x.dtype)
         for m, g in enumerate(self.tool_groups, start=1):
             offsets[m] = x[self.slices[g]]
         return SplineMotions(self.config, coef, [x[self.slices[s]][0] for s in SQUARENESS], offsets)
+
+    def parameters_of(self, motions: SplineMotions) -> np.ndarray:
+        """The parameter vector of spline ``motions`` on this model's basis (the inverse of :meth:`motions`);
+        one-line ValueError for motions outside the representation (another basis, a gauge-fixed
+        coefficient not 0, an offset error of a tool whose offset this model does not identify)."""
+        x = self.zeros()
+        for name in ALL_MOTIONS:
+            c = np.asarray(motions.coefficients[name], float)
+            if c.shape != (self.config.n_basis(name[3]),):
+                raise ValueError(f"{name}: {c.size} B-spline coefficients, this model's basis has "
+                                 f"{self.config.n_basis(name[3])}")
+            fixed = np.setdiff1d(np.arange(c.size), self.free[name])
+            if np.any(c[fixed] != 0):
+                raise ValueError(f"{name}: coefficient(s) {fixed[c[fixed] != 0].tolist()} are fixed to 0 by the "
+                                 f"gauge of the representation, got {c[fixed][c[fixed] != 0].tolist()}")
+            x[self.slices[name]] = c[self.free[name]]
+        for s in SQUARENESS:
+            x[self.slices[s]] = float(motions.squareness_urad[SQUARENESS.index(s)])
+        offsets = np.asarray(motions.tool_offset_errors_mm, float)
+        for m, g in enumerate(self.tool_groups, start=1):
+            x[self.slices[g]] = offsets[m]
+        if not self.tool_groups and np.any(offsets != 0):
+            raise ValueError("tool offset errors given, but this model does not identify tool offsets")
+        return x
 
     def positions(self, commands_mm, tool, params) -> np.ndarray:
         """Actual tool positions (M, 3) mm for commands (M, 3) mm and tool indices (M,)."""
@@ -543,6 +589,191 @@ class VolumetricModel:
         return x
 
 
+# --------------------------------------------------------------------------- the position model
+#: A linear error motion beyond this (mm), or an angular one beyond this (µrad), is no machine's: wrong units.
+IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD = 1.0, 1e4
+
+
+@dataclass(frozen=True, eq=False)
+class MotionJacobian:
+    """∂p/∂x of M tool points, row-compressed: coordinate c of point k moves with column ``cols[k, j]`` by
+    ``vals[k, c, j]`` (mm/mm for a linear motion's coefficient or a tool offset, mm/µrad for an angular one or a
+    squareness), over ``n_params`` columns. The conventions of
+    :class:`olti_drake.model.free_points.FreePointJacobian` (and of the serial model's ``PositionJacobian``):
+    :meth:`tocsr` rows x, y, z of point 0, then point 1, ...; :meth:`contract` for distance rows."""
+
+    cols: np.ndarray
+    vals: np.ndarray
+    n_params: int
+
+    def tocsr(self, extra_vals=None, extra_cols=None, n_cols=None):
+        """The (3 M, n_cols) sparse Jacobian, rows x, y, z of point 0, then point 1, ..., plus per-row extra
+        entries (``extra_vals``/``extra_cols`` (3 M, e): a measurement's own parameters, columns ≥ n_params)."""
+        M, D, m = self.vals.shape
+        cols, vals = np.repeat(self.cols, D, axis=0), self.vals.reshape(D * M, m)
+        return _motion_csr(cols, vals, extra_vals, extra_cols, n_cols or self.n_params)
+
+    def contract(self, u, extra_vals=None, extra_cols=None, n_cols=None):
+        """(M, n_cols) sparse rows u_k · ∂p_k/∂x (u (M, 3)), plus per-row extra entries (a measurement's own
+        parameters, columns ≥ n_params)."""
+        u = np.asarray(u, dtype=float)
+        vals = u[:, :1] * self.vals[:, 0] + u[:, 1:2] * self.vals[:, 1] + u[:, 2:3] * self.vals[:, 2]
+        return _motion_csr(self.cols, vals, extra_vals, extra_cols, n_cols or self.n_params)
+
+    def take(self, index) -> "MotionJacobian":
+        """The Jacobian of the points ``index`` (e.g. the target of every reading)."""
+        return MotionJacobian(self.cols[index], self.vals[index], self.n_params)
+
+
+def _motion_csr(cols, vals, extra_vals, extra_cols, n_cols):
+    # Fresh arrays: the matrix may keep them, and summing its duplicates works in place.
+    if extra_vals is not None:
+        cols, vals = np.hstack([cols, extra_cols]), np.hstack([vals, extra_vals])
+    else:
+        cols, vals = np.array(cols), np.array(vals)
+    jac = rows_to_csr(cols, vals, n_cols)
+    jac.sum_duplicates()  # a point's padding repeats its first column (value 0)
+    return jac
+
+
+class VolumetricPositionModel:
+    """The tool points of a campaign's targets on the volumetric model, as a position model: target i is the
+    tool point p_i = p(q_i, t_m; θ) (mm) of command q_i = ``commands_mm[i]`` (x, y, z mm) with tool m =
+    ``tool[i]``, the exact-rotation chain of :class:`VolumetricModel` over the 21 ISO 230-1 motions
+    (E_XX … E_CZ), the squareness E_C0Y, E_B0Z, E_A0Z and the tool-offset errors (docs/machine_3d.md).
+
+    It offers what :class:`olti_drake.model.measurements.StationDistanceMeasurement` reads (001 Eq. (3): r =
+    ‖p_i − P_j‖ − L0_j − ΔL) -- ``names``, ``n_params``, ``dim``, ``start_vector()``, ``positions(x)``, the
+    batched :meth:`rows`, :meth:`layout`, :meth:`implausible`, :meth:`station_reference` -- and :meth:`jacobian` in the
+    sparse convention of the free points of 001 (:class:`MotionJacobian`).
+
+    Parameters x (``names``): the parameters of ``model`` (``VolumetricModel.parameter_names()``: free B-spline
+    coefficients in mm or µrad, squareness in µrad, tool-offset errors in mm) less the motions in ``held``: those
+    are no unknowns, held at 0 (which ones is the campaign's observability, decided before the model is built:
+    :func:`olti_drake.estimation.volumetric.separable_motions`). :attr:`free_cols` maps x into the model's
+    vector (:meth:`theta`). The start is θ = 0 (the nominal machine).
+
+    Each point's Jacobian columns are those its B-spline bases reach at its command (4 per motion at most), the
+    squareness and its own tool's offset error: fixed by the commands, not by x (the Monte Carlo's batched rows
+    share them). Units: mm, µrad.
+    """
+
+    dim = 3
+
+    def __init__(self, model: VolumetricModel, commands_mm, tool, held: Sequence[str] = ()):
+        self.model = model
+        self.config = model.config
+        self.commands_mm = np.asarray(commands_mm, dtype=float)
+        self.tool = np.asarray(tool, dtype=int)
+        self.held = tuple(held)
+        held_cols = np.zeros(model.n_params, bool)
+        for g in self.held:
+            held_cols[model.slices[g]] = True
+        self.free_cols = np.flatnonzero(~held_cols)
+        every = model.parameter_names()
+        self.names: Tuple[str, ...] = tuple(every[i] for i in self.free_cols)
+        self._cols, self._full_cols, self._padding = self._pattern()
+
+    @property
+    def n_points(self) -> int:
+        return len(self.commands_mm)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    def _pattern(self):
+        """Per point, the columns (of x; of the model's vector) its position may depend on, ascending, padded to
+        one width by repeating the point's first column; and where the padding is."""
+        model = self.model
+        touch = np.zeros((self.n_points, model.n_params), bool)
+        bases = model.motions(model.zeros())
+        for name in ALL_MOTIONS:
+            axis = name[3]
+            b = bases.basis(axis, self.commands_mm[:, AXES.index(axis)])
+            touch[:, model.slices[name]] = b[:, model.free[name]] != 0
+        for name in SQUARENESS:
+            touch[:, model.slices[name]] = True
+        for g in model.tool_groups:
+            touch[self.tool == int(g[4:]), model.slices[g]] = True
+        touch = touch[:, self.free_cols]
+        count = touch.sum(axis=1)
+        width = max(int(count.max(initial=0)), 1)
+        order = np.argsort(~touch, axis=1, kind="stable")[:, :width]  # the touched columns first, ascending
+        padding = np.arange(width)[None, :] >= count[:, None]
+        cols = np.where(padding, order[:, :1], order)
+        return cols, self.free_cols[cols], padding
+
+    def start_vector(self) -> np.ndarray:
+        """θ = 0: every free coefficient, squareness and tool-offset error 0 (the nominal machine)."""
+        return np.zeros(self.n_params)
+
+    def theta(self, x) -> np.ndarray:
+        """The model's full parameter vector (held motions 0) from x (its first :attr:`n_params` values)."""
+        t = self.model.zeros()
+        t[self.free_cols] = np.asarray(x, dtype=float)[:self.n_params]
+        return t
+
+    def positions(self, x=None) -> np.ndarray:
+        """The tool points (N, 3) mm at x (default the start)."""
+        return self.model.positions(self.commands_mm, self.tool, self.theta(self.start_vector() if x is None else x))
+
+    def _compressed(self, theta):
+        p, J = self.model.jacobian(self.commands_mm, self.tool, theta)
+        vals = np.take_along_axis(J, self._full_cols[:, None, :], axis=2)
+        vals[np.broadcast_to(self._padding[:, None, :], vals.shape)] = 0.0
+        return p, vals
+
+    def jacobian(self, x=None):
+        """The tool points (N, 3) mm and their :class:`MotionJacobian` over ``names`` (analytic,
+        :meth:`VolumetricModel.jacobian`)."""
+        p, vals = self._compressed(self.theta(self.start_vector() if x is None else x))
+        return p, MotionJacobian(self._cols, vals, self.n_params)
+
+    def rows(self, X, points):
+        """The points read, batched, row-compressed (for :func:`~olti_drake.model.measurements.distance_rows_nd`).
+
+        Args:
+            X: (T, n ≥ n_params) parameter vectors (the model's first), mm / µrad.
+            points: (K,) the point (target) of every reading.
+
+        Returns:
+            p (T, K, 3) mm; cols (K, m) the parameter columns of p_points[k]; dp: per coordinate c the (T, K, m)
+            ∂p_c on those columns (mm/mm, mm/µrad).
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        p = np.empty((len(X), self.n_points, 3))
+        vals = np.empty((len(X), self.n_points, 3, self._cols.shape[1]))
+        for t, x in enumerate(X):
+            p[t], vals[t] = self._compressed(self.theta(x))
+        vals = vals[:, points]
+        return p[:, points], self._cols[points], tuple(vals[:, :, c] for c in range(3))
+
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        """A parameter-shaped vector (values or uncertainties) as result.json's ``model``: the model's full vector
+        (``VolumetricModel.parameter_names()``; held motions 0)."""
+        return {"model": self.theta(v).tolist()}
+
+    def station_reference(self):
+        """(centre mm, span mm, its name) that a station's plausibility is judged by: the command centroid and
+        the travel diagonal of the commands."""
+        c = self.commands_mm
+        return c.mean(axis=0), float(np.linalg.norm(np.ptp(c, axis=0))), "the travel diagonal"
+
+    def implausible(self, x) -> list:
+        """Motion values no machine has (a linear motion over :data:`IMPLAUSIBLE_MM` mm, an angular one over
+        :data:`IMPLAUSIBLE_URAD` µrad, anywhere on the travel), one phrase each (empty: plausible)."""
+        motions = self.model.motions(self.theta(x))
+        out = []
+        for a in AXES:
+            v = motions.evaluate(a, np.linspace(*self.config.travel_mm[a], 101))
+            for r, name in enumerate(motion_names(a)):
+                limit = IMPLAUSIBLE_MM if r < 3 else IMPLAUSIBLE_URAD
+                if np.abs(v[:, r]).max() > limit:
+                    out.append(f"{name} reaches {np.abs(v[:, r]).max():.6g} {motion_unit(name)} (over {limit:g})")
+        return out
+
+
 # --------------------------------------------------------------------------- observability
 @dataclass(frozen=True)
 class MotionObservability:
@@ -585,20 +816,6 @@ def _rigid_columns(p) -> np.ndarray:
     return out.reshape(3 * m, 6)
 
 
-def _distance_rows(p, J, stations_mm):
-    """Rows of ‖p_i − P_j‖ − d0_j − reading: (model part (MN, P), nuisance (MN, 4N): stations, dead paths)."""
-    P = np.asarray(stations_mm, float).reshape(-1, 3)
-    n = len(P)
-    u = p[:, None, :] - P[None, :, :]
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    model = np.einsum("mjk,mkp->mjp", u, J).reshape(-1, J.shape[2])
-    nuis = np.zeros((len(p), n, 4 * n))
-    for j in range(n):
-        nuis[:, j, 3 * j:3 * j + 3] = -u[:, j]
-        nuis[:, j, 3 * n + j] = -1.0
-    return model, nuis.reshape(-1, 4 * n)
-
-
 def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, params=None,
                   rtol: float = 1e-8, share: float = 1e-3, held: Sequence[str] = ()) -> MotionObservability:
     """Which of the 21 error motions a campaign layout separates (up to the representation's gauge).
@@ -620,7 +837,17 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
     if stations_mm is None:
         A, N, what = J.reshape(-1, model.n_params), _rigid_columns(p), "3D targets, rigid 6-dof gauge"
     else:
-        A, N = _distance_rows(p, J, stations_mm)
+        # 001 Eq. (3), r = ‖p_i − P_j‖ − L0_j − ΔL, of every target i from every station j by the one distance
+        # residual, the targets as its batch (rows target-major): the model part (M N, k), the nuisance
+        # (M N, 4 N): the stations' x, y, z, then the dead paths
+        P = np.asarray(stations_mm, float).reshape(-1, 3)
+        n, m, k = len(P), len(p), model.n_params
+        _, cols, vals = distance_rows_nd(np.broadcast_to(p[:, None], (m, n, 3)), np.broadcast_to(np.arange(k), (n, k)),
+                                         tuple(J[:, None, c] for c in range(3)), P[None], np.zeros((1, n)),
+                                         np.arange(n), 0.0, k, k + 3 * n)
+        A, N = vals[..., :k].reshape(m * n, k), np.zeros((m, n, 4 * n))
+        np.put_along_axis(N, np.broadcast_to(cols[:, k:] - k, (m, n, 4)), vals[..., k:], axis=2)
+        N = N.reshape(m * n, 4 * n)
         what = f"distances from {len(np.asarray(stations_mm).reshape(-1, 3))} stations, unknown stations and dead paths"
     if held:  # a held motion is no unknown: its zeroed columns add null directions outside every other block
         A = A.copy()
@@ -716,7 +943,7 @@ def compensate(motions, config: MachineConfig, targets_mm, tool=None, tol_mm: fl
 
 
 # --------------------------------------------------------------------------- files
-FORMAT = "olti-volumetric/1"
+FORMAT = VOLUMETRIC_RESULT
 
 
 def motions_document(model: VolumetricModel, params, pitch_mm: float = 10.0) -> dict:
@@ -739,7 +966,7 @@ def motions_document(model: VolumetricModel, params, pitch_mm: float = 10.0) -> 
                      "coefficients": motions.coefficients[name].tolist(),
                      "positions_mm": tables[axis]["position_mm"].tolist(),
                      "values": tables[axis][f"{name}_{unit}"].tolist()}
-    return {"format": FORMAT, "conventions": "docs/machine_3d.md",
+    return {**result_header("volumetric"), "conventions": "docs/machine_3d.md",
             "topology": {"tool_chain": list(cfg.tool_chain), "work_chain": list(cfg.work_chain)},
             "travel_mm": {a: list(map(float, cfg.travel_mm[a])) for a in AXES},
             "representation": {"basis": "clamped cubic B-spline", "knot_spacing_mm": cfg.knot_spacing_mm,
@@ -784,29 +1011,3 @@ def model_from_document(doc: dict, source: str = "volumetric result"):
         need(isinstance(v, (int, float)) and np.isfinite(v), f"squareness_urad.{s}", "missing or not finite")
         x[model.slices[s]] = v
     return model, x
-
-
-def write_tables(directory, motions, config: MachineConfig, pitch_mm: float, grid_pitch_mm=None) -> list:
-    """Compensation tables as CSV in ``directory``: ``axis_X.csv``, ``axis_Y.csv``, ``axis_Z.csv``
-    (one row per position, the six motions in ISO 230-1 names with units) and, with
-    ``grid_pitch_mm``, ``grid_tool<m>.csv`` per tool (positioning-error vectors). Atomic writes;
-    the caller checks the outputs first (``olti_drake.io.outputs.preflight``). Returns the paths."""
-    import os
-
-    from olti_drake.io.csvio import write_table
-
-    paths = []
-    for axis, cols in axis_tables(motions, config, pitch_mm).items():
-        path = os.path.join(directory, f"axis_{axis}.csv")
-        fmt = {c: ("%.6f" if c == "position_mm" else "%.9f" if c.endswith("_mm") else "%.6f") for c in cols}
-        write_table(path, cols, fmt, comments=[f"olti_drake volumetric error motions of axis {axis} "
-                                               f"(ISO 230-1 names; mm, urad; docs/machine_3d.md)"])
-        paths.append(path)
-    for m in range(len(config.tools)) if grid_pitch_mm else ():
-        cols = error_grid(motions, config, grid_pitch_mm, tool=m)
-        path = os.path.join(directory, f"grid_tool{m}.csv")
-        write_table(path, cols, {c: "%.6f" if "cmd" in c else "%.9f" for c in cols},
-                    comments=[f"olti_drake positioning-error vectors of tool {m} (offset "
-                              f"{config.tools[m].tolist()} mm): actual - command - offset, mm"])
-        paths.append(path)
-    return paths

@@ -23,7 +23,7 @@ import shutil
 import subprocess
 from contextlib import contextmanager
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.io.resources import shipped
 
 #: The shipped scenarios (installed with the package; the top-level diagrams/ in a source checkout).
@@ -55,10 +55,10 @@ def campaign_diagram(scenario_path, extend=None):
     from olti_drake.hardware.station import AddStation
     from olti_drake.sim.campaign import build_campaign_diagram, prepare
     from olti_drake.sim.scenario import Hardware, load_scenario
-    from olti_drake.sim.serial_station import build_serial_diagram, is_serial_scenario, prepare_serial
-    from olti_drake.sim.serial_scenario import load_serial_scenario
+    from olti_drake.sim.serial_station import build_serial_diagram, prepare_serial
+    from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 
-    if is_serial_scenario(scenario_path):  # a six-axis scenario: the N-joint diagram (sim/serial_station.py)
+    if scenario_kind(scenario_path) == "serial":  # a six-axis scenario: the N-joint diagram (sim/serial_station.py)
         yield build_serial_diagram(prepare_serial(load_serial_scenario(scenario_path)))[0]
         return
     setup = prepare(load_scenario(scenario_path))

@@ -20,16 +20,15 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, read_json
+from olti_drake.errors import InputError
+from olti_drake.formats import ISO230, ROBOT_RESULT as SCARA_FORMAT, UNCERTAINTY as UNCERTAINTY_FORMAT
+from olti_drake.formats import VOLUMETRIC_RESULT as VOLUMETRIC_FORMAT
+from olti_drake.io.csvio import read_json
+from olti_drake.io.documents import read_result
 from olti_drake.io.outputs import make_dir, preflight, write_json, write_text
 from olti_drake.report import page as ui
 from olti_drake.report.iso230 import (ARCSEC_PER_DEG, axis_statistics, map_statistics,
                      node_indices)
-
-SCARA_FORMAT = "olti-result/1"
-MACHINE_FORMAT = "olti-multilateration/1"
-UNCERTAINTY_FORMAT = "olti-uncertainty/1"
-VOLUMETRIC_FORMAT = "olti-volumetric/1"
 
 #: Every file the report may write into DIR (checked against the inputs before anything is written).
 OUTPUT_NAMES = ("report.html", "iso230.json", "fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png",
@@ -171,7 +170,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
         from olti_drake.io.csvio import check_campaign_matches, load_campaign
         from olti_drake.estimation.identification import identifier_at_result
         from olti_drake.estimation.uncertainty import linear_covariance
-        from olti_drake.io.budget import ReadingErrors
+        from olti_drake.model.budget import ReadingErrors
 
         data = load_campaign(campaign_path)
         campaign_note = check_campaign_matches(raw, data, result_path)
@@ -528,19 +527,18 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     for p in inputs:
         if not os.path.isfile(p):
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
-    raw = read_json(result_path, (SCARA_FORMAT, MACHINE_FORMAT, VOLUMETRIC_FORMAT), "a result")
-    if raw["format"] == VOLUMETRIC_FORMAT:  # the machine's 21 error motions: report/volumetric_report.py
+    kind, raw = read_result(result_path)  # (io.documents: the kind of any result file, old ones included)
+    if kind == "volumetric":  # the machine's 21 error motions: report/volumetric_report.py
         return _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, date)
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
-    serial = raw["format"] == SCARA_FORMAT and isinstance(raw.get("robot"), dict)
     truth = None
-    if truth_path and not serial:
-        if raw["format"] != SCARA_FORMAT:
+    if truth_path and kind != "serial":
+        if kind != "scara":
             raise InputError(f"{os.fspath(truth_path)}: --truth applies to SCARA results ({SCARA_FORMAT})")
         truth = read_truth(truth_path)
-    if unc is not None and not serial:
-        ui.check_uncertainty(unc, raw, _SCARA_KEYS if raw["format"] == SCARA_FORMAT else _MACHINE_KEYS,
-                           uncertainty_path, result_path)
+    if unc is not None and kind != "serial":
+        ui.check_uncertainty(unc, raw, _SCARA_KEYS if kind == "scara" else _MACHINE_KEYS, uncertainty_path,
+                             result_path)
     k = 2.0
     if unc is not None and isinstance(unc.get("expanded"), dict) and "k" in unc["expanded"]:
         k = float(unc["expanded"]["k"])
@@ -548,11 +546,11 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
             raise InputError(f"{os.fspath(uncertainty_path)}: 'expanded.k' must be > 0, got {k:g}")
 
     page = ui.Page(out_dir)
-    if serial:
+    if kind == "serial":
         from olti_drake.report.serial_report import serial_report
 
         serial_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth_path, k)
-    elif raw["format"] == SCARA_FORMAT:
+    elif kind == "scara":
         _scara_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth, truth_path, k)
     else:
         _machine_report(page, raw, result_path, unc, uncertainty_path, campaign_path, k)
@@ -589,7 +587,7 @@ def _write_page(page, raw, result_path, out_dir, date):
     written = list(page.written)
     if page.iso is not None:
         path = os.path.join(out_dir, "iso230.json")
-        write_json(path, {"format": "olti-iso230/1", "result": os.fspath(result_path),
+        write_json(path, {"format": ISO230, "result": os.fspath(result_path),
                           "what": "ISO 230-2 style systematic statistics of the identified error map, deg "
                                   "(olti_drake.report.iso230)", "k": 1,
                           "axes": {a: s.to_dict() for a, s in page.iso.items()}})

@@ -51,6 +51,8 @@ from typing import Optional
 
 import numpy as np
 
+from olti_drake.model.propagation import predicted_std
+
 #: Degrees to arc-seconds.
 ARCSEC_PER_DEG = 3600.0
 #: Degrees to millidegrees.
@@ -161,7 +163,7 @@ def _gap_ambiguous(values, order_desc, g_rows, C) -> bool:
     a, b = order_desc[0], order_desc[1]
     gap = abs(values[a] - values[b])
     d = g_rows[a] - g_rows[b]
-    u = np.sqrt(max(float(d @ C @ d), 0.0))
+    u = float(predicted_std(d[None], C)[0])  # u of the gap's one row
     return bool(gap < 2.0 * u)
 
 
@@ -227,7 +229,7 @@ def axis_statistics(error_map, std=None, cov=None, axis: Optional[str] = None) -
         C = np.diag(s ** 2)
 
     def u_rows(G):
-        return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, C, G), 0.0))
+        return predicted_std(G, C)
 
     out.u_forward_deg, out.u_reverse_deg = u_rows(F), u_rows(R)
     out.u_reversal_deg, out.u_mean_deg = u_rows(Bi), u_rows(Xi)

@@ -13,7 +13,7 @@ from typing import List
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.io.outputs import make_dir
 from olti_drake.report.iso230 import ARCSEC_PER_DEG, EXTREME, NOT_AVAILABLE, STATISTICS
 

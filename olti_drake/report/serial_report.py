@@ -18,14 +18,14 @@ import types
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.io.serial_io import load_serial_result
 from olti_drake.report import page as ui
 from olti_drake.report.iso230 import axis_statistics
 
 #: Keys of a serial result that hold identified values (the uncertainty object must match them).
 _VALUE_SUFFIXES = ("_mm", "_deg")
-_META = {"format", "model", "robot", "gauge", "residual_rms_mm", "n_readings", "uncertainty", "dropped", "iterations",
+_META = {"format", "kind", "model", "robot", "gauge", "residual_rms_mm", "n_readings", "uncertainty", "dropped", "iterations",
          "condition_number", "solver", "outliers", "converged", "warnings", "campaign", "notes", "held", "truth",
          "date", "station_labels", "drift_reference_h"}
 

@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.io.volumetric_io import load_volumetric_result
 from olti_drake.model.volumetric3d import ALL_MOTIONS, AXES, SQUARENESS, error_grid, motion_names, motion_role
 from olti_drake.report import page as ui

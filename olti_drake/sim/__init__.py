@@ -1,1 +1,1 @@
-"""sim: scenarios, Drake plants and systems, the station factory, the campaign diagram (SCARA; N-joint robots: serial_scenario, serial_station), the Meshcat view, simulated reference instruments."""
+"""sim: scenarios, Drake plants and systems, the station factory, the campaign diagram (SCARA; N-joint robots: serial_scenario, serial_station; the 3D machine tool: machine3d_station, machine3d_campaign), the Meshcat view, simulated reference instruments."""

@@ -17,6 +17,7 @@ from typing import Optional
 
 import numpy as np
 
+from olti_drake.formats import ROBOT_RESULT
 from olti_drake.io.csvio import write_table
 from olti_drake.model.errormap import approach_directions, sample_map
 from olti_drake.model.instrument import beam_geometry, simulate_readings
@@ -38,6 +39,9 @@ class Setup:
     ``dead_paths_mm`` is the counter zero of each reflector's run: the true
     optical length at the run's first measured pose (000 Eq. 5: d0_j).
     """
+
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "scara"
 
     scenario: Scenario
     plan: Plan
@@ -307,7 +311,7 @@ def truth_result(setup: Setup, columns: dict) -> dict:
     at = float(np.clip(0.0, grids["J1"][0], grids["J1"][-1]))
     g = float(0.5 * (r.J1(np.array([at]), 1.0)[0] + r.J1(np.array([at]), -1.0)[0]))
     return {
-        "format": "olti-result/1",
+        "format": ROBOT_RESULT,
         "model": "errormap",
         "L1_mm": r.L1_mm,
         "L2_mm": r.L2_mm,

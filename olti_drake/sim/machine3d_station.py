@@ -11,8 +11,8 @@ Diagram (one clock: the sequencer moves every ``period_s``, the recorder reads h
                                                                                   Machine3DRecorder
 
 * the XYZ plant -- a ``MultibodyPlant`` of three prismatic axes (X on the base, Y on X, Z on Y, the
-  spindle reference point on Z): the NOMINAL kinematics. :class:`PanTiltSteering` of
-  :mod:`olti_drake.sim.serial_station` (reused, with its ``tool`` input) aims the active head by 001
+  spindle reference point on Z): the NOMINAL kinematics. :class:`PanTiltSteering` of the six-axis
+  diagram (reused, with its ``tool`` input) aims the active head by 001
   Eq. (1) in 3D at the commanded tool point (the plant's spindle point + the row's nominal tool
   offset) from the ESTIMATED centre and zeros -- open loop.
 * :class:`VolumetricTool` -- commanded axes -> the TRUE tool point by the volumetric3d truth (the 21
@@ -27,23 +27,32 @@ applies): inputs ``target_command`` (3, m), ``tool`` (1), ``head_command`` (2, r
 ``table_command``), ``station`` (1); outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m),
 ``status``, ``true_position`` (3, m: the true tool point; simulation only).
 
+The systems are public in :mod:`olti_drake.sim.systems` (importable from here too, pydrake loaded on first
+use): :class:`~olti_drake.sim.systems.VolumetricTool`, :class:`~olti_drake.sim.systems.PanTiltInterferometer`,
+:class:`~olti_drake.sim.systems.Machine3DRecorder`. :func:`AddVolumetricStation` builds the station from a
+machine configuration and a truth without a scenario, :func:`AddMachine3DStation` from a planned run. A
+spline truth's volumetric parameters, the head centres and the dead paths are numeric Parameters of the
+Context, and the station converts with ``ToAutoDiffXd()``: a reading's derivative with respect to them is
+the Jacobian entry of :class:`~olti_drake.estimation.volumetric.VolumetricIdentification`
+(tests/test_drake_native_serial_machine.py).
+
 Units: mm, deg, µm, µrad in files and the API; SI on the Drake ports.
 """
 
-import functools
 import os
 import time
 from dataclasses import dataclass, field
+from typing import Union
 
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
-from olti_drake.model import aiming3d as a3
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import write_machine_campaign
+from olti_drake.model.budget import paper001_budget
 from olti_drake.model.instrument import InterferometerOptions
-from olti_drake.model.machine import (Machine3DRun, Machine3DScenario, _default_heads, machine3d_truth, machine_run_3d,
-                                      paper001_budget, write_machine_campaign)
-from olti_drake.sim.scenario import stream_seed
+from olti_drake.model.machine import Machine3DRun, Machine3DScenario, _default_heads, machine3d_truth, machine_run_3d
+from olti_drake.sim.scenario import Emulated, Hardware, Simulated, stream_seed
 
 M_TO_MM = 1e3
 AXES = ("X", "Y", "Z")
@@ -67,7 +76,14 @@ class MachineSpec:
 class Machine3DScenarioFile:
     """A 3D machine campaign as YAML (``diagrams/machine_3d.yaml``): the fields of
     :class:`~olti_drake.model.machine.Machine3DScenario` with the machine spelled out, plus the
-    budget file (relative to the YAML; "" = 001 Table 4 built in) and the sequencer period (s)."""
+    budget file (relative to the YAML; "" = 001 Table 4 built in), the sequencer period (s) and the
+    station ``olti run`` takes the campaign on: ``!Simulated`` (this diagram's), ``!Emulated`` (the 3D
+    machine emulator: the X, Y, Z controller and a pan/tilt head line per head, docs/emulator.md) or
+    ``!Hardware {robot_port: ..., head_ports: [...]}`` (the machine's controller and one port per head,
+    in the order of ``heads_mm``); ``olti simulate`` always simulates."""
+
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "machine3d"
 
     machine: MachineSpec = field(default_factory=MachineSpec)
     grid: list[int] = field(default_factory=lambda: [5, 4, 3])
@@ -82,6 +98,7 @@ class Machine3DScenarioFile:
     budget: str = ""
     seed: int = 0
     period_s: float = 1.0
+    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
 
     base: str = ""
 
@@ -101,7 +118,10 @@ class Machine3DScenarioFile:
         return load_budget(self.resolve(self.budget)) if self.budget else paper001_budget()
 
     def validate(self, where: str = "scenario") -> "Machine3DScenarioFile":
+        from olti_drake.sim.scenario import _check_station
+
         self.scenario(where)
+        _check_station(f"{where}: station", self.station, heads=len(self.heads_mm))
         return self
 
     def scenario(self, where: str = "scenario") -> Machine3DScenario:
@@ -197,77 +217,24 @@ def make_xyz_machine() -> XYZMachine:
 
 
 # ------------------------------------------------------------------ Drake systems
-@functools.lru_cache(maxsize=None)
+#: The Drake systems of this diagram, public in :mod:`olti_drake.sim.systems` (which imports pydrake) and
+#: importable from here too: this module stays free of pydrake until one of them is used.
+_SYSTEMS = ("VolumetricTool", "VolumetricTool_", "PanTiltInterferometer", "PanTiltInterferometer_",
+            "Machine3DRecorder", "PanTiltSteering", "AddPanTiltSteering")
+
+
+def __getattr__(name):
+    if name in _SYSTEMS:
+        from olti_drake.sim import systems
+
+        return getattr(systems, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _systems():
-    """The LeafSystems (pydrake imported when a diagram is built, not at import)."""
-    from pydrake.systems.framework import LeafSystem
-
-    from olti_drake.sim.systems import BeamInterferometer, ReadingRecorder, set_default_name
-
-    class VolumetricTool(LeafSystem):
-        """Commanded axes -> the TRUE tool point (volumetric3d, the 21 motions composed exactly).
-        Inputs ``command`` (3, m), ``tool`` (1); output ``tool_point`` (3, m), workpiece frame."""
-
-        def __init__(self, config, truth):
-            super().__init__()
-            set_default_name(self)
-            self._config, self._truth = config, truth
-            self.DeclareVectorInputPort("command", 3)
-            self.DeclareVectorInputPort("tool", 1)
-            self.DeclareVectorOutputPort("tool_point", 3, self._calc)
-
-        def _calc(self, context, output):
-            from olti_drake.model.volumetric3d import tool_positions
-
-            cmd = self.get_input_port(0).Eval(context) * M_TO_MM
-            m = int(round(self.get_input_port(1).Eval(context)[0]))
-            output.SetFromVector(tool_positions(self._config, self._truth, cmd[None], [m])[0] / M_TO_MM)
-
-    class PanTiltInterferometer(BeamInterferometer):
-        """The interferometer on pan/tilt heads reading a cat's eye at a given point (001 in 3D).
-
-        Inputs ``tool_point`` (3, m: the true cat's-eye centre), ``station`` (1: head j),
-        ``head_command`` (2, rad). The beam: :func:`aiming3d.pan_tilt_beam` of the TRUE heads with
-        ``head_error``; the reading (:class:`~olti_drake.sim.systems.BeamInterferometer`) against the
-        counter zero ``dead_paths_mm[j]``, cat's-eye axis ``catseye_axis`` (world), pose noise on
-        ``pose_noise_on`` (the head: 001's rotary axis). Outputs ``displacement`` (1, m), ``valid`` (1),
-        ``miss`` (1, m), ``status``."""
-
-        def __init__(self, heads_true, head_error, dead_paths_mm, catseye_axis, options, budget, seed: int,
-                     period_s: float, pose_noise_on: str = "origin"):
-            super().__init__()
-            set_default_name(self)
-            self._heads, self._err, self._dead = heads_true, head_error, np.asarray(dead_paths_mm, float)
-            self._axis, self._pose = np.asarray(catseye_axis, float), pose_noise_on
-            self.DeclareVectorInputPort("tool_point", 3)
-            self.DeclareVectorInputPort("station", 1)
-            self.DeclareVectorInputPort("head_command", 2)
-            self.DeclareReading(seed, period_s, options, budget)
-
-        def beam(self, context):
-            target = self.get_input_port(0).Eval(context) * M_TO_MM
-            j = int(round(self.get_input_port(1).Eval(context)[0]))
-            head = np.degrees(self.get_input_port(2).Eval(context))[None]
-            origin, u = a3.pan_tilt_beam(self._heads, [j], head, self._err)
-            return origin, u, target[None], self._axis, self._dead[j], self._pose
-
-    class Machine3DRecorder(ReadingRecorder):
-        """Takes the reading half a period after each move: the row (station, target, x/y/z_cmd_mm, tool,
-        displacement_mm -- NaN when the beam is lost --, valid) followed by the true tool point (mm).
-        Inputs ``station``, ``target``, ``tool`` (1), ``target_command`` (3, m), ``displacement`` (1, m),
-        ``valid`` (1), ``position`` (3, m)."""
-
-        def __init__(self, period_s: float):
-            super().__init__(period_s, 0.5 * period_s)
-            for name, size in (("station", 1), ("target", 1), ("tool", 1), ("target_command", 3),
-                               ("displacement", 1), ("valid", 1), ("position", 3)):
-                self.DeclareVectorInputPort(name, size)
-
-        def record(self, context):
-            station, target, tool, cmd, disp, valid, pos = (self.get_input_port(i).Eval(context) for i in range(7))
-            ok = valid[0] > 0.5
-            return ((int(round(station[0])), int(round(target[0]))) + tuple(cmd * M_TO_MM)
-                    + (int(round(tool[0])), disp[0] * M_TO_MM if ok else np.nan, int(ok)) + tuple(pos * M_TO_MM))
+    """(VolumetricTool, PanTiltInterferometer, Machine3DRecorder) of :mod:`olti_drake.sim.systems`: a thin
+    alias kept for callers of the former private factory; use the public names."""
+    from olti_drake.sim.systems import Machine3DRecorder, PanTiltInterferometer, VolumetricTool
 
     return VolumetricTool, PanTiltInterferometer, Machine3DRecorder
 
@@ -281,6 +248,9 @@ class Machine3DSetup:
     """What the diagram needs: the scenario, the planned run (shared with the numpy twin), the budget,
     the period (s) and the seed of the interferometer's noise stream."""
 
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "machine3d"
+
     scenario: Machine3DScenario
     run: Machine3DRun
     budget: object
@@ -292,17 +262,24 @@ def prepare_machine3d(scenario: Machine3DScenario, budget=None, period_s: float 
     return Machine3DSetup(scenario, machine_run_3d(scenario), budget or paper001_budget(), period_s)
 
 
-def AddMachine3DStation(builder, setup: Machine3DSetup, name: str = "station"):
-    """Add the simulated 3D station (a Diagram; ports in the module doc) to ``builder``; return it."""
+def AddVolumetricStation(builder, config, truth, heads_true, head_error, dead_paths_mm, catseye_axis, options,
+                         budget=None, seed: int = 0, period_s: float = 1.0, name: str = "station"):
+    """Add a simulated 3D machine station to ``builder``; return it (a Diagram; ports in the module doc).
+
+    Inside: :class:`~olti_drake.sim.systems.VolumetricTool` of ``config`` (a
+    :class:`~olti_drake.model.volumetric3d.MachineConfig`) and its ``truth`` (spline motions: a Parameter;
+    or a continuous truth) feeding a :class:`~olti_drake.sim.systems.PanTiltInterferometer` on the TRUE heads
+    ``heads_true`` (their centres a Parameter) with ``head_error``, counter zeros ``dead_paths_mm`` (a
+    Parameter), cat's-eye axis ``catseye_axis`` (world), the reading ``options``, ``budget`` (None: no
+    noise), ``seed`` and ``period_s``. The whole station converts with ``ToAutoDiffXd()``."""
     from pydrake.systems.framework import DiagramBuilder
 
-    Tool, Interferometer, _ = _systems()
-    s, run = setup.scenario, setup.run
+    from olti_drake.sim.systems import PanTiltInterferometer, VolumetricTool
+
     inner = DiagramBuilder()
-    tool = inner.AddNamedSystem("volumetric_tool", Tool(run.config, run.truth))
-    laser = inner.AddNamedSystem("laser_interferometer", Interferometer(
-        run.heads_true, run.head_error, run.dead_paths_mm, s.catseye_axis, s.interferometer, setup.budget,
-        stream_seed(s.seed, "laser"), setup.period_s))
+    tool = inner.AddNamedSystem("volumetric_tool", VolumetricTool(config, truth))
+    laser = inner.AddNamedSystem("laser_interferometer", PanTiltInterferometer(
+        heads_true, head_error, dead_paths_mm, catseye_axis, options, budget, seed, period_s))
     inner.Connect(tool.GetOutputPort("tool_point"), laser.GetInputPort("tool_point"))
     inner.ExportInput(tool.GetInputPort("command"), "target_command")
     inner.ExportInput(tool.GetInputPort("tool"), "tool")
@@ -314,15 +291,21 @@ def AddMachine3DStation(builder, setup: Machine3DSetup, name: str = "station"):
     return builder.AddNamedSystem(name, inner.Build())
 
 
+def AddMachine3DStation(builder, setup: Machine3DSetup, name: str = "station"):
+    """Add the simulated 3D station of a planned run (:func:`AddVolumetricStation` with its truth, true heads,
+    head error and dead paths, the scenario's cat's eye and interferometer) to ``builder``; return it."""
+    s, run = setup.scenario, setup.run
+    return AddVolumetricStation(builder, run.config, run.truth, run.heads_true, run.head_error, run.dead_paths_mm,
+                                s.catseye_axis, s.interferometer, setup.budget, stream_seed(s.seed, "laser"),
+                                setup.period_s, name)
+
+
 def build_machine3d_diagram(setup: Machine3DSetup):
     """The whole 3D campaign as a Diagram; returns (diagram, recorder, sequencer)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from olti_drake.sim.serial_station import _systems as serial_systems
-    from olti_drake.sim.systems import RowSequencer
+    from olti_drake.sim.systems import AddPanTiltSteering, Machine3DRecorder, RowSequencer
 
-    Steering = serial_systems()[0]
-    _, _, Recorder = _systems()
     run = setup.run
     i, j = run.sequence["target"], run.sequence["station"]
     builder = DiagramBuilder()
@@ -331,9 +314,8 @@ def build_machine3d_diagram(setup: Machine3DSetup):
     seq = builder.AddNamedSystem("machine_sequencer", RowSequencer({
         "target_command": run.commands_mm[i] / M_TO_MM, "station": j.astype(float), "target": i.astype(float),
         "tool": run.tool[i].astype(float)}, setup.period_s))
-    steer = builder.AddNamedSystem("pan_tilt_steering", Steering(xyz, run.config.tools, run.heads_est,
-                                                                 tool_input=True))
-    rec = builder.AddNamedSystem("machine_recorder", Recorder(setup.period_s))
+    steer = AddPanTiltSteering(builder, xyz, run.config.tools, run.heads_est, tool_input=True)
+    rec = builder.AddNamedSystem("machine_recorder", Machine3DRecorder(setup.period_s))
     builder.Connect(seq.GetOutputPort("target_command"), steer.GetInputPort("joint_command"))
     builder.Connect(seq.GetOutputPort("station"), steer.GetInputPort("reflector"))
     builder.Connect(seq.GetOutputPort("tool"), steer.GetInputPort("tool"))

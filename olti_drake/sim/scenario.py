@@ -19,11 +19,13 @@ from typing import List, Optional, Union
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, read_yaml
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import read_yaml
+from olti_drake.io.plan_io import load_plan
 from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, NoDeviation
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM
-from olti_drake.model.plan import BidirectionalGrid, Plan, load_plan
+from olti_drake.model.plan import BidirectionalGrid, Plan
 from olti_drake.model.scara import TrueRobot
 
 
@@ -255,7 +257,9 @@ class Hardware:
     set up each reflector), ``bench`` (the counter sets each reflector with ``REFL``, as the emulator
     does: an unattended bench) or ``package.module:Class`` -- a driver of another device
     (:mod:`olti_drake.hardware.drivers`). A six-axis floor-tracer campaign names one port per tracer
-    head in ``head_ports`` (station order; the heads are the counter, ``counter_port`` unused).
+    head in ``head_ports`` (station order; the heads are the counter, ``counter_port`` unused), as does
+    a 3D machine-tool campaign (one per pan/tilt head, in the order of ``heads_mm``; ``robot_port`` is
+    the machine's controller).
     """
 
     robot_port: str = ""
@@ -292,6 +296,9 @@ class Scenario:
     ``base_dir`` attribute, the current directory unless set (``Scenario(...).at(folder)``).
     """
 
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "scara"
+
     robot: Robot = field(default_factory=Robot)
     reflectors_mm: list[list[float]] = field(default_factory=_paper_reflectors)
     reflector_estimate: Union[SearchEstimate, PerturbedEstimate, ExactEstimate] = field(
@@ -323,7 +330,8 @@ class Scenario:
         return self.plan.plan()
 
     def load_budget(self):
-        from olti_drake.io.budget import Budget, load_budget, paper000_budget
+        from olti_drake.io.budget import load_budget
+        from olti_drake.model.budget import Budget, paper000_budget
         if isinstance(self.budget, Budget):
             return self.budget
         return load_budget(self.resolve(self.budget)) if self.budget else paper000_budget()
@@ -358,7 +366,7 @@ class Scenario:
         if isinstance(self.plan, PlanFile) and not self.plan.path:
             raise InputError(f"{where}: plan.path is empty")
         _check_object(f"{where}: plan", self.plan, (Plan, BidirectionalGrid, PlanFile))
-        from olti_drake.io.budget import Budget
+        from olti_drake.model.budget import Budget
         _check_object(f"{where}: budget", self.budget, (Budget, str, os.PathLike))
         _check_station(f"{where}: station", self.station)
         if isinstance(self.station, Hardware) and not isinstance(self.reflector_estimate, ExactEstimate):
@@ -368,7 +376,10 @@ class Scenario:
         return self
 
 
-def _check_station(name, st):
+def _check_station(name, st, heads: Optional[int] = None):
+    """Check a station's fields (one line naming ``name`` and the field). ``heads``: a campaign whose
+    counters are pan/tilt heads (the 3D machine tool): a ``!Hardware`` station then names the
+    controller's ``robot_port`` and one of ``head_ports`` per head, in order, not ``counter_port``."""
     if isinstance(st, Emulated):
         if st.speed not in ("fast", "realistic"):
             raise InputError(f"{name}.speed must be fast or realistic, got {st.speed!r}")
@@ -377,9 +388,12 @@ def _check_station(name, st):
         except ValueError as e:
             raise InputError(f"{name}: {e}") from None
     if isinstance(st, Hardware):
-        for key in ("robot_port", "counter_port"):
+        for key in ("robot_port",) if heads is not None else ("robot_port", "counter_port"):
             if not getattr(st, key):
                 raise InputError(f"{name}.{key} is empty")
+        if heads is not None and (len(st.head_ports) != heads or not all(st.head_ports)):
+            raise InputError(f"{name}.head_ports: one serial port per pan/tilt head, {heads} in the order of "
+                             f"heads_mm (got {len(st.head_ports)})")
         if st.baud <= 0:
             raise InputError(f"{name}.baud must be > 0, got {st.baud!r}")
     if isinstance(st, (Emulated, Hardware)):

@@ -27,7 +27,8 @@ from typing import List, Optional, Union
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError, read_yaml
+from olti_drake.errors import InputError
+from olti_drake.io.csvio import read_yaml
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
@@ -148,6 +149,9 @@ class SerialScenario:
     readings' noise, the estimates and the heads' errors (``sim.scenario.SEED_STREAMS``); the truth
     and the plan have their own seeds. ``base`` as :class:`~olti_drake.sim.scenario.Scenario`'s."""
 
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "serial"
+
     robot: SerialRobot = field(default_factory=SerialRobot)
     scheme: Union[FloorTracers, RobotMounted] = field(default_factory=FloorTracers)
     plan: SerialPlanRules = field(default_factory=SerialPlanRules)
@@ -176,7 +180,8 @@ class SerialScenario:
         return str(shipped) if shipped is not None else self.resolve(self.robot.file)
 
     def load_budget(self):
-        from olti_drake.io.budget import load_budget, paper000_budget
+        from olti_drake.io.budget import load_budget
+        from olti_drake.model.budget import paper000_budget
         return load_budget(self.resolve(self.budget)) if self.budget else paper000_budget()
 
     def validate(self, where: str = "scenario") -> "SerialScenario":
@@ -258,13 +263,30 @@ def _vector(name, v, size, nonzero=False):
         raise InputError(f"{name} must be {size} finite numbers" + (", not all zero" if nonzero else ""))
 
 
-def scenario_kind(path, name: Optional[str] = None) -> str:
-    """``"serial"`` when the scenario file (its named scenario ``name``, or a base it names) has the
-    top-level key ``scheme``; ``"machine3d"`` when it has ``heads_mm`` (a 3D machine tool,
-    :mod:`olti_drake.sim.machine3d_station`); else ``"scara"`` (the default scenario, no file, is the SCARA's).
-    A file or name that cannot be read is left to the loader, which names the problem."""
+#: The kinds of scenario (:func:`scenario_kind`).
+SCENARIO_KINDS = ("scara", "serial", "machine3d")
+
+
+def scenario_kind(scenario, name: Optional[str] = None) -> str:
+    """The kind of a scenario -- ``"scara"``, ``"serial"`` (an N-joint robot) or ``"machine3d"`` (a 3D machine
+    tool) -- the one place that tells them apart: ``olti simulate``, ``plan``, ``run``, ``diagrams``, the emulator
+    and the stations dispatch on it.
+
+    ``scenario``: a YAML file -- ``"serial"`` when it (its named scenario ``name``, or a base it names) has the
+    top-level key ``scheme``, ``"machine3d"`` when it has ``heads_mm`` (:mod:`olti_drake.sim.machine3d_station`),
+    else ``"scara"``; a file or name that cannot be read is left to the loader, which names the problem --;
+    None (the default scenario, the SCARA's); or a loaded scenario or campaign setup (the ``KIND`` its class
+    declares: ``Scenario``, ``campaign.Setup``; ``SerialScenario``, ``SerialSetup``; ``Machine3DScenarioFile``,
+    ``Machine3DSetup``, ``Machine3DCampaignSetup``)."""
+    if scenario is None:
+        return "scara"
+    if not isinstance(scenario, (str, os.PathLike)):
+        kind = getattr(type(scenario), "KIND", None)
+        if kind not in SCENARIO_KINDS:
+            raise TypeError(f"{type(scenario).__name__} is not a scenario or a campaign setup (no KIND)")
+        return kind
     for kind, key in (("serial", "scheme"), ("machine3d", "heads_mm")):
-        if path is not None and _has_key(os.fspath(path), name, key, set()):
+        if _has_key(os.fspath(scenario), name, key, set()):
             return kind
     return "scara"
 

@@ -15,6 +15,15 @@ inputs ``joint_command`` (N, rad), ``reflector`` (1: the station index j) and, f
 ``status``, ``direction`` (N), ``measured_position`` (N, rad: the commands; the encoders do not see
 the error map) and ``true_position`` (N, rad; simulation only).
 
+The systems are public in :mod:`olti_drake.sim.systems` (importable from here too, pydrake loaded on first
+use): :class:`~olti_drake.sim.systems.PanTiltSteering`, :class:`~olti_drake.sim.systems.SerialLaserInterferometer`
+and :class:`~olti_drake.sim.systems.SerialCampaignRecorder`. :func:`AddSerialStation` builds the station from
+a chain (the model file's plant) and a truth without a scenario, :func:`AddSimulatedSerialStation` from a
+scenario's setup. What the identification estimates are numeric Parameters of the Context -- the map nodes
+(``ErrorMapJoint``), the location errors and tool offset, the stations and dead paths (the interferometer)
+-- and the station converts with ``ToAutoDiffXd()``: a reading's derivative with respect to them is the
+Jacobian entry of :class:`~olti_drake.model.serial.DistanceMeasurement` (tests/test_drake_native_serial_machine.py).
+
 What is decided before the run (:func:`prepare_serial`, open loop: the aim uses commands and estimates
 only): the plan (``serial_plan.generate_plan`` on the ESTIMATED stations) or, robot-mounted, the IK
 aim of every tool point at every ESTIMATED reflector (``aiming3d.RobotAimer``); the row sequence
@@ -27,7 +36,6 @@ Units: mm and degrees everywhere but the Drake ports (rad, m).
 """
 
 import dataclasses
-import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -35,12 +43,11 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.io.csvio import InputError
+from olti_drake.errors import InputError
 from olti_drake.model import aiming3d as a3
 from olti_drake.model.errormap import approach_directions
 from olti_drake.sim.scenario import stream_rng, stream_seed
-from olti_drake.sim.serial_scenario import (SHIPPED_MODELS, FloorTracers, SerialScenario, load_serial_scenario,
-                                            scenario_kind)
+from olti_drake.sim.serial_scenario import SHIPPED_MODELS, FloorTracers, SerialScenario, load_serial_scenario
 
 M_TO_MM = 1e3
 #: Truth error maps in truth.json: nodes every TRUTH_GRID_DEG over each joint's commanded range.
@@ -55,6 +62,9 @@ class SerialSetup:
     plan (tracers) or the tool-point raster (robot-mounted). ``truth``: the true robot
     (``SyntheticTruth``; its ``stations_mm`` and ``dead_paths_mm`` are the true stations/reflectors
     and counter zeros). ``timings`` (s): plan, aiming."""
+
+    #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
+    KIND = "serial"
 
     scenario: SerialScenario
     chain: object
@@ -285,165 +295,61 @@ def _columns(setup, station, commands, dirs, displacement, valid, row) -> dict:
 
 
 # --------------------------------------------------------------- Drake systems
-@functools.lru_cache(maxsize=None)
+#: The Drake systems of this diagram, public in :mod:`olti_drake.sim.systems` (which imports pydrake) and
+#: importable from here too: this module stays free of pydrake until one of them is used.
+_SYSTEMS = ("PanTiltSteering", "SerialLaserInterferometer", "SerialLaserInterferometer_", "SerialCampaignRecorder",
+            "AddPanTiltSteering", "AddSerialInterferometer")
+
+
+def __getattr__(name):
+    if name in _SYSTEMS:
+        from olti_drake.sim import systems
+
+        return getattr(systems, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _systems():
-    """The LeafSystems (pydrake imported when a diagram is built, not at import)."""
-    from pydrake.common.value import AbstractValue
-    from pydrake.math import RigidTransform, RotationMatrix
-    from pydrake.systems.framework import LeafSystem, ValueProducer
+    """(PanTiltSteering, SerialLaserInterferometer, SerialCampaignRecorder) of :mod:`olti_drake.sim.systems`.
 
-    from olti_drake.sim.systems import BeamInterferometer, ReadingRecorder, ReadStatus, set_default_name
-
-    class PanTiltSteering(LeafSystem):
-        """Open-loop pan/tilt command of the head in use (001 Eq. (1) in 3D): from the ESTIMATED centre
-        and zero angles to the NOMINAL tool point of the commanded joints (the model file's plant,
-        ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1) and, with
-        ``tool_input`` (several tool offsets (T, 3) mm, e.g. a machine tool's mountings), ``tool`` (1:
-        the row's tool index); output ``head_command`` (2, rad)."""
-
-        def __init__(self, chain, tool_offset_mm, heads_est, tool_input: bool = False):
-            super().__init__()
-            set_default_name(self)
-            self._plant, self._heads = chain.plant, heads_est
-            self._tool = chain.plant.get_frame(chain.tool_frame_index)
-            self._points = np.atleast_2d(np.asarray(tool_offset_mm, float)).T / M_TO_MM  # (3, T) m
-            self._starts = np.array([chain.plant.GetJointByName(n).position_start() for n in chain.joint_names])
-            command = self.DeclareVectorInputPort("joint_command", chain.n_joints)
-            self.DeclareVectorInputPort("reflector", 1)
-            self._tool_port = self.DeclareVectorInputPort("tool", 1) if tool_input else None
-            self._plant_context = self.DeclareCacheEntry(
-                "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
-                                               calc=self._calc_plant_context), {command.ticket()})
-            self.DeclareVectorOutputPort("head_command", 2, self._calc)
-
-        def _calc_plant_context(self, context, value):
-            q = np.zeros(self._plant.num_positions())
-            q[self._starts] = self.get_input_port(0).Eval(context)
-            self._plant.SetPositions(value.get_mutable_value(), q)
-
-        def _calc(self, context, output):
-            j = int(self.get_input_port(1).Eval(context)[0])
-            m = int(round(self._tool_port.Eval(context)[0])) if self._tool_port is not None else 0
-            p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._points[:, [m]],
-                                                self._plant.world_frame())[:, 0] * M_TO_MM
-            output.SetFromVector(np.radians(a3.pan_tilt_commands(self._heads, [j], p[None])[0]))
-
-    class SerialLaserInterferometer(BeamInterferometer):
-        """The interferometer of a six-axis campaign in 3D (000 §5: cosine error, acceptance, λ/64, noise).
-
-        Input ``position`` (N, rad): the actual joint angles (chain order); ``reflector`` (1): j;
-        floor tracers also ``head_command`` (2, rad). The true tool frame comes from its own
-        MultibodyPlant of the model file whose joint frames carry the truth's location errors (each
-        joint's parent frame X_PF set to X_PF·Trans(δ)·Rx·Ry·Rz in the plant Context, the chain
-        model's Δ_i), the tool point from the truth's tool offset. Tracers: the beam leaves the true
-        head centre along command + head error + true zeros; the cat's eye is the tool point, axis
-        in the tool frame. Robot-mounted: the beam leaves the tool point along the laser direction;
-        the cat's eye is the true reflector. The reading: :class:`~olti_drake.sim.systems.BeamInterferometer`.
-        Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m), ``status``."""
-
-        def __init__(self, setup: SerialSetup, seed: int, period_s: float):
-            from olti_drake.model.chain import load_serial_chain
-
-            super().__init__()
-            set_default_name(self)
-            self._setup = setup
-            chain = load_serial_chain(setup.chain.path, setup.chain.tool_frame)  # this station's own plant
-            self._plant = plant = chain.plant
-            self._tool = plant.get_frame(chain.tool_frame_index)
-            self._starts = np.array([plant.GetJointByName(n).position_start() for n in chain.joint_names])
-            self._frames = [plant.GetJointByName(n).frame_on_parent() for n in chain.joint_names]
-            n = chain.n_joints
-            geo = setup.truth.chain_params[:6 * n].reshape(n, 6)
-            self._deltas = [RigidTransform(RotationMatrix.MakeXRotation(np.radians(g[3]))
-                                           @ RotationMatrix.MakeYRotation(np.radians(g[4]))
-                                           @ RotationMatrix.MakeZRotation(np.radians(g[5])), g[:3] / M_TO_MM)
-                            for g in geo]
-            self._t = setup.truth.chain_params[6 * n:]
-            s = setup.scenario.scheme
-            self._axis = a3._unit(s.catseye_axis_tool if setup.tracers else s.reflector_axis)
-            position = self.DeclareVectorInputPort("position", n)
-            self.DeclareVectorInputPort("reflector", 1)
-            if setup.tracers:
-                self.DeclareVectorInputPort("head_command", 2)
-            self._plant_context = self.DeclareCacheEntry(
-                "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._true_context()),
-                                               calc=self._calc_plant_context), {position.ticket()})
-            self.DeclareReading(seed, period_s, setup.scenario.interferometer, setup.budget)
-
-        def _true_context(self):
-            """A plant Context whose joint frames carry the truth's location errors."""
-            context = self._plant.CreateDefaultContext()
-            for frame, delta in zip(self._frames, self._deltas):
-                if not hasattr(frame, "SetPoseInParentFrame"):
-                    raise ValueError(f"robot model {self._setup.chain.path}: joint frame '{frame.name()}' is not "
-                                     f"an offset frame; its location errors cannot be simulated")
-                frame.SetPoseInParentFrame(context, frame.GetPoseInParentFrame(context) @ delta)
-            return context
-
-        def _calc_plant_context(self, context, value):
-            q = np.zeros(self._plant.num_positions())
-            q[self._starts] = self.get_input_port(0).Eval(context)
-            self._plant.SetPositions(value.get_mutable_value(), q)
-
-        def beam(self, context):
-            s = self._setup
-            X = self._tool.CalcPoseInWorld(self._plant_context.Eval(context))
-            R, o = X.rotation().matrix(), X.translation() * M_TO_MM
-            j = int(self.get_input_port(1).Eval(context)[0])
-            tool_point = o + R @ self._t
-            if s.tracers:
-                head = np.degrees(self.get_input_port(2).Eval(context))[None]
-                origin, u = a3.pan_tilt_beam(s.heads_true, [j], head, s.head_errors[j])
-                target, axis = tool_point[None], R @ self._axis
-            else:
-                origin, u = tool_point[None], (R @ a3._unit(s.laser_true.direction))[None]
-                target, axis = s.stations_mm[j][None], self._axis
-            return origin, u, target, axis, s.truth.dead_paths_mm[j], "target" if s.tracers else "origin"
-
-    class SerialCampaignRecorder(ReadingRecorder):
-        """Takes the reading half a period after each move and keeps the measured rows:
-        (station, θ1*..θN* deg, dir1..dirN, displacement mm (NaN when the beam is lost), valid, plan row).
-        Inputs ``joint_command`` (N), ``direction`` (N), ``displacement``, ``valid``, ``reflector``,
-        ``measure``, ``row``, ``status``."""
-
-        def __init__(self, n_joints: int, period_s: float):
-            super().__init__(period_s, 0.5 * period_s)
-            self._n = n_joints
-            for name, size in (("joint_command", n_joints), ("direction", n_joints), ("displacement", 1),
-                               ("valid", 1), ("reflector", 1), ("measure", 1), ("row", 1)):
-                self.DeclareVectorInputPort(name, size)
-            self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
-
-        def record(self, context):
-            if self.GetInputPort("measure").Eval(context)[0] < 0.5:
-                return None  # an approach row: nothing read (nor computed)
-            cmd, direction, disp, valid, refl, _, row = (self.get_input_port(i).Eval(context) for i in range(7))
-            ok = valid[0] > 0.5
-            return ((int(refl[0]),) + tuple(np.degrees(cmd)) + tuple(int(d) for d in direction)
-                    + (disp[0] * M_TO_MM if ok else np.nan, int(ok), int(row[0])))
+    A thin alias kept for callers of the former private factory; use the public names.
+    (The interferometer is now built from a chain, not a setup: :func:`AddSerialInterferometer`.)"""
+    from olti_drake.sim.systems import PanTiltSteering, SerialCampaignRecorder, SerialLaserInterferometer
 
     return PanTiltSteering, SerialLaserInterferometer, SerialCampaignRecorder
 
 
-def AddSimulatedSerialStation(builder, setup: SerialSetup, name: str = "station"):
-    """Add the simulated N-joint station (a Diagram, ports in the module doc) to ``builder``; return it."""
+def AddSerialStation(builder, chain, deviations, chain_params, stations_mm, dead_paths_mm, options, *,
+                     budget=None, seed: int = 0, period_s: float = 1.0, name: str = "station", **beam):
+    """Add a simulated N-joint station of ``chain`` (a :class:`~olti_drake.model.chain.SerialChain`: the model
+    file's plant, joints and tool frame) to ``builder``; return it (a Diagram, ports in the module doc).
+
+    Inside: :class:`~olti_drake.sim.systems.ErrorMapJoint` with one ``deviations`` entry per joint (an
+    ErrorMap -- its nodes a Parameter --, a tabulated or continuous truth, or None; deg, 000 Eq. 7) feeding a
+    :class:`~olti_drake.sim.systems.SerialLaserInterferometer` whose Parameters default to ``chain_params``
+    (6N + 3 location errors and tool offset; mm, deg), ``stations_mm`` (Nt, 3) and ``dead_paths_mm`` (Nt,).
+    ``beam``: the interferometer's scheme arguments (``laser_direction`` for a robot-mounted laser, else
+    floor tracers with ``head_zeros_deg``, ``head_errors``; ``catseye_axis``). The whole station converts
+    with ``ToAutoDiffXd()``."""
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import PassThrough
 
-    from olti_drake.sim.systems import ErrorMapJoint
+    from olti_drake.sim.systems import AddSerialInterferometer, ErrorMapJoint
 
-    _, Interferometer, _ = _systems()
-    s = setup.scenario
-    n = setup.n_joints
+    n = chain.n_joints
+    if len(deviations) != n:
+        raise ValueError(f"{name}: {len(deviations)} deviations given, the chain has {n} joints "
+                         f"({', '.join(chain.joint_names)})")
     inner = DiagramBuilder()
-    joints = inner.AddSystem(ErrorMapJoint(list(setup.truth.deviations), revolute=[True] * n))
-    laser = inner.AddSystem(Interferometer(setup, stream_seed(s.seed, "laser"), s.period_s))
+    joints = inner.AddSystem(ErrorMapJoint(list(deviations), revolute=[True] * n))
+    laser = AddSerialInterferometer(inner, chain, chain_params, stations_mm, dead_paths_mm, options, budget=budget,
+                                    seed=seed, period_s=period_s, **beam)
     command = inner.AddNamedSystem("joint_command", PassThrough(n))
     inner.Connect(command.get_output_port(), joints.GetInputPort("command"))
     inner.Connect(joints.GetOutputPort("position"), laser.GetInputPort("position"))
     inner.ExportInput(command.get_input_port(), "joint_command")
     inner.ExportInput(laser.GetInputPort("reflector"), "reflector")
-    if setup.tracers:
+    if laser.tracers:
         inner.ExportInput(laser.GetInputPort("head_command"), "head_command")
     for port in ("displacement", "valid", "miss", "status"):
         inner.ExportOutput(laser.GetOutputPort(port), port)
@@ -451,6 +357,19 @@ def AddSimulatedSerialStation(builder, setup: SerialSetup, name: str = "station"
     inner.ExportOutput(command.get_output_port(), "measured_position")
     inner.ExportOutput(joints.GetOutputPort("position"), "true_position")
     return builder.AddNamedSystem(name, inner.Build())
+
+
+def AddSimulatedSerialStation(builder, setup: SerialSetup, name: str = "station"):
+    """Add the simulated N-joint station of a scenario's setup (:func:`AddSerialStation` with the truth's
+    deviations, location errors, tool offset, stations and dead paths, the scheme's beam) to ``builder``."""
+    s = setup.scenario
+    t = setup.truth
+    beam = (dict(head_zeros_deg=setup.heads_true.zeros_deg, head_errors=setup.head_errors,
+                 catseye_axis=s.scheme.catseye_axis_tool) if setup.tracers else
+            dict(laser_direction=setup.laser_true.direction, catseye_axis=s.scheme.reflector_axis))
+    return AddSerialStation(builder, setup.chain, t.deviations, t.chain_params, setup.stations_mm, t.dead_paths_mm,
+                            s.interferometer, budget=setup.budget, seed=stream_seed(s.seed, "laser"),
+                            period_s=s.period_s, name=name, **beam)
 
 
 def build_serial_diagram(setup: SerialSetup, station_factory=None, extend=None):
@@ -461,21 +380,19 @@ def build_serial_diagram(setup: SerialSetup, station_factory=None, extend=None):
     ``extend(builder, setup, station, sequencer)`` adds more (e.g. :func:`olti_drake.sim.serial_view.add_serial_view`)."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from olti_drake.sim.systems import RowSequencer
+    from olti_drake.sim.systems import AddPanTiltSteering, RowSequencer, SerialCampaignRecorder
 
-    Steering, _, Recorder = _systems()
     s = setup.scenario
     builder = DiagramBuilder()
     station = (station_factory or AddSimulatedSerialStation)(builder, setup)
     seq = builder.AddNamedSystem("plan_sequencer", RowSequencer({
         "joint_command": np.radians(setup.commands_deg), "reflector": setup.reflector.astype(float),
         "measure": setup.measure.astype(float), "row": setup.row.astype(float)}, s.period_s))
-    rec = builder.AddNamedSystem("campaign_recorder", Recorder(setup.n_joints, s.period_s))
+    rec = builder.AddNamedSystem("campaign_recorder", SerialCampaignRecorder(setup.n_joints, s.period_s))
     for port in ("joint_command", "reflector"):
         builder.Connect(seq.GetOutputPort(port), station.GetInputPort(port))
     if setup.tracers:
-        steer = builder.AddNamedSystem("pan_tilt_steering", Steering(setup.chain, setup.tool_offset_mm,
-                                                                     setup.heads_est))
+        steer = AddPanTiltSteering(builder, setup.chain, setup.tool_offset_mm, setup.heads_est)
         for port in ("joint_command", "reflector"):
             builder.Connect(seq.GetOutputPort(port), steer.GetInputPort(port))
         builder.Connect(steer.GetOutputPort("head_command"), station.GetInputPort("head_command"))
@@ -582,11 +499,6 @@ def write_serial_simulation(campaign: SerialCampaign, out_dir: str, comments=())
                           comments=list(comments) + [CAMPAIGN_COMMENT])
     write_json(truth_path, campaign.truth, measurement=True)
     return csv_path, truth_path
-
-
-def is_serial_scenario(path, name: Optional[str] = None) -> bool:
-    """Whether ``olti simulate`` should run this scenario here (it has a ``scheme``: serial_scenario)."""
-    return scenario_kind(path, name) == "serial"
 
 
 def simulate_serial_command(path, name, text, out_dir, seed=None, progress=None, view=None) -> str:

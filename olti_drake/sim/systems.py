@@ -1,7 +1,16 @@
-"""Drake systems of the open-loop tracking interferometer campaign (paper 000 §2).
+"""Drake systems of the open-loop tracking interferometer campaigns (paper 000 §2; 001 in 3D).
 
 Thin ``LeafSystem`` wrappers over the numpy modules (error map, steering,
-interferometer), so the simulation and the identifier share one model.
+interferometer), so the simulation and the identifier share one model: the
+SCARA's (``ErrorMapJoint``, ``BeamSteering``, ``LaserInterferometer``,
+``KinematicLaserInterferometer``, ``PlanSequencer``, ``CampaignRecorder``), the
+six-axis (N-joint) robot's (``PanTiltSteering``, ``SerialLaserInterferometer``,
+``SerialCampaignRecorder``) and the 3D machine tool's (``VolumetricTool``,
+``PanTiltInterferometer``, ``Machine3DRecorder``). The readings' systems are
+Drake templates over float and AutoDiffXd (``X_[T]``; ``X`` is ``X_[float]``)
+whose identified quantities are numeric Parameters of the Context, so a
+converted station (``ToAutoDiffXd()``) gives a reading's derivatives with
+respect to them: the identification's Jacobian entries.
 
 Ports carry **SI units** as Drake's MultibodyPlant does: joint angles in rad,
 J3 stroke and the displacement in m. Files and the CLI stay in mm/deg; the
@@ -21,10 +30,12 @@ import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
-from pydrake.systems.framework import BasicVector, BasicVector_, LeafSystem, LeafSystem_, ValueProducer
+from pydrake.math import RigidTransform_, RotationMatrix_
+from pydrake.systems.framework import (BasicVector, BasicVector_, LeafSystem, LeafSystem_, NumericParameterIndex,
+                                       ValueProducer)
 from pydrake.systems.scalar_conversion import TemplateSystem
 
-from olti_drake.io.budget import Budget
+from olti_drake.model.budget import Budget
 from olti_drake.model.errormap import ErrorMap, approach_directions
 from olti_drake.model.instrument import InterferometerOptions, simulate_readings
 from olti_drake.model.instrument import beam_command_deg
@@ -71,6 +82,11 @@ def _si(values, revolute):
     if values.dtype == object:
         return values * np.where(revolute, np.pi / 180.0, 1.0 / M_TO_MM)
     return np.where(revolute, np.radians(values), values / M_TO_MM)
+
+
+def _scalar(value) -> float:
+    """The float value of a float or AutoDiffXd scalar."""
+    return value.value() if hasattr(value, "value") else float(value)
 
 
 def _value(values) -> np.ndarray:
@@ -153,10 +169,12 @@ def ErrorMapJoint_(T):
         """Commanded -> actual joint angles through the error map, θ = θ* + Δθ(θ*, dir) (000 Eq. 7).
 
         One deviation per axis (an :class:`~olti_drake.model.errormap.ErrorMap`, a
-        continuous truth, or None for a perfect axis); ports as
-        :class:`ApproachErrorSystem`. The node values of every ``ErrorMap`` axis are a
-        numeric Parameter of the Context, [forward..., reverse...] deg (Eq. 6 order;
-        default: the map's): :meth:`SetMapValues` / :meth:`GetMapValues`. With
+        tabulated truth -- a scenario's ``MapTable``, interpolated as the ErrorMap of its
+        table --, a continuous truth, or None for a perfect axis); ports as
+        :class:`ApproachErrorSystem`. The node values of every map axis (ErrorMap or table)
+        are a numeric Parameter of the Context, [forward..., reverse...] deg (Eq. 6 order;
+        default: the map's): :meth:`SetMapValues` / :meth:`GetMapValues` (an axis without
+        one is refused in one line naming it). With
         ``ToAutoDiffXd()`` a reading is differentiable with respect to them; the
         interpolation weights (Eq. 9) are taken at the command's value (the map's
         slope in θ* is not carried), a continuous truth adds a constant.
@@ -165,7 +183,7 @@ def ErrorMapJoint_(T):
         def _construct(self, deviations, revolute, initial_direction=1.0, converter=None):
             LeafSystem_[T].__init__(self, converter)
             set_default_name(self)
-            self._dev = list(deviations)
+            self._dev = [_tabulated(dev) for dev in deviations]
             self._declare_approach(revolute, initial_direction, T)
             self._maps = {i: self.DeclareNumericParameter(BasicVector_[T](dev.values.tolist()))
                           for i, dev in enumerate(self._dev) if isinstance(dev, ErrorMap)}
@@ -175,11 +193,26 @@ def ErrorMapJoint_(T):
 
         def SetMapValues(self, context, axis: int, values_deg) -> None:
             """Set axis ``axis``'s node values (2N,) deg, [forward..., reverse...], in ``context``."""
-            context.get_mutable_numeric_parameter(self._maps[axis]).SetFromVector(values_deg)
+            index = self._map_parameter(axis)
+            n = context.get_numeric_parameter(index).size()
+            if np.shape(values_deg) != (n,):
+                raise ValueError(f"{self.get_name()}: axis {axis}: {np.size(values_deg)} map values given, its map "
+                                 f"has {n} ([forward..., reverse...] deg)")
+            context.get_mutable_numeric_parameter(index).SetFromVector(values_deg)
 
         def GetMapValues(self, context, axis: int) -> np.ndarray:
             """Axis ``axis``'s node values (2N,) deg in ``context``."""
-            return context.get_numeric_parameter(self._maps[axis]).CopyToVector()
+            return context.get_numeric_parameter(self._map_parameter(axis)).CopyToVector()
+
+        def _map_parameter(self, axis: int) -> int:
+            """The Parameter index of axis ``axis``'s map; one line naming the axis when it has none."""
+            if axis in self._maps:
+                return self._maps[axis]
+            if not (isinstance(axis, (int, np.integer)) and 0 <= axis < len(self._dev)):
+                raise ValueError(f"{self.get_name()}: axis {axis!r}: the system has axes 0..{len(self._dev) - 1}")
+            what = "no deviation" if self._dev[axis] is None else f"a continuous {type(self._dev[axis]).__name__}"
+            raise ValueError(f"{self.get_name()}: axis {axis} has {what}, not a map or table: it has no map values "
+                             f"(axes with map values: {sorted(self._maps) or 'none'})")
 
         def _actual(self, context, command, direction):
             out = command.copy()
@@ -199,6 +232,17 @@ def ErrorMapJoint_(T):
 
 
 ErrorMapJoint = ErrorMapJoint_[None]
+
+
+def _tabulated(deviation):
+    """The :class:`ErrorMap` of a tabulated deviation (``grid_deg``, ``forward_deg``, ``reverse_deg`` and
+    ``outside``: a scenario's ``MapTable``, which interpolates as this map does, 000 Eq. 7-9), so that its
+    nodes are a Parameter; any other deviation as it is."""
+    if isinstance(deviation, ErrorMap) or not all(hasattr(deviation, k) for k in ("grid_deg", "forward_deg",
+                                                                                 "reverse_deg")):
+        return deviation
+    return ErrorMap(deviation.grid_deg, deviation.forward_deg, deviation.reverse_deg,
+                    outside=getattr(deviation, "outside", "error"))
 
 
 class BeamSteering(LeafSystem):
@@ -409,25 +453,29 @@ def KinematicLaserInterferometer_(T):
 KinematicLaserInterferometer = KinematicLaserInterferometer_[None]
 
 
-class BeamInterferometer(LeafSystem):
-    """The reading machinery of the 3D interferometers (six-axis and 3D machine-tool diagrams).
+class _BeamReading:
+    """The reading machinery of the 3D interferometers (six-axis and 3D machine-tool diagrams), any scalar type.
 
-    A subclass declares its input ports, then calls :meth:`DeclareReading`, and gives
-    :meth:`beam`: (origin (1, 3) mm, unit u (1, 3), cat's-eye centre (1, 3) mm, cat's-eye axis
-    (world), dead path mm, ``pose_noise_on``) of the sample. The reading is
-    :func:`~olti_drake.model.aiming3d.read_beam` (cosine error, acceptance, λ/64, budget noise; 000
-    §5, 001 Table 4), cached per Context; its noise comes from a generator seeded by (seed, sample
-    count) -- the count advances every ``period_s`` -- so re-evaluating a port gives the same value.
-    Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m), ``status`` (:class:`ReadStatus`).
+    A system declares its input ports, then calls :meth:`DeclareReading`, and gives :meth:`beam`:
+    (origin (1, 3) mm, unit u (1, 3), cat's-eye centre (1, 3) mm, cat's-eye axis (world), dead path mm,
+    ``pose_noise_on``) of the sample -- in the system's scalar type where they come from its Parameters
+    or inputs. The reading's value is :func:`~olti_drake.model.aiming3d.read_beam` of their values (cosine
+    error, acceptance, λ/64, budget noise; 000 §5, 001 Table 4), cached per Context; its noise comes from a
+    generator seeded by (seed, sample count) -- the count advances every ``period_s`` -- so re-evaluating a
+    port gives the same value. For T = AutoDiffXd its derivatives are those of the exact optical length
+    minus the dead path (000 Eq. 5, 001 Eq. 3): (T − o)·u with the cosine error, ‖T − o‖ without; noise,
+    quantization and beam loss are constants of the sample. Outputs ``displacement`` (1, m), ``valid`` (1),
+    ``miss`` (1, m), ``status`` (:class:`ReadStatus`).
     """
 
-    def DeclareReading(self, seed: int, period_s: float, options: InterferometerOptions, budget) -> None:
-        self._seed, self._options, self._budget = int(seed), options, budget
+    def DeclareReading(self, seed: int, period_s: float, options: InterferometerOptions, budget, T=float) -> None:
+        self._seed, self._options, self._budget, self._T = int(seed), options, budget, T
         self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(period_s, 0.0, self._count)
+        dtype = float if T is float else object
         self._reading = self.DeclareCacheEntry(
-            "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3)), calc=self._calc_reading),
-            {self.all_sources_ticket()})
+            "reading", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3, dtype=dtype)),
+                                     calc=self._calc_reading), {self.all_sources_ticket()})
         for i, name in enumerate(("displacement", "valid", "miss")):
             self.DeclareVectorOutputPort(name, 1, lambda c, o, i=i: o.SetAtIndex(0, self._reading.Eval(c)[i]))
         self.DeclareAbstractOutputPort("status", lambda: AbstractValue.Make(ReadStatus()), self._calc_status)
@@ -439,16 +487,35 @@ class BeamInterferometer(LeafSystem):
         discrete_state.set_value([context.get_discrete_state_vector()[0] + 1])
 
     def _calc_status(self, context, value):
-        valid = self._reading.Eval(context)[1] > 0.5
+        valid = _value(self._reading.Eval(context)[1:2])[0] > 0.5
         value.set_value(ReadStatus("0000" if valid else "8001", 1, 0))
 
     def _calc_reading(self, context, value):
         from olti_drake.model.aiming3d import read_beam
 
         origin, u, target, axis, dead_mm, pose_noise_on = self.beam(context)
-        rng = np.random.default_rng([self._seed, int(context.get_discrete_state_vector()[0])])
-        r = read_beam(origin, u, target, axis, dead_mm, self._options, self._budget, rng, pose_noise_on=pose_noise_on)
-        value.set_value(np.array([r.reading_mm[0] / 1e3, float(r.valid[0]), r.miss_mm[0] / 1e3]))
+        count = int(_value(context.get_discrete_state_vector().CopyToVector())[0])
+        rng = np.random.default_rng([self._seed, count])
+        T = self._T
+        if T is float:
+            r = read_beam(origin, u, target, axis, dead_mm, self._options, self._budget, rng,
+                          pose_noise_on=pose_noise_on)
+            value.set_value(np.array([r.reading_mm[0] / 1e3, float(r.valid[0]), r.miss_mm[0] / 1e3]))
+            return
+        r = read_beam(_value(origin), _value(u), _value(target), _value(axis), _scalar(dead_mm), self._options,
+                      self._budget, rng, pose_noise_on=pose_noise_on)
+        rel = np.asarray(target)[0] - np.asarray(origin)[0]
+        length = rel @ np.asarray(u)[0] if self._options.cosine_error else (rel @ rel) ** 0.5
+        exact = length - dead_mm
+        # The exact length's derivatives, the simulated reading's value (noise and quantization are constants).
+        reading = exact + (r.reading_mm[0] - _scalar(exact))
+        reading = reading / 1e3 if isinstance(reading, T) else T(float(reading) / 1e3)   # (no T input: a constant)
+        value.set_value(np.array([reading, T(float(r.valid[0])), T(r.miss_mm[0] / 1e3)], dtype=object))
+
+
+class BeamInterferometer(_BeamReading, LeafSystem):
+    """A float 3D interferometer: a subclass declares its inputs, calls :meth:`DeclareReading` and gives
+    :meth:`beam` (:class:`_BeamReading`)."""
 
 
 class RowSequencer(LeafSystem):
@@ -618,3 +685,466 @@ class CampaignRecorder(ReadingRecorder):
         if self.sink is not None:
             status = self._status.Eval(context) if self._status.HasValue(context) else ReadStatus()
             self.sink(record, status)
+
+
+# ------------------------------------------------------------------ six-axis (N-joint) robots, 3D
+class PanTiltSteering(LeafSystem):
+    """Open-loop pan/tilt command of the head in use (001 Eq. (1) in 3D): from the ESTIMATED centre
+    and zero angles to the NOMINAL tool point of the commanded joints (the model file's plant,
+    ``CalcPointsPositions``). Inputs ``joint_command`` (N, rad), ``reflector`` (1) and, with
+    ``tool_input`` (several tool offsets (T, 3) mm, e.g. a machine tool's mountings), ``tool`` (1:
+    the row's tool index); output ``head_command`` (2, rad).
+
+    ``chain``: anything with the finalized ``plant``, ``tool_frame_index``, ``joint_names`` (chain
+    order) and ``n_joints`` -- a :class:`~olti_drake.model.chain.SerialChain`, or the 3D machine's
+    nominal XYZ plant; ``heads_est``: the :class:`~olti_drake.model.aiming3d.PanTiltHeads` estimates.
+    Float only: the command is a decision made before the run, not a reading."""
+
+    def __init__(self, chain, tool_offset_mm, heads_est, tool_input: bool = False):
+        super().__init__()
+        set_default_name(self)
+        self._plant, self._heads = chain.plant, heads_est
+        self._tool = chain.plant.get_frame(chain.tool_frame_index)
+        self._points = np.atleast_2d(np.asarray(tool_offset_mm, float)).T / M_TO_MM  # (3, T) m
+        self._starts = np.array([chain.plant.GetJointByName(n).position_start() for n in chain.joint_names])
+        command = self.DeclareVectorInputPort("joint_command", chain.n_joints)
+        self.DeclareVectorInputPort("reflector", 1)
+        self._tool_port = self.DeclareVectorInputPort("tool", 1) if tool_input else None
+        self._plant_context = self.DeclareCacheEntry(
+            "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(self._plant.CreateDefaultContext()),
+                                           calc=self._calc_plant_context), {command.ticket()})
+        self.DeclareVectorOutputPort("head_command", 2, self._calc)
+
+    def _calc_plant_context(self, context, value):
+        q = np.zeros(self._plant.num_positions())
+        q[self._starts] = self.get_input_port(0).Eval(context)
+        self._plant.SetPositions(value.get_mutable_value(), q)
+
+    def _calc(self, context, output):
+        from olti_drake.model.aiming3d import pan_tilt_commands
+
+        j = int(self.get_input_port(1).Eval(context)[0])
+        m = int(round(self._tool_port.Eval(context)[0])) if self._tool_port is not None else 0
+        p = self._plant.CalcPointsPositions(self._plant_context.Eval(context), self._tool, self._points[:, [m]],
+                                            self._plant.world_frame())[:, 0] * M_TO_MM
+        output.SetFromVector(np.radians(pan_tilt_commands(self._heads, [j], p[None])[0]))
+
+
+def AddPanTiltSteering(builder, chain, tool_offset_mm, heads_est, tool_input: bool = False,
+                       name: str = "pan_tilt_steering"):
+    """Add a :class:`PanTiltSteering` of ``chain``'s plant aiming the ESTIMATED heads ``heads_est`` at the nominal
+    tool point(s) ``tool_offset_mm`` (mm, tool frame) to ``builder``; returns it."""
+    return builder.AddNamedSystem(name, PanTiltSteering(chain, tool_offset_mm, heads_est, tool_input=tool_input))
+
+
+class _PosedPlant:
+    """A beam system's plant Context (its cache value) and the location errors last set on its joint frames.
+
+    The frames are re-posed only when the errors change, not at every new joint position (six poses set
+    cost 7x the kinematics). Drake clones a cache value with ``copy.deepcopy``: the copy gets its own Context.
+    """
+
+    __slots__ = ("context", "located")
+
+    def __init__(self, context, located=None):
+        self.context, self.located = context, located
+
+    def __deepcopy__(self, memo) -> "_PosedPlant":
+        return _PosedPlant(self.context.Clone(), self.located)
+
+
+def _checked(values, shape, what: str, where: str) -> np.ndarray:
+    """``values`` as a finite float array of ``shape``; one-line ValueError naming ``where`` and ``what``."""
+    a = np.asarray(values, dtype=float)
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        raise ValueError(f"{where}: {what} must be {shape} finite values, got shape {np.shape(values)}")
+    return a
+
+
+@TemplateSystem.define("SerialLaserInterferometer_", T_list=(float, AutoDiffXd))
+def SerialLaserInterferometer_(T):
+    """SerialLaserInterferometer for scalar type T (float or AutoDiffXd): ``SerialLaserInterferometer_[T]``.
+
+    Not symbolic: noise, quantization and beam loss are decided on values.
+    """
+
+    class Impl(_BeamReading, LeafSystem_[T]):
+        """The interferometer of a six-axis (N-joint) campaign in 3D (000 §5: cosine error, acceptance, λ/64, noise).
+
+        Input ``position`` (N, rad): the actual joint angles in chain order (e.g. :class:`ErrorMapJoint`'s
+        ``position``); ``reflector`` (1): station j; floor tracers also ``head_command`` (2, rad: pan,
+        tilt). Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m), ``status``
+        (:class:`_BeamReading`).
+
+        The true tool frame comes from ``chain``'s MultibodyPlant (a :class:`~olti_drake.model.chain.SerialChain`:
+        the model file's plant, its joints and tool frame) in T, its joint frames moved by the location
+        errors: joint i's frame on its parent X_PF becomes X_PF·Trans(δ)·Rx·Ry·Rz (the chain model's Δ_i,
+        000 Eq. (3) in 3D), set in the plant's Context; the tool point p = o + R t (t the tool offset).
+
+        Numeric Parameters of the Context (defaults: the constructor's), what the identification of a
+        distance campaign estimates (:class:`~olti_drake.model.serial.DistanceMeasurement`):
+
+        * ``chain_params`` (6N + 3): the location errors of every joint frame and the tool offset, in the
+          order and units of :meth:`~olti_drake.model.chain.SerialChain.parameter_names` (``<joint>_dx_mm``
+          … ``<joint>_drz_deg``, ``tool_x_mm`` …): :meth:`SetChainParameters` / :meth:`GetChainParameters`;
+        * ``stations_mm`` (Nt, 3): the stations P_j (``P<j>_x_mm`` …): the true head centres (floor
+          tracers) or floor reflectors (robot-mounted): :meth:`SetStations` / :meth:`GetStations`;
+        * ``dead_paths_mm`` (Nt,): the counter zeros d0_j (``d0_<j>_mm``, 000 Eq. 5):
+          :meth:`SetDeadPaths` / :meth:`GetDeadPaths`.
+
+        Converted with ``ToAutoDiffXd()`` a reading is differentiable with respect to all of them and the
+        position input (so, through :class:`ErrorMapJoint`, the map nodes): with the cosine error, noise,
+        quantization and beam loss off it is ‖p − P_j‖ − d0_j, the identification's model (000 Eq. (10) in
+        3D), and its derivatives are the identification's Jacobian.
+
+        The beam: floor tracers (``laser_direction`` None) -- it leaves the head centre P_j along the head's
+        TRUE angles (command + ``head_errors[j]`` + ``head_zeros_deg[j]``,
+        :func:`~olti_drake.model.aiming3d.pan_tilt_beam`; the direction is taken at the command's value:
+        no Parameter moves it) and reads the cat's eye at the tool point, axis ``catseye_axis`` in the tool
+        frame. Robot-mounted (``laser_direction``: the beam's direction in the tool frame) -- it leaves the
+        tool point along that direction and reads the floor reflector at P_j, axis ``catseye_axis`` in the
+        world. ``options``, ``budget`` (None: no noise), ``seed``, ``period_s``: the reading
+        (:class:`_BeamReading`). Units: mm and degrees in the arguments and Parameters, SI on the ports.
+        """
+
+        def _construct(self, chain, chain_params, stations_mm, dead_paths_mm, options: InterferometerOptions,
+                       budget=None, seed: int = 0, period_s: float = 1.0, laser_direction=None, head_zeros_deg=None,
+                       head_errors=(), catseye_axis=(0.0, 0.0, 1.0), converter=None):
+            from olti_drake.model.aiming3d import _unit
+
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._args = dict(chain=chain, chain_params=chain_params, stations_mm=stations_mm,
+                              dead_paths_mm=dead_paths_mm, options=options, budget=budget, seed=seed,
+                              period_s=period_s, laser_direction=laser_direction, head_zeros_deg=head_zeros_deg,
+                              head_errors=head_errors, catseye_axis=catseye_axis)
+            where = f"{self.get_name()} ({chain.path})"
+            n = self._n = chain.n_joints
+            params = _checked(chain_params, (6 * n + 3,), "chain_params (6 location errors per joint, tool offset)",
+                              where)
+            n_st = len(np.atleast_2d(np.asarray(stations_mm, float)))
+            P = _checked(stations_mm, (max(n_st, 1), 3), "stations_mm (Nt, 3), Nt >= 1", where)
+            dead = _checked(dead_paths_mm, (n_st,), "dead_paths_mm (one per station)", where)
+            self.tracers = laser_direction is None
+            self._laser = None if self.tracers else _unit(laser_direction)
+            self._axis = _unit(catseye_axis)
+            self._zeros = (np.zeros((n_st, 2)) if head_zeros_deg is None else
+                           _checked(head_zeros_deg, (n_st, 2), "head_zeros_deg (Nt, 2)", where))
+            errors = tuple(head_errors) or (None,) * n_st
+            if len(errors) != n_st:
+                raise ValueError(f"{where}: head_errors: {len(errors)} given for {n_st} stations")
+            self._head_errors = errors
+            # The plant in this scalar type; its joint frames must be offset frames to carry location errors.
+            self._plant = plant = chain.plant if T is float else chain.plant.ToAutoDiffXd()
+            self._tool = plant.get_frame(chain.tool_frame_index)
+            self._starts = np.array([plant.GetJointByName(j).position_start() for j in chain.joint_names])
+            self._frames = [plant.GetJointByName(j).frame_on_parent() for j in chain.joint_names]
+            for frame in self._frames:
+                if not hasattr(frame, "SetPoseInParentFrame"):
+                    raise ValueError(f"robot model {chain.path}: joint frame '{frame.name()}' is not an offset "
+                                     f"frame; its location errors cannot be simulated")
+            default = plant.CreateDefaultContext()
+            self._nominal = [frame.GetPoseInParentFrame(default) for frame in self._frames]
+            self._params = self.DeclareNumericParameter(BasicVector_[T](params.tolist()))
+            self._stations = self.DeclareNumericParameter(BasicVector_[T](P.ravel().tolist()))
+            self._dead_paths = self.DeclareNumericParameter(BasicVector_[T](dead.tolist()))
+            position = self.DeclareVectorInputPort("position", n)
+            self.DeclareVectorInputPort("reflector", 1)
+            if self.tracers:
+                self.DeclareVectorInputPort("head_command", 2)
+            self._plant_context = self.DeclareCacheEntry(
+                "plant_context", ValueProducer(allocate=lambda: AbstractValue.Make(
+                    _PosedPlant(self._plant.CreateDefaultContext())), calc=self._calc_plant_context),
+                {position.ticket(), self.numeric_parameter_ticket(NumericParameterIndex(self._params))})
+            self.DeclareReading(seed, period_s, options, budget, T)
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, **other._args, converter=converter)
+
+        # -- the Parameters ------------------------------------------------------------------------
+        def SetChainParameters(self, context, chain_params) -> None:
+            """Set the location errors and tool offset (6N + 3; mm, deg: ``SerialChain.parameter_names()``)."""
+            context.get_mutable_numeric_parameter(self._params).SetFromVector(chain_params)
+
+        def GetChainParameters(self, context) -> np.ndarray:
+            """The location errors and tool offset (6N + 3; mm, deg) used in ``context``."""
+            return context.get_numeric_parameter(self._params).CopyToVector()
+
+        def SetStations(self, context, stations_mm) -> None:
+            """Set the stations P_j (Nt, 3) mm: head centres (floor tracers) or floor reflectors (robot-mounted)."""
+            context.get_mutable_numeric_parameter(self._stations).SetFromVector(np.reshape(stations_mm, -1))
+
+        def GetStations(self, context) -> np.ndarray:
+            """The stations P_j (Nt, 3) mm used in ``context``."""
+            return context.get_numeric_parameter(self._stations).CopyToVector().reshape(-1, 3)
+
+        def SetDeadPaths(self, context, dead_paths_mm) -> None:
+            """Set the counter zero d0_j (mm) of every station's run in ``context`` (000 Eq. 5)."""
+            context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+        def GetDeadPaths(self, context) -> np.ndarray:
+            """The dead paths d0_j (mm) used in ``context``."""
+            return context.get_numeric_parameter(self._dead_paths).CopyToVector()
+
+        # -- the kinematics ------------------------------------------------------------------------
+        def _location(self, g):
+            """Δ = Trans(δ)·Rx(δrx)·Ry(δry)·Rz(δrz) of one joint frame's location errors ``g`` (6,) mm, deg, in T."""
+            R = RotationMatrix_[T]
+            rad = np.radians if T is float else (lambda v: v * (np.pi / 180.0))
+            return RigidTransform_[T](R.MakeXRotation(rad(g[3])) @ R.MakeYRotation(rad(g[4]))
+                                      @ R.MakeZRotation(rad(g[5])), g[:3] / M_TO_MM)
+
+        def _calc_plant_context(self, context, value):
+            posed = value.get_mutable_value()
+            g = self.GetChainParameters(context)[:6 * self._n].reshape(self._n, 6)
+            if T is not float or posed.located is None or not np.array_equal(posed.located, g):
+                for frame, X0, gi in zip(self._frames, self._nominal, g):
+                    frame.SetPoseInParentFrame(posed.context, X0 @ self._location(gi))
+                posed.located = g.copy() if T is float else None
+            nq = self._plant.num_positions()
+            q = np.zeros(nq) if T is float else np.array([T(0.0)] * nq, dtype=object)
+            q[self._starts] = self.get_input_port(0).Eval(context)
+            self._plant.SetPositions(posed.context, q)
+
+        def beam(self, context):
+            from olti_drake.model.aiming3d import PanTiltHeads, pan_tilt_beam
+
+            X = self._tool.CalcPoseInWorld(self._plant_context.Eval(context).context)
+            R, o = X.rotation().matrix(), X.translation() * M_TO_MM
+            tool_point = o + R @ self.GetChainParameters(context)[6 * self._n:]
+            j = int(_value(self.get_input_port(1).Eval(context))[0])
+            P = self.GetStations(context)
+            dead = self.GetDeadPaths(context)[j]
+            if self.tracers:
+                head = np.degrees(_value(self.get_input_port(2).Eval(context)))[None]
+                origin, u = pan_tilt_beam(PanTiltHeads(_value(P), self._zeros), [j], head, self._head_errors[j])
+                if T is not float:
+                    origin = P[j][None]   # the same point, with its derivatives
+                return origin, u, tool_point[None], _value(R) @ self._axis, dead, "target"
+            return tool_point[None], (R @ self._laser)[None], P[j][None], self._axis, dead, "origin"
+
+    return Impl
+
+
+SerialLaserInterferometer = SerialLaserInterferometer_[None]
+
+
+def AddSerialInterferometer(builder, chain, chain_params, stations_mm, dead_paths_mm, options: InterferometerOptions,
+                            name: str = "serial_laser_interferometer", **kwargs):
+    """Add a :class:`SerialLaserInterferometer` on ``chain``'s plant (a :class:`~olti_drake.model.chain.SerialChain`)
+    to ``builder``; returns it. ``chain_params`` (6N + 3; mm, deg), ``stations_mm`` (Nt, 3), ``dead_paths_mm``
+    (Nt,) are its Parameters' defaults; ``kwargs`` the rest of its arguments (``budget``, ``seed``,
+    ``period_s``, ``laser_direction`` for a robot-mounted laser, ``head_zeros_deg``, ``head_errors``,
+    ``catseye_axis``). Its ``position`` input takes the actual joint angles (N, rad, chain order)."""
+    return builder.AddNamedSystem(name, SerialLaserInterferometer(chain, chain_params, stations_mm, dead_paths_mm,
+                                                                  options, **kwargs))
+
+
+class SerialCampaignRecorder(ReadingRecorder):
+    """Takes the reading half a period after each move and keeps the measured rows:
+    (station, θ1*..θN* deg, dir1..dirN, displacement mm (NaN when the beam is lost), valid, plan row).
+    Inputs ``joint_command`` (N), ``direction`` (N), ``displacement``, ``valid``, ``reflector``,
+    ``measure``, ``row``, ``status``."""
+
+    def __init__(self, n_joints: int, period_s: float):
+        super().__init__(period_s, 0.5 * period_s)
+        self._n = n_joints
+        for name, size in (("joint_command", n_joints), ("direction", n_joints), ("displacement", 1),
+                           ("valid", 1), ("reflector", 1), ("measure", 1), ("row", 1)):
+            self.DeclareVectorInputPort(name, size)
+        self.DeclareAbstractInputPort("status", AbstractValue.Make(ReadStatus()))
+
+    def record(self, context):
+        if self.GetInputPort("measure").Eval(context)[0] < 0.5:
+            return None  # an approach row: nothing read (nor computed)
+        cmd, direction, disp, valid, refl, _, row = (self.get_input_port(i).Eval(context) for i in range(7))
+        ok = valid[0] > 0.5
+        return ((int(refl[0]),) + tuple(np.degrees(cmd)) + tuple(int(d) for d in direction)
+                + (disp[0] * M_TO_MM if ok else np.nan, int(ok), int(row[0])))
+
+
+# ------------------------------------------------------------------ the 3D machine tool
+def _as_T(values, T) -> np.ndarray:
+    """A float or mixed float/AutoDiffXd array as an array of T (a float becomes a constant)."""
+    if T is float:
+        return np.asarray(values, dtype=float)
+    return np.array([v if isinstance(v, T) else T(float(v)) for v in np.ravel(values)], dtype=object)
+
+
+@TemplateSystem.define("VolumetricTool_", T_list=(float, AutoDiffXd))
+def VolumetricTool_(T):
+    """VolumetricTool for scalar type T (float or AutoDiffXd): ``VolumetricTool_[T]``.
+
+    Not symbolic: the B-spline basis is evaluated at the command's value.
+    """
+
+    class Impl(LeafSystem_[T]):
+        """Commanded axes -> the TRUE tool point of a 3-axis machine (the 21 ISO 230-1 error motions composed
+        exactly, :func:`~olti_drake.model.volumetric3d.tool_positions`; docs/machine_3d.md).
+
+        Inputs ``command`` (3, m), ``tool`` (1: the tool index); output ``tool_point`` (3, m), workpiece frame.
+        ``config``: the :class:`~olti_drake.model.volumetric3d.MachineConfig`; ``truth``: its error motions.
+
+        A spline truth (:class:`~olti_drake.model.volumetric3d.SplineMotions`: the identified model's
+        family) is a numeric Parameter of the Context, the parameter vector of
+        :class:`~olti_drake.model.volumetric3d.VolumetricModel` (``config``, the tool offsets of tools 1, 2,
+        … identified when there are several): the free B-spline coefficients ``E_XX[j]`` … (mm, µrad), the
+        squareness ``E_C0Y_urad`` …, ``tool<m>_x_mm`` …, as :meth:`parameter_names` names them;
+        :meth:`SetVolumetricParameters` / :meth:`GetVolumetricParameters`. With ``ToAutoDiffXd()`` the
+        tool point is differentiable with respect to them (the basis taken at the command's value). A
+        continuous truth (``SineMotions``) has no Parameter: it adds its value as a constant.
+        """
+
+        def _construct(self, config, truth, converter=None):
+            from olti_drake.model.volumetric3d import SplineMotions, VolumetricModel
+
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._config, self._truth = config, truth
+            self._model = self._theta = None
+            self.DeclareVectorInputPort("command", 3)
+            self.DeclareVectorInputPort("tool", 1)
+            if isinstance(truth, SplineMotions):
+                self._model = VolumetricModel(config, identify_tool_offsets=len(config.tools) > 1)
+                theta = self._model.parameters_of(truth)
+                self._theta = self.DeclareNumericParameter(BasicVector_[T](theta.tolist()))
+                # The motions of the Parameter (their splines are built once per parameter change).
+                self._motions = self.DeclareCacheEntry(
+                    "motions", ValueProducer(allocate=lambda: AbstractValue.Make(truth), calc=self._calc_motions),
+                    {self.numeric_parameter_ticket(NumericParameterIndex(self._theta))})
+            self.DeclareVectorOutputPort("tool_point", 3, self._calc)
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other._config, other._truth, converter=converter)
+
+        def parameter_names(self) -> tuple:
+            """Names of the volumetric Parameter's entries (``VolumetricModel.parameter_names()``); () without."""
+            return () if self._model is None else self._model.parameter_names()
+
+        def SetVolumetricParameters(self, context, theta) -> None:
+            """Set the spline truth's parameter vector (mm, µrad; :meth:`parameter_names`) in ``context``."""
+            context.get_mutable_numeric_parameter(self._parameter()).SetFromVector(theta)
+
+        def GetVolumetricParameters(self, context) -> np.ndarray:
+            """The spline truth's parameter vector (mm, µrad) used in ``context``."""
+            return context.get_numeric_parameter(self._parameter()).CopyToVector()
+
+        def _parameter(self) -> int:
+            if self._theta is None:
+                raise ValueError(f"{self.get_name()}: the truth is a continuous {type(self._truth).__name__}, not "
+                                 f"the spline model: it has no volumetric parameters")
+            return self._theta
+
+        def _calc_motions(self, context, value):
+            value.set_value(self._model.motions(self.GetVolumetricParameters(context)))
+
+        def _calc(self, context, output):
+            from olti_drake.model.volumetric3d import tool_positions
+
+            cmd = _value(self.get_input_port(0).Eval(context)) * M_TO_MM
+            m = int(round(_value(self.get_input_port(1).Eval(context))[0]))
+            motions = self._truth if self._theta is None else self._motions.Eval(context)
+            output.SetFromVector(_as_T(tool_positions(self._config, motions, cmd[None], [m])[0] / M_TO_MM, T))
+
+    return Impl
+
+
+VolumetricTool = VolumetricTool_[None]
+
+
+@TemplateSystem.define("PanTiltInterferometer_", T_list=(float, AutoDiffXd))
+def PanTiltInterferometer_(T):
+    """PanTiltInterferometer for scalar type T (float or AutoDiffXd): ``PanTiltInterferometer_[T]``.
+
+    Not symbolic: noise, quantization and beam loss are decided on values.
+    """
+
+    class Impl(_BeamReading, LeafSystem_[T]):
+        """The interferometer on pan/tilt heads reading a cat's eye at a given point (001 in 3D).
+
+        Inputs ``tool_point`` (3, m: the true cat's-eye centre, e.g. :class:`VolumetricTool`'s), ``station``
+        (1: head j), ``head_command`` (2, rad). The beam leaves head j's TRUE centre along its TRUE angles
+        (:func:`~olti_drake.model.aiming3d.pan_tilt_beam` of ``heads_true`` with ``head_error``: command +
+        error + true zeros; the direction is taken at the command's value) and reads against the counter
+        zero d0_j (001 Eq. 3), cat's-eye axis ``catseye_axis`` (world), pose noise on ``pose_noise_on``
+        (the head: 001's rotary axis). Outputs ``displacement`` (1, m), ``valid`` (1), ``miss`` (1, m),
+        ``status`` (:class:`_BeamReading`).
+
+        Numeric Parameters of the Context, what :class:`~olti_drake.estimation.volumetric.VolumetricIdentification`
+        estimates with the motions: ``stations_mm`` (Nt, 3), the head centres ``P<j>_x_mm`` … (default
+        ``heads_true.centres_mm``): :meth:`SetStations` / :meth:`GetStations`; ``dead_paths_mm`` (Nt,)
+        ``L0_<j>_mm``: :meth:`SetDeadPaths` / :meth:`GetDeadPaths`. With ``ToAutoDiffXd()`` a reading is
+        differentiable with respect to them and the tool point.
+        """
+
+        def _construct(self, heads_true, head_error, dead_paths_mm, catseye_axis, options, budget, seed: int,
+                       period_s: float, pose_noise_on: str = "origin", converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            set_default_name(self)
+            self._args = (heads_true, head_error, dead_paths_mm, catseye_axis, options, budget, seed, period_s,
+                          pose_noise_on)
+            P = np.asarray(heads_true.centres_mm, float)
+            dead = _checked(dead_paths_mm, (len(P),), "dead_paths_mm (one per head)", self.get_name())
+            self._zeros, self._err = heads_true.zeros_deg, head_error
+            self._axis, self._pose = np.asarray(catseye_axis, float), pose_noise_on
+            self._stations = self.DeclareNumericParameter(BasicVector_[T](P.ravel().tolist()))
+            self._dead_paths = self.DeclareNumericParameter(BasicVector_[T](dead.tolist()))
+            self.DeclareVectorInputPort("tool_point", 3)
+            self.DeclareVectorInputPort("station", 1)
+            self.DeclareVectorInputPort("head_command", 2)
+            self.DeclareReading(seed, period_s, options, budget, T)
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, *other._args, converter=converter)
+
+        def SetStations(self, context, stations_mm) -> None:
+            """Set the heads' true centres P_j (Nt, 3) mm in ``context``."""
+            context.get_mutable_numeric_parameter(self._stations).SetFromVector(np.reshape(stations_mm, -1))
+
+        def GetStations(self, context) -> np.ndarray:
+            """The heads' centres P_j (Nt, 3) mm used in ``context``."""
+            return context.get_numeric_parameter(self._stations).CopyToVector().reshape(-1, 3)
+
+        def SetDeadPaths(self, context, dead_paths_mm) -> None:
+            """Set the counter zeros L0_j (mm) in ``context`` (001 Eq. 3)."""
+            context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+        def GetDeadPaths(self, context) -> np.ndarray:
+            """The counter zeros L0_j (mm) used in ``context``."""
+            return context.get_numeric_parameter(self._dead_paths).CopyToVector()
+
+        def beam(self, context):
+            from olti_drake.model.aiming3d import PanTiltHeads, pan_tilt_beam
+
+            target = self.get_input_port(0).Eval(context) * M_TO_MM
+            j = int(round(_value(self.get_input_port(1).Eval(context))[0]))
+            head = np.degrees(_value(self.get_input_port(2).Eval(context)))[None]
+            P = self.GetStations(context)
+            origin, u = pan_tilt_beam(PanTiltHeads(_value(P), self._zeros), [j], head, self._err)
+            if T is not float:
+                origin = P[j][None]   # the same point, with its derivatives
+            return origin, u, target[None], self._axis, self.GetDeadPaths(context)[j], self._pose
+
+    return Impl
+
+
+PanTiltInterferometer = PanTiltInterferometer_[None]
+
+
+class Machine3DRecorder(ReadingRecorder):
+    """Takes the reading half a period after each move: the row (station, target, x/y/z_cmd_mm, tool,
+    displacement_mm -- NaN when the beam is lost --, valid) followed by the true tool point (mm).
+    Inputs ``station``, ``target``, ``tool`` (1), ``target_command`` (3, m), ``displacement`` (1, m),
+    ``valid`` (1), ``position`` (3, m)."""
+
+    def __init__(self, period_s: float):
+        super().__init__(period_s, 0.5 * period_s)
+        for name, size in (("station", 1), ("target", 1), ("tool", 1), ("target_command", 3),
+                           ("displacement", 1), ("valid", 1), ("position", 3)):
+            self.DeclareVectorInputPort(name, size)
+
+    def record(self, context):
+        station, target, tool, cmd, disp, valid, pos = (self.get_input_port(i).Eval(context) for i in range(7))
+        ok = valid[0] > 0.5
+        return ((int(round(station[0])), int(round(target[0]))) + tuple(cmd * M_TO_MM)
+                + (int(round(tool[0])), disp[0] * M_TO_MM if ok else np.nan, int(ok)) + tuple(pos * M_TO_MM))
