@@ -206,6 +206,7 @@ def test_truth_json_predicts_the_true_positions_and_readings(exact, tmp_path):
     setup, camp = exact
     paths = ss.write_serial_simulation(camp, str(tmp_path / "sim"))
     data = json.loads(Path(paths[1]).read_text())
+    assert len(data["robot"].pop("sha256")) == 64  # the model file's digest (issue 24)
     assert data["robot"] == {"file": "ur5", "tool_frame": "tool0", "joints": list(setup.chain.joint_names)}
     result = load_serial_result(paths[1])
     c = camp.columns

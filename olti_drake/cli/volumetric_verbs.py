@@ -119,6 +119,10 @@ def compensate(args) -> int:
                          "motions never measured; volumetric compensation refuses such targets")
     res = load_volumetric_result(args.result)   # first: the tables it writes depend on its tools
     cfg = res.model.config
+    if args.tables:  # before any work: the tables' sizes (olti_drake.limits)
+        from olti_drake.model.volumetric3d import check_table_sizes
+
+        check_table_sizes(cfg, args.pitch_mm or 10.0, args.grid_pitch_mm or 50.0)
     _preflight(args, [args.out] + (table_paths(args.tables, cfg) if args.tables else []), [args.result, args.targets],
                dirs=[args.tables] if args.tables else [])
     wanted, tool, lines = _read_points(args.targets, ("x_mm", "y_mm", "z_mm"), len(cfg.tools))

@@ -574,6 +574,18 @@ class LeastSquaresProgram:
         rms = _rms(fit.residuals)
         ratio = rms / max(u, 1e-300)
         self.residual_ratio = (float(ratio), float(u), getattr(budget, "name", ""))
+        # Far BELOW the budget's (real) u: exact readings of a simulation, or readings in another unit. Refused
+        # only with the unit slip's signature too -- readings spread far less than the robot or machine moves
+        # (the measurement's reading_spans(): readings in metres spread 1/1000 of the motion) -- never for a
+        # noise-free simulated campaign, whose readings spread like the motion.
+        spans = getattr(getattr(self, "measurement", None), "reading_spans", None)
+        if ratio < 1e-2 and u >= 1e-6 and spans is not None:
+            spread, motion = spans()
+            if spread < 1e-2 * motion:
+                raise FitRefused(f"{self.source}: refused, nothing written -- residual RMS {1e3 * rms:.3g} um is "
+                                 f"below 1/100 of the reading uncertainty {1e3 * u:.3g} um and the readings spread "
+                                 f"{spread:.4g} mm while the tool points spread {motion:.4g} mm: readings in "
+                                 f"another unit (metres?), not mm")
         if ratio <= RESIDUAL_WARNING_RATIO:
             return []
         return [f"residual RMS {1e3 * rms:.2f} um is {ratio:.1f} x the reading uncertainty {1e3 * u:.2f} um that "

@@ -25,6 +25,7 @@ Units: mm and degrees; uncertainties standard (k = 1) unless said otherwise.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -83,9 +84,11 @@ def candidate_points(boxes, step_mm: float) -> np.ndarray:
         raise InputError(f"--step-mm must be > 0, got {step_mm:g}")
     pts = []
     for box in np.asarray(boxes, float):
+        sizes = [math.floor((hi - lo + 1e-9) / step_mm) + 1 if hi > lo else 1 for lo, hi in box]  # before arange
+        if math.prod(float(k) for k in sizes) > 200_000:
+            raise InputError(f"--step-mm {step_mm:g}: {math.prod(float(k) for k in sizes):.3g} candidates in one "
+                             f"region, more than 200000; use a larger step")
         axes = [np.arange(lo, hi + 1e-9, step_mm) if hi > lo else np.array([lo]) for lo, hi in box]
-        if np.prod([a.size for a in axes]) > 200_000:
-            raise InputError(f"--step-mm {step_mm:g}: more than 200000 candidates in one region; use a larger step")
         pts.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
     return np.unique(np.vstack(pts), axis=0)
 
@@ -220,6 +223,21 @@ def layout_cost(info: StationInformation, blocks, criterion: str) -> float:
     return float(np.max(u) if criterion == "max" else np.mean(u))
 
 
+def check_block_sizes(info, n_candidates: int) -> None:
+    """Refuse (:func:`olti_drake.limits.check_allocation`), before any block is made, candidates whose dense
+    per-station information (kept for every candidate: n x n, two of them for the sandwich of a machine tool)
+    would allocate more than the limit."""
+    from olti_drake.limits import check_allocation
+
+    if hasattr(info, "model"):
+        n, per = info.model.n_params, 1
+    else:
+        n, per = len(info._cols), 2
+    check_allocation("--step-mm", f"({n_candidates} candidates)", [n_candidates, per, n, n],
+                     what="values (candidates x per-station information n x n)",
+                     hint="use a larger --step-mm or smaller regions")
+
+
 def design_stations(info: StationInformation, candidates_mm, n_stations: int, *, criterion: str = "max",
                     seed: int = 0, starts: int = 3, max_sweeps: int = 5,
                     min_separation_mm: float = MIN_SEPARATION_MM,
@@ -228,6 +246,7 @@ def design_stations(info: StationInformation, candidates_mm, n_stations: int, *,
     if criterion not in ("max", "mean"):
         raise InputError(f"criterion: 'max' or 'mean', not {criterion!r}")
     cand = np.atleast_2d(np.asarray(candidates_mm, float))
+    check_block_sizes(info, len(cand))
     with single_thread_blas():  # thousands of small (n x n) products: threads only contend
         return _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress)
 

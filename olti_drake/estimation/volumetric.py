@@ -55,7 +55,7 @@ from olti_drake.model.measurements import StationDistanceMeasurement
 # IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD: the motion values no machine has (re-exported)
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD,  # noqa: F401
                                            MachineConfig, VolumetricModel, VolumetricPositionModel, motion_names,
-                                           motion_role, motion_unit, observability)
+                                           motion_role, motion_unit, observability, check_table_sizes)
 
 #: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns
 #: (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE_CONDITIONS`).
@@ -142,6 +142,7 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
                                knot_spacing_mm=float(spacing), tool_offsets_mm=tuple(map(tuple, tools)))
     except ValueError as e:
         raise InputError(f"{data.source}: {e}") from None
+    check_table_sizes(config, options.pitch_mm)  # the result's motion tables, before any work
     _check_positions(data, config)
     return config
 

@@ -10,7 +10,7 @@ tables are chosen when no file is named.
 import os
 
 from olti_drake.errors import InputError
-from olti_drake.model.budget import Budget, paper000_budget
+from olti_drake.model.budget import Budget, check_stated, paper000_budget
 
 
 def load_budget(path) -> Budget:
@@ -20,12 +20,14 @@ def load_budget(path) -> Budget:
     from olti_drake.io.csvio import read_yaml
 
     name = os.fspath(path)
-    read_yaml(name, "budget")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
+    raw = read_yaml(name, "budget")  # refuses duplicate keys and non-UTF-8 bytes, naming the line
     try:
         budget = yaml_load_typed(schema=Budget, filename=name, allow_schema_with_no_yaml=True)
     except Exception as e:  # pydrake raises RuntimeError/TypeError with multi-line text
         raise InputError(f"{name}: {str(e).splitlines()[0]}") from None
-    return budget.validate(name)
+    budget.validate(name)
+    check_stated(raw.get("contributors") if isinstance(raw, dict) else None, name)  # no unit, k, acts_on by default
+    return budget
 
 
 #: The budget each kind of campaign is propagated with when none is named: the papers' own tables.

@@ -88,6 +88,38 @@ def robot_reference(spec, result_path) -> str:
         return os.path.abspath(spec)
 
 
+def robot_digest(path) -> str:
+    """sha256 (hex) of a robot model file's bytes: a result stores it as ``robot.sha256`` (the model its
+    parameters are errors of), and a file edited since is refused by name (:func:`check_robot_digest`)."""
+    import hashlib
+
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+_UNCHECKED_NOTED = set()
+
+
+def check_robot_digest(data: dict, name: str, robot_path) -> None:
+    """Refuse a robot model file that is not the one the result ``name`` was identified with (its
+    ``robot.sha256``), one line naming both; a result written before the digest existed loads, with a one-line
+    note (stderr, once per file)."""
+    stored = (data.get("robot") or {}).get("sha256")
+    if stored is None:
+        if name not in _UNCHECKED_NOTED:
+            _UNCHECKED_NOTED.add(name)
+            import sys
+
+            print(f"note: {name} carries no digest of its robot model file (written by an older version): not "
+                  f"checked that {os.fspath(robot_path)} is unchanged", file=sys.stderr, flush=True)
+        return
+    here = robot_digest(robot_path)
+    if stored != here:
+        raise InputError(f"{name}: the robot model file {os.fspath(robot_path)} changed since the identification "
+                         f"(sha256 {here[:12]}..., the result's robot.sha256 {str(stored)[:12]}...): its parameters "
+                         f"are errors of the model as it was; identify again")
+
+
 # ------------------------------------------------------------------ campaigns
 @dataclass(frozen=True)
 class JointTable:
@@ -336,6 +368,8 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
     x = np.asarray(fit.x, float)
     out = {**result_header("serial"), "model": kind,
            "robot": {"file": robot_file, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)}}
+    if os.path.isfile(getattr(chain, "path", "") or ""):  # the model file the parameters are errors of
+        out["robot"]["sha256"] = robot_digest(chain.path)
     out.update(measurement.layout(x))
     if hasattr(measurement, "labels"):  # the campaign's station index of each row of stations_mm
         out["station_labels"] = [int(j) for j in measurement.labels]
@@ -393,6 +427,8 @@ def serial_truth_dict(truth, robot_file: str, *, grid_step_deg: float = 0.25, ra
         ranges_deg = np.column_stack([lo, hi])
     out = {"format": FORMAT, "model": "errormap", "truth": True,
            "robot": {"file": robot_file, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)}}
+    if os.path.isfile(getattr(chain, "path", "") or ""):
+        out["robot"]["sha256"] = robot_digest(chain.path)
     n = chain.n_joints
     for name, v in zip(chain.parameter_names()[:6 * n], truth.chain_params[:6 * n]):
         out[name] = float(v)
@@ -469,6 +505,9 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
         chain = load_robot(robot["file"], robot["tool_frame"], os.path.dirname(os.path.abspath(name)))
     except ValueError as e:
         raise InputError(f"{name}: robot.file: {e}") from None
+    if "sha256" in robot and not isinstance(robot["sha256"], str):
+        raise InputError(f"{name}: key 'robot.sha256' must be a string (the robot model file's digest)")
+    check_robot_digest(data, name, resolve_robot(robot["file"], os.path.dirname(os.path.abspath(name))))
     joints = robot.get("joints")
     if joints is not None and list(joints) != list(chain.joint_names):
         raise InputError(f"{name}: key 'robot.joints' {list(joints)} is not the chain of {robot['file']} to "

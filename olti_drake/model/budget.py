@@ -89,6 +89,25 @@ class Budget:
         return self
 
 
+#: What a contributor in a file must state: its defaults (um, k = 1, reading) would silently give a value another
+#: meaning -- a contributor in nm, stated at k = 2 or acting on the pose would be read 1000 x, 2 x or on the
+#: wrong term.
+STATED_KEYS = {"unit": "the unit of its value", "k": "the coverage factor its value is stated with",
+               "acts_on": "what it acts on: reading, pose or beam_direction"}
+
+
+def check_stated(contributors, where: str) -> None:
+    """Refuse (one line naming the contributor and the key) a contributor of a budget file, as read (a list of
+    mappings), that leaves a key of :data:`STATED_KEYS` to its default."""
+    for i, c in enumerate(contributors or []):
+        if not isinstance(c, dict):
+            continue
+        missing = [key for key in STATED_KEYS if key not in c]
+        if missing:
+            raise InputError(f"{where}: contributors[{i}] ({c.get('symbol') or c.get('name') or '?'}): no "
+                             f"'{missing[0]}' given ({STATED_KEYS[missing[0]]}; not assumed)")
+
+
 def _check_contributor(c: Contributor, label: str) -> None:
     if c.acts_on not in ACTS_ON:
         raise InputError(f"{label}: acts_on must be one of {', '.join(ACTS_ON)}, got {c.acts_on!r}")

@@ -26,6 +26,7 @@ from typing import Union
 import numpy as np
 
 from olti_drake.formats import MULTILATERATION_RESULT
+from olti_drake.limits import check_allocation
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
 from olti_drake.model.instrument import InterferometerOptions, simulate_readings
@@ -77,6 +78,10 @@ class VolumetricError:
 def square_targets(size_mm: float = 100.0, step_mm: float = 20.0, origin_mm=(0.0, 0.0), perimeter: bool = True):
     """Command target positions (N_i, 2) mm on a square grid; ``perimeter`` keeps its border only
     (001 §3.2: 20 positions, 20 mm steps, within 100 × 100 mm)."""
+    if step_mm > 0:
+        k = size_mm / step_mm
+        check_allocation("step_mm", f"{step_mm:g} mm", [4 * k if perimeter else (k + 1) ** 2, 2],
+                         what="coordinates (targets)", hint="use a coarser step_mm")
     n = int(round(size_mm / step_mm))
     ticks = np.arange(n + 1) * step_mm
     X, Y = np.meshgrid(ticks, ticks)
@@ -240,6 +245,8 @@ def grid_commands_3d(config, grid, tools=(0,)):
     n = np.asarray(grid, dtype=int).reshape(3)
     if np.any(n < 2):
         raise ValueError(f"grid must have >= 2 points per axis, got {tuple(grid)!r}")
+    check_allocation("grid", list(map(int, n)), [*map(float, n), len(tools), 3], what="coordinates (commands)",
+                     hint="use fewer grid points")
     ticks = [np.linspace(*config.travel_mm[a], k) for a, k in zip(AXES, n)]
     pts = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, 3)
     tools = np.asarray(tools, dtype=int)

@@ -5,8 +5,12 @@ Paper 000 Eq. (5)/(10) (a SCARA reflector P_j with dead path d0_j) and paper 001
 station P_j with dead path L0_j) read the same thing: d = ‖p − P_j‖ − d0_j, so the residual of every
 distance reading is r = ‖p − P_j‖ − d0_j − d (mm).
 
+* :func:`distance_residual`: that residual and its unit vector u (∂r/∂p = u, ∂r/∂P_j = −u, ∂r/∂d0_j = −1)
+  in D = 2 or 3 dimensions -- the one place it is written; the serial robot's
+  :class:`olti_drake.model.serial.DistanceMeasurement` (stations in 3D or in a planar robot's plane, dead-path
+  drift) contracts u with its own ``PositionJacobian``.
 * :func:`distance_rows_nd` (and its 2D form :func:`distance_rows`): that residual and its Jacobian rows,
-  batched over T parameter vectors, in D = 2 or 3 dimensions -- the one place it is written (the SCARA
+  batched over T parameter vectors, in D = 2 or 3 dimensions (the SCARA
   :class:`~olti_drake.estimation.identification.Identifier`, the multilateration of 001 and the volumetric
   machine, its identification and its observability check, use it).
 * :class:`StationDistanceMeasurement`: distance readings from N_j stations (P_j ∈ R^D, dead paths) of the
@@ -31,6 +35,28 @@ def lengths(diff) -> np.ndarray:
     for c in range(2, diff.shape[-1]):
         dist = np.hypot(dist, diff[..., c])
     return dist
+
+
+def distance_residual(p, P, d0, readings):
+    """The distance residual of both papers, r = ‖p − P_j‖ − d0_j − d (000 Eq. 10, 001 Eq. 3), mm, and its
+    unit vector u = (p − P_j) / ‖p − P_j‖ -- the one place it is written.
+
+    The derivatives follow from u: ∂r/∂p = u, ∂r/∂P_j = −u, ∂r/∂d0_j = −1 (mm/mm); each caller contracts u
+    with its own ∂p/∂x (:func:`distance_rows_nd` row-compressed, the serial robot's
+    :class:`olti_drake.model.serial.DistanceMeasurement` through its ``PositionJacobian``).
+
+    Args:
+        p: (..., D) the position of every reading (D = 2 or 3), mm.
+        P: (..., D) the station of every reading (broadcastable), mm.
+        d0: (...) the dead path of every reading (a drift included), mm.
+        readings: (...) the readings d, mm.
+
+    Returns:
+        r (...) mm; u (..., D).
+    """
+    diff = p - P
+    dist = lengths(diff)  # = np.hypot(dx, dy) bit for bit in 2D
+    return dist - d0 - readings, diff / dist[..., None]
 
 
 def distance_rows(p, pcols, dpx, dpy, P, d0, station, readings, station_col: int, dead_path_col: int):
@@ -59,10 +85,7 @@ def distance_rows_nd(p, pcols, dp, P, d0, station, readings, station_col: int, d
         d0_j (u the unit vector from P_j to p).
     """
     D = p.shape[-1]
-    diff = p - P[:, station]
-    dist = lengths(diff)  # = np.hypot(dx, dy) bit for bit in 2D
-    u = diff / dist[..., None]
-    r = dist - d0[:, station] - readings
+    r, u = distance_residual(p, P[:, station], d0[:, station], readings)
     dr_dp = u[..., :1] * dp[0]
     for c in range(1, D):
         dr_dp = dr_dp + u[..., c:c + 1] * dp[c]

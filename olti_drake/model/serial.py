@@ -12,7 +12,8 @@ The model layer of "any serial robot in 3D" (no solver here):
   offset: tool point p (M, 3) and ∂p/∂x as a scipy.sparse matrix, the map
   columns sparse (each reading touches ≤ 2 nodes per joint, Eq. (7) weights).
 * Measurement models on top: :class:`DistanceMeasurement` (stations P_j and
-  dead paths d0_j, r = ‖p − P_j‖ − d0_j − d, 000 Eq. (10) in 3D),
+  dead paths d0_j, r = ‖p − P_j‖ − d0_j − d, 000 Eq. (10) in 3D, 001 Eq. (3);
+  the residual is :func:`olti_drake.model.measurements.distance_residual`),
   :class:`PointMeasurement` (tracker points in an unknown rigid frame,
   r = R·p + t − m) and :class:`RootPositionMeasurement` (points in the root
   frame, for analysis).
@@ -40,6 +41,7 @@ from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, app
 from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, PLANAR_REASON, TOOL_NAMES,
                                     UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, plane_frame, _axis_rotation,
                                     _cross)
+from olti_drake.model.measurements import distance_residual, lengths
 
 MODEL_KINDS = ("dh", "errormap")
 #: Relative singular value below which a parameter combination counts as unseen (gauge analysis).
@@ -429,6 +431,61 @@ class SerialPositionModel:
             out[m.joint] = (row, text)
         return out
 
+    #: Plausibility bounds of a solution (:meth:`implausible`): a joint frame's location error beyond
+    #: ``LOCATION_BOUND_MM`` / ``LOCATION_BOUND_DEG`` is not an error of a robot built to its model file (machining
+    #: and assembly give tenths of a mm and hundredths of a degree; 50 mm / 10 deg is a wrong model or a unit slip:
+    #: readings in metres "correct" links by hundreds of mm); a joint offset or map value beyond
+    #: ``MAX_DEVIATION_DEG`` (the SCARA's :attr:`~olti_drake.model.scara.ScaraPositionModel.MAX_DEVIATION_DEG`)
+    #: is no positioning deviation (a joint column in radians gives hundreds of degrees); a tool point more than
+    #: ``TOOL_BOUND_MM`` from its given nominal is another tool (a mount's drawing is good to a mm), and one
+    #: without a nominal (0, 0, 0) farther than the robot's reach is none.
+    LOCATION_BOUND_MM = 50.0
+    LOCATION_BOUND_DEG = 10.0
+    MAX_DEVIATION_DEG = 10.0
+    TOOL_BOUND_MM = 100.0
+
+    def implausible(self, x, reach_mm: Optional[float] = None) -> list:
+        """Physically impossible values of x, one phrase each naming the parameter (empty: plausible):
+        location errors beyond :attr:`LOCATION_BOUND_MM` / :attr:`LOCATION_BOUND_DEG`, joint offsets and map
+        values beyond :attr:`MAX_DEVIATION_DEG`, a tool point more than :attr:`TOOL_BOUND_MM` from its nominal
+        (the start; without one, beyond ``reach_mm`` when given)."""
+        x = self._check(x)
+        out = []
+        hint = "(readings in mm and joint angles in degrees? the right robot model file?)"
+        names = self.geometric_names
+        bounds = np.array([self.LOCATION_BOUND_DEG if g.endswith("_deg") else self.LOCATION_BOUND_MM for g in names])
+        excess = np.abs(x[:len(names)]) / bounds if len(names) else np.zeros(0)
+        beyond = np.flatnonzero(~(excess <= 1))
+        if beyond.size:
+            i = int(beyond[np.argmax(np.where(np.isfinite(excess[beyond]), excess[beyond], np.inf))])
+            unit = "deg" if names[i].endswith("_deg") else "mm"
+            more = f" (and {beyond.size - 1} more)" if beyond.size > 1 else ""
+            out.append(f"{names[i]} = {x[i]:.6g} {unit}{more} is beyond {bounds[i]:g} {unit}, no location error "
+                       f"of a joint frame {hint}")
+            hint = "(readings in mm?)"
+        n = self.chain.n_joints
+        nominal = self.chain_params[6 * n:]
+        tool = self.chain_parameters(x)[6 * n:]
+        off = float(np.linalg.norm(tool - nominal))
+        if np.any(nominal != 0) and not off <= self.TOOL_BOUND_MM:
+            out.append(f"tool_offset_mm = ({tool[0]:.6g}, {tool[1]:.6g}, {tool[2]:.6g}) is {off:.6g} mm from its "
+                       f"nominal ({nominal[0]:g}, {nominal[1]:g}, {nominal[2]:g}), over {self.TOOL_BOUND_MM:g} mm "
+                       f"{hint}")
+        elif reach_mm is not None and not np.any(nominal != 0) and not off <= reach_mm:
+            out.append(f"tool_offset_mm = ({tool[0]:.6g}, {tool[1]:.6g}, {tool[2]:.6g}) is {off:.6g} mm from the "
+                       f"tool frame, beyond the robot's reach {reach_mm:.6g} mm {hint}")
+        k = len(self._chain_cols)
+        angles = [(i, self.names[i]) for i in range(k, self._compliance_start)]
+        angles += [(i, self.names[i]) for i in range(self.n_dense, self.n_params)]
+        if angles:
+            idx = np.array([i for i, _ in angles])
+            dev = np.abs(x[idx])
+            if not dev.max() <= self.MAX_DEVIATION_DEG:
+                i = int(idx[np.argmax(np.where(np.isfinite(dev), dev, np.inf))])
+                out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no "
+                           f"positioning deviation (a joint column in radians?)")
+        return out
+
 
 def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str = "errormap",
                          grid_step_deg: float = 15.0, grids: Optional[Dict[str, Sequence[float]]] = None,
@@ -554,11 +611,37 @@ class _Measurement:
                                      x_model)
         return p[inverse], jac.take(inverse)
 
+    #: A station (a tracker) farther from the robot's root than this many reaches is absurd (:meth:`implausible`):
+    #: a robot is measured from metres, not from tens of its reaches.
+    STATION_REACHES = 20.0
+
+    def reach_mm(self) -> float:
+        """The farthest the start model puts the tool point from the root over the campaign's poses, mm."""
+        if getattr(self, "_reach", None) is None:
+            p = self.model.positions(self.commands, self.dirs)
+            self._reach = max(float(np.linalg.norm(p, axis=1).max()), 1e-9)
+        return self._reach
+
+    def reading_spans(self):
+        """(the spread of the readings, the spread of the tool points the start model predicts), mm: readings
+        spread far less than the robot moves are in another unit (the engine's check of a residual far below
+        the reading uncertainty, :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.residual_warnings`)."""
+        p = self.model.positions(self.commands, self.dirs)
+        return self._reading_spread(), float(np.ptp(p, axis=0).max())
+
+    def _far(self, where, what) -> list:
+        """One phrase when a point ``where`` (3,) mm lies beyond :attr:`STATION_REACHES` reaches of the root."""
+        far, bound = float(np.linalg.norm(where)), self.STATION_REACHES * self.reach_mm()
+        return [] if far <= bound else [f"{what} lies {far:.6g} mm from the robot's root, over "
+                                        f"{self.STATION_REACHES:g} x its reach {self.reach_mm():.6g} mm"]
+
 
 class DistanceMeasurement(_Measurement):
-    """Distance readings from stations (000 Eq. (10) in 3D), mm.
+    """Distance readings from stations (000 Eq. (10) in 3D, 001 Eq. (3)), mm.
 
-    r_k = ‖p_k − P_j‖ − d0_j − d_k for reading k taken from station j. Own
+    r_k = ‖p_k − P_j‖ − d0_j − d_k for reading k taken from station j, written once in
+    :func:`olti_drake.model.measurements.distance_residual` (shared with ``distance_rows_nd``); what is
+    this measurement's own is the stations' columns (planar stations), the drift and the directions. Own
     parameters: ``P<j>_x_mm, P<j>_y_mm, P<j>_z_mm`` per station, then
     ``d0_<j>_mm`` per station (j = the station labels of the file, ascending).
 
@@ -645,22 +728,21 @@ class DistanceMeasurement(_Measurement):
         xm, P, d0 = self._parts(x)
         if residuals is not None:
             return residuals + d0 + self.displacement
-        return np.linalg.norm(self.model.positions(self.commands, self.dirs, xm) - P[self.station], axis=1)
+        return lengths(self.model.positions(self.commands, self.dirs, xm) - P[self.station])
 
     def predict(self, x) -> np.ndarray:
-        """Expected readings ‖p − P_j‖ − d0_j (mm)."""
+        """Expected readings ‖p − P_j‖ − d0_j (mm): the residual of a zero reading (000 Eq. 10, 001 Eq. 3)."""
         xm, P, d0 = self._parts(x)
         p = self.model.positions(self.commands, self.dirs, xm)
-        return np.linalg.norm(p - P[self.station], axis=1) - d0
+        return distance_residual(p, P[self.station], d0, 0.0)[0]
 
     def residuals(self, x):
-        """r (M,) mm and the sparse dr/dx (M, P + 4 Nt): u·∂p/∂x, −u for P_j, −1 for d0_j."""
+        """r (M,) = ‖p − P_j‖ − d0_j − d mm (000 Eq. 10, 001 Eq. 3: the shared
+        :func:`~olti_drake.model.measurements.distance_residual`) and the sparse dr/dx (M, P + 4 Nt): u·∂p/∂x,
+        −u for P_j (its free coordinates), −1 for d0_j, −(t − t̄_j) for the drift (mm/mm, mm/deg, h)."""
         xm, P, d0 = self._parts(x)
         p, jp = self._position_jacobian(xm)
-        diff = p - P[self.station]
-        dist = np.linalg.norm(diff, axis=1)
-        u = diff / dist[:, None]
-        r = dist - d0 - self.displacement
+        r, u = distance_residual(p, P[self.station], d0, self.displacement)
         pm, nt, nf = self.model.n_params, len(self.labels), len(self._free)
         cols = [pm + nf * self.station + c for c in range(nf)] + [pm + nf * nt + self.station]
         du = u[:, self._free]
@@ -691,6 +773,18 @@ class DistanceMeasurement(_Measurement):
         return DistanceMeasurement(model, np.tile(commands, (nt, 1)), tiled_dirs,
                                    np.repeat(self.labels, m), np.zeros(nt * m), P, np.zeros(nt), time_h=times,
                                    plane=self.plane)
+
+    def _reading_spread(self) -> float:
+        return float(np.ptp(self.displacement)) if len(self.displacement) else 0.0
+
+    def implausible(self, x) -> list:
+        """The model's implausible values (:meth:`SerialPositionModel.implausible`), then stations beyond
+        :attr:`STATION_REACHES` reaches of the root; one phrase each, named."""
+        xm, P, _ = self._parts(np.asarray(x, dtype=float))
+        out = list(self.model.implausible(xm, self.reach_mm()))
+        for j, label in enumerate(self.labels):
+            out += self._far(P[j], f"station {label} (P{label}_mm)")
+        return out
 
 
 class PointMeasurement(_Measurement):
@@ -747,6 +841,15 @@ class PointMeasurement(_Measurement):
     def probe(self, model, commands, dirs, rng):
         frame = np.concatenate([rng.normal(0, 500.0, 3), rng.uniform(-30, 30, 3)])
         return PointMeasurement(model, commands, dirs, np.zeros((len(commands), 3)), frame)
+
+    def _reading_spread(self) -> float:
+        return float(np.ptp(self.points, axis=0).max()) if len(self.points) else 0.0
+
+    def implausible(self, x) -> list:
+        """The model's implausible values (:meth:`SerialPositionModel.implausible`), then a tracker frame whose
+        origin lies beyond :attr:`STATION_REACHES` reaches of the root; one phrase each, named."""
+        xm, frame = self._parts(np.asarray(x, dtype=float))
+        return list(self.model.implausible(xm, self.reach_mm())) + self._far(frame[:3], "the tracker (frame_*_mm)")
 
 
 class RootPositionMeasurement(_Measurement):

@@ -39,6 +39,7 @@ compensation helpers. Units: mm, µrad everywhere in this module.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Dict, Sequence, Tuple
 
@@ -141,15 +142,24 @@ class MachineConfig:
     def tools(self) -> np.ndarray:
         return np.asarray(self.tool_offsets_mm, float)
 
+    def intervals(self, axis: str) -> int:
+        """Knot intervals of ``axis`` (equal, ≤ knot_spacing_mm), counted without making the knots."""
+        lo, hi = self.travel_mm[axis]
+        return max(1, int(math.ceil((hi - lo) / self.knot_spacing_mm - 1e-9)))
+
     def knots(self, axis: str) -> np.ndarray:
         """Clamped cubic B-spline knot vector of ``axis`` (mm): equal intervals ≤ knot_spacing_mm."""
+        from olti_drake.limits import check_allocation
+
         lo, hi = self.travel_mm[axis]
-        n = max(1, int(np.ceil((hi - lo) / self.knot_spacing_mm - 1e-9)))
+        n = self.intervals(axis)
+        check_allocation("knot_spacing_mm", f"{self.knot_spacing_mm:g} mm", [n + 1 + 2 * DEGREE],
+                         what=f"knots along {axis}", hint="use a larger --knot-spacing-mm")
         inner = np.linspace(lo, hi, n + 1)
         return np.concatenate([[lo] * DEGREE, inner, [hi] * DEGREE])
 
     def n_basis(self, axis: str) -> int:
-        return len(self.knots(axis)) - DEGREE - 1
+        return self.intervals(axis) + DEGREE  # = len(self.knots(axis)) - DEGREE - 1
 
 
 def _row(k: int, lines=None) -> str:
@@ -880,6 +890,32 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
 
 
 # --------------------------------------------------------------------------- compensation
+#: Working float64 values per table or grid point at the peak (the point, the motions and their chain state,
+#: the uncertainty rows, the columns as written): an estimate for :func:`check_table_sizes`.
+VALUES_PER_POINT = 64
+
+
+def _ticks(config: MachineConfig, pitch_mm: float) -> list:
+    """Points per axis of a table at ``pitch_mm`` over the travel (end included), as floats (no array)."""
+    return [float(np.floor((config.travel_mm[a][1] - config.travel_mm[a][0]) / pitch_mm * (1 - 1e-12))) + 2
+            if config.travel_mm[a][1] > config.travel_mm[a][0] else 1.0 for a in AXES]  # inf stays inf
+
+
+def check_table_sizes(config: MachineConfig, pitch_mm=None, grid_pitch_mm=None, pitch_option: str = "--pitch-mm",
+                      grid_option: str = "--grid-pitch-mm") -> None:
+    """Refuse, in one line and before any work (:func:`olti_drake.limits.check_allocation`), an axis-table
+    pitch or a 3D-grid pitch whose tables would allocate more than the limit."""
+    from olti_drake.limits import check_allocation
+
+    if pitch_mm is not None and np.isfinite(pitch_mm) and pitch_mm > 0:
+        check_allocation(pitch_option, f"{pitch_mm:g} mm", [float(sum(_ticks(config, pitch_mm))), VALUES_PER_POINT],
+                         what="values (axis-table positions x working values per position)",
+                         hint=f"use a coarser {pitch_option}")
+    if grid_pitch_mm is not None and np.isfinite(grid_pitch_mm) and grid_pitch_mm > 0:
+        check_allocation(grid_option, f"{grid_pitch_mm:g} mm", _ticks(config, grid_pitch_mm) + [VALUES_PER_POINT],
+                         what="values (grid points x working values per point)", hint=f"use a coarser {grid_option}")
+
+
 def axis_tables(motions, config: MachineConfig, pitch_mm: float) -> Dict[str, Dict[str, np.ndarray]]:
     """Per axis, the error-motion table at ``pitch_mm`` over its travel (end included).
 
@@ -888,6 +924,7 @@ def axis_tables(motions, config: MachineConfig, pitch_mm: float) -> Dict[str, Di
     """
     if not (np.isfinite(pitch_mm) and pitch_mm > 0):
         raise ValueError(f"pitch_mm must be finite and > 0, got {pitch_mm!r}")
+    check_table_sizes(config, pitch_mm, pitch_option="pitch_mm")
     out = {}
     for a in AXES:
         lo, hi = config.travel_mm[a]
@@ -905,6 +942,7 @@ def error_grid(motions, config: MachineConfig, pitch_mm: float, tool: int = 0) -
 
     Columns ``x_cmd_mm, y_cmd_mm, z_cmd_mm, dx_mm, dy_mm, dz_mm`` (x fastest).
     """
+    check_table_sizes(config, grid_pitch_mm=pitch_mm, grid_option="grid pitch_mm")
     ticks = []
     for a in AXES:
         lo, hi = config.travel_mm[a]

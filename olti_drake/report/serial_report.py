@@ -143,11 +143,44 @@ def _truth_maps(truth_path):
     return truth, maps
 
 
-def _residuals(result, campaign_path):
-    """(residuals mm, station or group of each valid reading, label) of the identified model on the campaign."""
+def _matching_campaign(raw, result, result_path, campaign_path):
+    """The campaign ``--campaign`` names, refused (one line, both digests) unless it is the one the result was
+    identified from (its ``campaign`` digest, as the SCARA and volumetric reports check; an older result without
+    the digest: a note)."""
+    from olti_drake.io.csvio import check_campaign_matches
     from olti_drake.io.serial_io import read_serial_campaign
 
     camp = read_serial_campaign(campaign_path, result.model.chain.n_joints)
+    return camp, check_campaign_matches(raw, camp, result_path)
+
+
+def _matching_truth(raw, result, result_path, truth_path):
+    """The truth ``--truth`` names, refused (one line) unless it is a simulation truth (an identified result is
+    an estimate) of the same robot: model file (digest, or the same file), tool frame and joints."""
+    name = os.fspath(truth_path)
+    truth, maps = _truth_maps(truth_path)
+    if not truth.data.get("truth"):
+        raise InputError(f"{name}: not a simulation truth (no 'truth': true -- an identified result is an estimate, "
+                         f"not a truth); give the truth.json that olti simulate wrote")
+    mine, theirs = raw.get("robot") or {}, truth.data.get("robot") or {}
+    for key in ("tool_frame", "joints"):
+        if mine.get(key) is not None and theirs.get(key) is not None and mine.get(key) != theirs.get(key):
+            raise InputError(f"{name}: not the truth of {os.fspath(result_path)}'s robot: robot.{key} "
+                             f"{theirs.get(key)!r}, the result's {mine.get(key)!r}")
+    same = (mine["sha256"] == theirs["sha256"] if "sha256" in mine and "sha256" in theirs else
+            os.path.realpath(result.robot_path) == os.path.realpath(truth.robot_path))
+    if not same:
+        raise InputError(f"{name}: not the truth of {os.fspath(result_path)}'s robot: its model file "
+                         f"{truth.robot_path} is not the result's {result.robot_path}")
+    return truth, maps
+
+
+def _residuals(result, campaign_path, camp=None):
+    """(residuals mm, station or group of each valid reading, label) of the identified model on the campaign."""
+    from olti_drake.io.serial_io import read_serial_campaign
+
+    if camp is None:
+        camp = read_serial_campaign(campaign_path, result.model.chain.n_joints)
     p = result.model.positions(camp.commands, camp.dirs)
     if result.stations_mm is not None and camp.displacement_mm is not None:
         labels = np.unique(camp.station)  # the result's stations are the campaign's labels, ascending
@@ -167,6 +200,9 @@ def _residuals(result, campaign_path):
 def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_path, k):
     """Fill ``page`` with the N-joint robot report (module docstring); sets ``page.iso`` per joint."""
     result = load_serial_result(result_path, outside="clamp", identified=True)
+    # The inputs the report validates against are checked first (nothing is drawn from the wrong data).
+    camp, campaign_note = _matching_campaign(raw, result, result_path, campaign_path) if campaign_path else (None, "")
+    truth_maps = _matching_truth(raw, result, result_path, truth_path)[1] if truth_path is not None else None
     keys = value_keys(raw)
     std_src = unc if unc is not None else raw.get("uncertainty")
     if std_src is not None:
@@ -192,6 +228,7 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
     info += [("note", n) for n in raw.get("notes", [])] + [("warning", w) for w in raw.get("warnings", [])]
     info += [("uncertainty file", os.fspath(unc_path) if unc_path else "— (the result's own uncertainties)"),
              ("campaign", os.fspath(campaign_path) if campaign_path else "—"),
+             *([("note", campaign_note)] if campaign_note else []),
              ("truth", os.fspath(truth_path) if truth_path else "—")]
     page.header_rows = info
 
@@ -213,9 +250,6 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
         page.add(ui.p("Every parameter of the model was identified."))
 
     maps = _map_table(raw, std_src)
-    truth_maps = None
-    if truth_path is not None:
-        _, truth_maps = _truth_maps(truth_path)
     if maps:
         page.add("<h2>Joint angular positioning deviation maps (000 Fig. 6, per joint)</h2>")
         page.figure(lambda path: plot_joint_maps(maps, truth_maps, path, method), "fig_maps.png",
@@ -240,7 +274,7 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
             page.figure(lambda path: ui.plot_reversal(stats, None, k, path, method), "fig_reversal.png",
                         "Reversal values B_i per joint with U")
     if campaign_path is not None:
-        r, group, label = _residuals(result, campaign_path)
+        r, group, label = _residuals(result, campaign_path, camp)
         page.add("<h2>Residuals</h2>")
         page.add(ui.p(f"Reading minus the identified model's prediction for every valid reading of the campaign "
                       f"(a point campaign: the distance between the measured and the predicted point), RMS {1e3 * np.sqrt(np.mean(r ** 2)):.2f} µm."))

@@ -48,6 +48,7 @@ from typing import Union
 import numpy as np
 
 from olti_drake.errors import InputError
+from olti_drake.limits import check_allocation
 from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.instrument import InterferometerOptions
@@ -55,6 +56,9 @@ from olti_drake.model.machine import Machine3DRun, Machine3DScenario, _default_h
 from olti_drake.sim.scenario import Emulated, Hardware, Simulated, stream_seed
 
 M_TO_MM = 1e3
+#: Working float64 values a reading carries through the simulation (its columns, truth, aiming, sequence): an
+#: estimate for the scenario's ``grid`` guard (:func:`olti_drake.limits.check_allocation`).
+VALUES_PER_READING = 64
 AXES = ("X", "Y", "Z")
 SPINDLE_FRAME = "spindle"
 
@@ -152,6 +156,10 @@ class Machine3DScenarioFile:
         for name, ok, need in checks:
             if not ok:
                 raise InputError(f"{where}: {name} must be {need}, got {getattr(self, name)!r}")
+        # every grid point per tool is read from every head: the campaign's columns and the aiming (limits.py)
+        check_allocation(f"{where}: grid", list(self.grid), [*map(float, self.grid), len(self.tools), len(heads),
+                                                             VALUES_PER_READING],
+                         what="values (targets x tools x heads x values per reading)", hint="use fewer grid points")
         try:
             self.interferometer.validate(f"{where}: interferometer")
         except ValueError as e:

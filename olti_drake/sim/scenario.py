@@ -26,7 +26,8 @@ from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, NoD
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.scara import PAPER_L1_MM, PAPER_L2_MM
 from olti_drake.model.plan import BidirectionalGrid, Plan
-from olti_drake.model.scara import TrueRobot
+from olti_drake.model.scara import ScaraPositionModel, TrueRobot
+from olti_drake.units import UNIT_BOUNDS
 
 
 #: Every random source of a scenario, by name, and its stream key under the scenario ``seed``: each
@@ -341,6 +342,17 @@ class Scenario:
         r = self.robot
         for key in ("L1_mm", "L2_mm", "nominal_L1_mm", "nominal_L2_mm"):
             _positive(f"{where}: robot.{key}", getattr(r, key))
+            if not getattr(r, key) <= UNIT_BOUNDS["_mm"]:
+                raise InputError(f"{where}: robot.{key} = {getattr(r, key):g} mm is beyond {UNIT_BOUNDS['_mm']:g} mm "
+                                 f"(olti_drake.units.UNIT_BOUNDS): no link of a robot (a length in other units?)")
+        # A true link more than LENGTH_FACTOR x off its nominal is no manufacturing error but a unit slip (0.325 for
+        # 325): the identification refuses such a solution (ScaraPositionModel.implausible), so the scenario too.
+        f = ScaraPositionModel.LENGTH_FACTOR
+        for key in ("L1_mm", "L2_mm"):
+            true, nominal = getattr(r, key), getattr(r, f"nominal_{key}")
+            if not nominal / f <= true <= nominal * f:
+                raise InputError(f"{where}: robot.{key} = {true:g} mm is more than {f:g} x off robot.nominal_{key} = "
+                                 f"{nominal:g} mm: both in mm?")
         _finite(f"{where}: robot.theta40_deg", r.theta40_deg)
         if len(r.beam_offset_mm) != 2 or not np.all(np.isfinite(r.beam_offset_mm)):
             raise InputError(f"{where}: robot.beam_offset_mm must be two finite numbers [along, lateral]")

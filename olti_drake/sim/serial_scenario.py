@@ -29,9 +29,13 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.io.csvio import read_yaml
+from olti_drake.limits import check_allocation
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
+#: Working float64 values a plan pose or raster point carries (commands, FK, IK, readings): an estimate for the
+#: allocation guards of ``plan.step_deg`` and ``points_per_axis`` (:func:`olti_drake.limits.check_allocation`).
+VALUES_PER_POSE = 64
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 #: Robot models shipped with the package, by the short name a scenario may give as ``robot.file``.
 SHIPPED_MODELS = {"ur5": MODELS_DIR / "ur5.urdf"}
@@ -208,6 +212,11 @@ class SerialScenario:
         for key in ("poses_per_node", "min_stations", "max_batches", "batch"):
             if getattr(p, key) < 1:
                 raise InputError(f"{where}: plan.{key} must be >= 1, got {getattr(p, key)!r}")
+        # the plan's nodes per joint (at most two turns, 720 deg) x poses per node (olti_drake.limits)
+        check_allocation(f"{where}: plan.step_deg", f"{p.step_deg:g} deg", [720.0 / p.step_deg + 1, p.poses_per_node,
+                                                                          VALUES_PER_POSE],
+                         what="values (nodes per joint x poses per node x values per pose)",
+                         hint="use a coarser plan.step_deg")
         if p.ranges_deg and any(len(x) != 2 or not x[0] <= x[1] for x in p.ranges_deg):
             raise InputError(f"{where}: plan.ranges_deg must be a list of [low, high] pairs, one per joint")
         if p.seed < 0 or self.seed < 0 or r.truth.seed < 0:
@@ -246,6 +255,9 @@ class SerialScenario:
             raise InputError(f"{where}.box_mm must be [[x0, x1], [y0, y1], [z0, z1]] mm, low <= high")
         if s.points_per_axis < 1 or s.n_targets < 1:
             raise InputError(f"{where}: points_per_axis and n_targets must be >= 1")
+        k = float(s.points_per_axis)
+        check_allocation(f"{where}.points_per_axis", s.points_per_axis, [k, k, k, VALUES_PER_POSE],
+                         what="values (raster points x values per pose)", hint="use fewer points_per_axis")
         if not np.all(np.isfinite(np.asarray(s.start_deg, float))):
             raise InputError(f"{where}.start_deg must be finite joint angles (deg)")
 
