@@ -371,7 +371,7 @@ def test_residual_far_above_the_budget_is_a_stated_warning(work):
     assert res["warnings"] == [] and ("relative cost" in res["converged"] or "predicted" in res["converged"])
     # A budget of 1 um on the reading: the 15.6 um residual is ~15x what it predicts.
     (d / "tight.yaml").write_text("name: tight\ncontributors:\n- {symbol: u1, value: 1.0, unit: um, "
-                                  "acts_on: reading}\n", encoding="utf-8")
+                                  "k: 1, acts_on: reading}\n", encoding="utf-8")
     r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "tight.json", "--budget", "tight.yaml",
              cwd=d)
     assert r.returncode == 0, r.stderr

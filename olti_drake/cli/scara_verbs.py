@@ -62,12 +62,17 @@ def predict(args) -> int:
 
     model, _, _, _ = load_result(args.result, outside=args.outside)
     cmd, lines = load_commands(args.commands)
+    if cmd.one_directional and model.is_errormap and model.bidirectional:
+        raise ValueError(f"{args.commands}: missing required column 'dir1' ({args.result} has bidirectional error "
+                         f"maps: the approach directions dir1, dir2 are needed)")
     try:
         p = model.positions(cmd)
     except OutsideGridError as e:
         raise ValueError(f"{args.commands}:{lines[e.row]}: {e} -- or run with --outside clamp") from None
-    cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg, "dir1": cmd.dir1, "dir2": cmd.dir2,
-            "x_mm": p[:, 0], "y_mm": p[:, 1]}
+    cols = {"theta1_deg": cmd.theta1_deg, "theta2_deg": cmd.theta2_deg}
+    if not cmd.one_directional:  # the prediction repeats the file's columns (formats.md)
+        cols.update({"dir1": cmd.dir1, "dir2": cmd.dir2})
+    cols.update({"x_mm": p[:, 0], "y_mm": p[:, 1]})
     write_table(args.out, cols, {"dir1": "%d", "dir2": "%d", "x_mm": "%.6f", "y_mm": "%.6f"},
                 comments=[f"olti predict: {args.result} applied to {args.commands}; mm and degrees"])
     print(f"predicted {len(cmd)} positions; wrote {args.out}")

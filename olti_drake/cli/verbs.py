@@ -496,7 +496,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "theta1_deg .. thetaN_deg [, dir1 .. dirN] in, x_mm, y_mm, z_mm out; a distance "
                                    "campaign given as FILE also gets predicted_displacement_mm (cross-validation).")
     p.add_argument("result", help="result JSON from olti identify")
-    p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg, dir1, dir2")
+    p.add_argument("commands", help="commands CSV: theta1_deg, theta2_deg[, dir1, dir2]")
     p.add_argument("--out", required=True, help="prediction CSV to write")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse (default) or hold the end values")
@@ -709,8 +709,32 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
+def _empty_argument(parser, args):
+    """The one line for a path or value given as the empty string (``olti identify "" ...``), naming the
+    argument or option; None when every one given is non-empty. Checked before any verb reads a file."""
+    import argparse
+
+    actions = list(parser._actions)
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction) and getattr(args, "verb", None) in a.choices:
+            actions += a.choices[args.verb]._actions
+    for a in actions:
+        v = getattr(args, a.dest, None) if a.dest not in (None, argparse.SUPPRESS) else None
+        if v == "" or (isinstance(v, (list, tuple)) and any(x == "" for x in v)):
+            verb = f"olti {args.verb}" if getattr(args, "verb", None) else "olti"
+            if a.option_strings:
+                return f"{verb}: {a.option_strings[-1]} is empty: give a path or value"
+            return f"{verb}: the {a.dest.replace('_', ' ')} path is empty (the {a.dest} argument)"
+    return None
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
+    parser = build_parser()
+    args = parser.parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
+    empty = _empty_argument(parser, args)
+    if empty is not None:
+        print(f"error: {empty}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         code = args.func(args)
         sys.stdout.flush()               # a reader that went away is found here, not at exit
@@ -720,6 +744,10 @@ def main(argv=None) -> int:
         return 1
     except ValueError as e:              # bad input (errors.InputError and outputs.OutputError included)
         msg = " ".join(str(e).split()) or type(e).__name__
+        if type(e).__name__ == "LinAlgError":  # numpy's bare "Singular matrix": what it means for the readings
+            msg = (f"olti {getattr(args, 'verb', '')}: the readings cannot determine the solution (numerical "
+                   f"failure: {msg}): check the readings' unit (mm) and sign (formats.md), and that no two stations "
+                   f"or reflectors coincide")
         print(f"error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as e:                 # an output or input the system refuses: one line naming it

@@ -111,6 +111,9 @@ NLP_OPTIMALITY_TOLERANCE = 1e-8  # 1e-10: SNOPT ends "cannot be improved" (info 
 NLP_MAJOR_ITERATIONS = 5000
 #: A residual RMS above this multiple of the reading uncertainty the budget predicts is a stated warning.
 RESIDUAL_WARNING_RATIO = 3.0
+#: An l2 fit's reading beyond this many robust sigma (and this many budget reading u, when there is a budget)
+#: is a gross outlier -- a blunder, not the model: its warning comes first and names the Huber loss.
+GROSS_OUTLIER_SIGMA = 20.0
 
 
 class UnidentifiableError(InputError):
@@ -458,8 +461,46 @@ class LeastSquaresProgram:
             fit = self._fit()
         self.accept(fit)
         if uncertainty:  # (the residual's warning compares it with the budget: for a result, not a solution only)
+            fit.warnings.extend(self.gross_outlier_warnings(fit))
             fit.warnings.extend(self.residual_warnings(fit))
         return fit
+
+    def gross_outliers(self, fit: "Fit") -> list:
+        """The readings of an l2 fit beyond :data:`GROSS_OUTLIER_SIGMA` robust sigma -- and as many budget reading
+        u, when there is a budget (a noise-free simulation's rounding is no blunder): each the reading's label
+        with ``residual_mm`` and ``normalized``, largest first. Empty for the Huber loss (it down-weights them)."""
+        r = np.asarray(fit.residuals, dtype=float)
+        if self.options.loss != "l2" or not r.size:
+            return []
+        zr = r / _robust_sigma(r)
+        idx = np.flatnonzero(np.abs(zr) > GROSS_OUTLIER_SIGMA)
+        if idx.size:
+            budget = self.options.budget if self.options.budget is not None else self.default_budget()
+            if budget is not None:
+                from olti_drake.model.budget import ReadingErrors
+
+                u = np.asarray(ReadingErrors(budget).std(self.beam_lengths(fit.x, fit.residuals)), dtype=float)
+                u = u if u.shape == r.shape else np.full(r.shape, _rms(u))
+                idx = idx[np.abs(r[idx]) > GROSS_OUTLIER_SIGMA * u[idx]]
+        idx = idx[np.argsort(-np.abs(zr[idx]))]
+        return [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k])) for k in idx]
+
+    def gross_outlier_warnings(self, fit: "Fit") -> list:
+        """The warning that names the gross outliers (:meth:`gross_outliers`) of an l2 fit and the Huber loss."""
+        self._gross = gross = self.gross_outliers(fit)
+        if not gross:
+            return []
+
+        def where(o):
+            label = f"line {o['line']}" if "line" in o else f"reading {o.get('row', '?')}"
+            return f"{label} ({o['normalized']:+.1f} sigma, residual {o['residual_mm']:+.4g} mm)"
+
+        shown = ", ".join(where(o) for o in gross[:5]) + (f" and {len(gross) - 5} more" if len(gross) > 5 else "")
+        what = "a gross outlier" if len(gross) == 1 else f"{len(gross)} gross outliers"
+        return [f"{what} beyond {GROSS_OUTLIER_SIGMA:g} robust sigma: {shown} -- a blunder (a misread or mistyped "
+                f"reading), not a model error; the l2 fit spreads it over every parameter and every other warning "
+                f"below: refit with --loss huber (loss='huber'), which down-weights it, or correct or remove the "
+                f"reading"]
 
     def reduced_fit(self, T, y, x, rows, names, at=None, max_iterations: int = 20):
         """The same least squares on the readings ``rows`` only, over parameters T y: a linear
@@ -538,7 +579,14 @@ class LeastSquaresProgram:
                              f"at the solution")
         problems = self.implausible(fit.x)
         if problems:
-            raise FitRefused(f"{where} physically impossible solution: {'; '.join(problems)}")
+            cause = self.implausible_cause(fit)
+            raise FitRefused(f"{where} {cause + ' -- it gives a ' if cause else ''}physically impossible solution: "
+                             f"{'; '.join(problems)}")
+
+    def implausible_cause(self, fit: "Fit") -> str:
+        """Hook: the input at fault for a physically impossible solution (e.g. given values in another unit),
+        named first in the refusal; "" when none is known."""
+        return ""
 
     def _user_costs(self):
         """The program's costs other than the data cost (which the solvers evaluate themselves)."""
@@ -590,7 +638,8 @@ class LeastSquaresProgram:
             return []
         return [f"residual RMS {1e3 * rms:.2f} um is {ratio:.1f} x the reading uncertainty {1e3 * u:.2f} um that "
                 f"the budget '{budget.name}' predicts (warning above {RESIDUAL_WARNING_RATIO:g} x): a model error "
-                f"(e.g. a map too coarse), a budget that does not fit the instrument, or readings in other units"]
+                f"(e.g. a map too coarse), a budget that does not fit the instrument, or readings in other units"
+                + (" -- or the gross outlier(s) above" if getattr(self, "_gross", None) else "")]
 
     def _fit(self) -> "Fit":
         o = self.options
@@ -607,13 +656,49 @@ class LeastSquaresProgram:
                     break
                 except UnidentifiableError as e:
                     if not o.regularize:
-                        raise
+                        raise self._real_cause(e)
                     self._regularize(e)
             return self._finish(x, iterations, weights)
+        except np.linalg.LinAlgError as e:  # numpy's bare "Singular matrix" / "SVD did not converge": say why
+            raise self._real_cause(e) from None
         finally:
             within, self._within0 = getattr(self, "_within0", None), None  # (n x n): done with it
             if within is not None:
                 within.wait()
+
+    def _reading_spans(self):
+        """(the readings' spread, the spread of the points they are read at), mm, or None: the measurement's
+        ``reading_spans()``, or a machine campaign's widest per-station spread against its commanded points."""
+        spans = getattr(getattr(self, "measurement", None), "reading_spans", None)
+        if spans is not None:
+            return spans()
+        d = getattr(self, "data", None)
+        cmd, station = getattr(d, "commands_mm", None), getattr(d, "station", None)
+        if cmd is None or station is None or not len(d.displacement_mm):
+            return None
+        r = np.asarray(d.displacement_mm, dtype=float)
+        return (max(float(np.ptp(r[station == j])) for j in np.unique(station)),
+                float(np.ptp(np.asarray(cmd, dtype=float), axis=0).max()))
+
+    def _real_cause(self, error: Exception) -> Exception:
+        """The error to raise for ``error`` (unidentifiable, or a numpy LinAlgError) of the solve: readings in
+        another unit when they spread under 1/100 of the points they are read at (a rank or a singular matrix
+        then says nothing of the layout); a LinAlgError as what the readings cannot determine; else ``error``."""
+        try:
+            spans = self._reading_spans()
+        except Exception:  # a diagnosis only: never hide the error it explains
+            spans = None
+        source = getattr(self, "source", "") or getattr(getattr(self, "data", None), "source", "") or "the campaign"
+        if spans is not None and spans[0] < 1e-2 * spans[1]:
+            return InputError(f"{source}: refused, nothing written -- the readings spread {spans[0]:.4g} mm while "
+                              f"the points they are read at spread {spans[1]:.4g} mm: readings in another unit "
+                              f"(metres?), not mm")
+        if isinstance(error, np.linalg.LinAlgError):
+            text = " ".join(str(error).split()) or type(error).__name__
+            return InputError(f"{source}: refused, nothing written -- the readings cannot determine the "
+                              f"parameters (the solver's linear algebra failed: {text}): check the readings' unit "
+                              f"(mm) and sign (formats.md), and that no two stations or reflectors coincide")
+        return error
 
     def given_solution(self, z, solver: str):
         """Context: :meth:`fit` (and a model's ``solve`` built on it) takes ``z`` (over all decision variables,
@@ -1566,16 +1651,38 @@ def station_fit(points_mm, readings_mm, start_mm=None):
     else:
         P = np.asarray(start_mm, dtype=float)
         L0 = np.mean(lengths(p - P) - d)
-    for _ in range(20):
-        diff = p - P
-        dist = lengths(diff)  # (= np.hypot.reduce bit for bit, faster)
-        J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
-        # D + 1 unknowns, the points spread (checked above): the normal equations, ~5x cheaper than lstsq here.
-        step = np.linalg.solve(J.T @ J, -(J.T @ (dist - L0 - d)))
-        P, L0 = P + step[:D], L0 + step[D]
-        if np.max(np.abs(step)) < 1e-12:
-            break
+    try:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for _ in range(20):
+                diff = p - P
+                dist = lengths(diff)  # (= np.hypot.reduce bit for bit, faster)
+                J = np.column_stack([-diff / dist[:, None], -np.ones(len(d))])
+                # D + 1 unknowns, the points spread (checked above): the normal equations, ~5x cheaper than lstsq.
+                step = np.linalg.solve(J.T @ J, -(J.T @ (dist - L0 - d)))
+                P, L0 = P + step[:D], L0 + step[D]
+                if np.max(np.abs(step)) < 1e-12:
+                    break
+        if not (np.all(np.isfinite(P)) and np.isfinite(L0)):
+            raise np.linalg.LinAlgError("no finite solution")
+    except np.linalg.LinAlgError:
+        raise StationFitFailed(_station_fit_cause(p, d)) from None
     return P, L0
+
+
+class StationFitFailed(ValueError):
+    """:func:`station_fit` found no station: the readings are no distances from one point to these points (the
+    message says why it looks so), not a flat point set (that is a plain ValueError)."""
+
+
+def _station_fit_cause(p, d) -> str:
+    """Why readings d (K,) are no distances ‖p − P‖ − L0 from the points p (K, D), mm: the unit, or the sign."""
+    spread, extent = float(np.ptp(d)), float(np.ptp(p, axis=0).max())
+    if spread < 1e-2 * extent:
+        return (f"the readings spread {spread:.4g} mm while the points they are read at spread {extent:.4g} mm: "
+                f"readings in another unit (metres?), not mm")
+    return (f"no station position fits the readings (the fit of ||p - P|| - L0 met a singular step): readings "
+            f"whose sign is flipped (they must grow as the beam lengthens), of another station, or at other "
+            f"targets than numbered")
 
 
 def _norms(diff) -> np.ndarray:

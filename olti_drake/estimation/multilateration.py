@@ -47,7 +47,7 @@ from olti_drake.model.gauges import GAUGES, GAUGES_BY_DIM  # noqa: F401 (re-expo
 from olti_drake.model.gauges import check_gauge_kind, free_points_gauge, gauge_rows
 from olti_drake.model.measurements import StationDistanceMeasurement
 from olti_drake.estimation.calibration import station_fit  # noqa: F401 (station_fit re-exported)
-from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import Calibration, SolverOptions, StationFitFailed, UnidentifiableError
 from olti_drake.threads import single_thread_blas
 
 REQUIRED = ("station", "target", "x_cmd_mm", "y_cmd_mm", "displacement_mm")
@@ -371,6 +371,8 @@ class Multilateration(Calibration):
             sel = rows & (d.station == j)
             try:
                 fits.append(station_fit(points_mm[d.target[sel]], d.displacement_mm[sel], None if S is None else S[j]))
+            except StationFitFailed as e:  # the points spread: the readings are at fault, not the layout
+                raise InputError(f"{d.source}: station {j}: {e}") from None
             except ValueError as e:
                 names = [f"P{j}_{c}_mm" for c in "xyz"[:D]]
                 raise UnidentifiableError(f"{d.source}: station {j}: not identifiable: {', '.join(names)} -- the "

@@ -248,6 +248,26 @@ class VolumetricIdentification(Calibration):
                               "estimate relative to tool 0: " + "; ".join(
                                   ",".join(f"{v:.4f}" for v in t) for t in self.config.tools) + " mm")
 
+    def implausible_cause(self, fit) -> str:
+        """Given tool offsets that the readings' own estimate (the 3D multilateration's, as without
+        ``--tool-offsets-mm``) contradicts by over 1 mm: the offsets, not the motions, are at fault."""
+        given = self.options.tool_offsets_mm
+        if given is None or self.data.n_tools < 2:
+            return ""
+        try:
+            own = start_tool_offsets(self.data)
+        except InputError:
+            return ""
+        given = np.asarray(given, float)
+        off = float(np.abs(given - own).max()) if given.shape == own.shape else 0.0
+        if off <= 1.0:
+            return ""
+        scale = float(np.linalg.norm(own[1:]) / max(np.linalg.norm(given[1:]), 1e-300))
+        unit = f" (the readings' are {scale:.3g} x larger: in metres?)" if 500 < scale < 2000 else ""
+        show = lambda t: "; ".join(",".join(f"{v:.4g}" for v in r) for r in t)  # noqa: E731
+        return (f"the given --tool-offsets-mm {show(given)} differ by up to {off:.4g} mm from the offsets the readings "
+                f"give, {show(own)} mm{unit}: give them in mm, or leave --tool-offsets-mm out (then they are estimated)")
+
     def _check_counts(self):
         d = self.data
         if d.n_stations < 4:

@@ -31,6 +31,8 @@ def read_text(path, what: str = "") -> str:
     """The text of a UTF-8 file (a leading BOM dropped); one-line errors name the file, and for bytes that
     are not UTF-8 the 1-based line of the first one (``what`` names the file's role if it is missing)."""
     name = os.fspath(path)
+    if not name:
+        raise InputError(f"the {what or 'input file'} path is empty")
     try:
         with open(path, "rb") as f:
             raw = f.read()
@@ -324,6 +326,8 @@ def write_machine_campaign(columns: dict, path) -> None:
 
 # ------------------------------------------------------------------- the SCARA campaign (formats.md)
 REQUIRED = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm")
+#: Without ``dir1, dir2`` a campaign is one-directional (formats.md, the serial robots' rule).
+DIRECTIONS = ("dir1", "dir2")
 OPTIONAL = ("theta4_deg", "valid")
 
 
@@ -342,6 +346,11 @@ class CampaignData:
         return self.reflector.size
 
     @property
+    def one_directional(self) -> bool:
+        """The file had no direction columns: single-branch maps, no backlash identified (formats.md)."""
+        return self.commands.one_directional
+
+    @property
     def n_reflectors(self) -> int:
         return int(self.reflector.max()) + 1
 
@@ -349,7 +358,7 @@ class CampaignData:
         """The readings at ``rows`` (a boolean mask or indices)."""
         c = self.commands
         return CampaignData(self.reflector[rows], JointCommands(c.theta1_deg[rows], c.theta2_deg[rows],
-                                                                c.dir1[rows], c.dir2[rows]),
+                                                                c.dir1[rows], c.dir2[rows], c.one_directional),
                             self.displacement_mm[rows], self.line[rows], self.source, self.n_skipped)
 
 
@@ -358,10 +367,14 @@ def load_campaign(path) -> CampaignData:
 
     Checks (one-line errors): required columns, numbers, finite values in the
     valid rows, directions ±1, reflector indices whole numbers 0..N_t-1 with
-    every index used.
+    every index used. ``dir1, dir2`` are optional (both or neither): without them the campaign is
+    one-directional (:attr:`CampaignData.one_directional`).
     """
     name = os.fspath(path)
-    t = read_table(path, REQUIRED, OPTIONAL, integer=("reflector", "dir1", "dir2", "valid"))
+    t = read_table(path, [c for c in REQUIRED if c not in DIRECTIONS], OPTIONAL + DIRECTIONS,
+                   integer=("reflector", "dir1", "dir2", "valid"))
+    directions = _has_directions(t, path)
+    required = REQUIRED if directions else tuple(c for c in REQUIRED if c not in DIRECTIONS)
     if "valid" in t:
         check_values(t, path, "valid", (0.0, 1.0))
     keep = t["valid"] == 1 if "valid" in t else np.ones(t["_line"].size, dtype=bool)
@@ -369,12 +382,24 @@ def load_campaign(path) -> CampaignData:
         raise InputError(f"{name}: no valid readings (every row has valid = 0)")
     t = {k: v[keep] for k, v in t.items()}
     check_no_duplicate_rows(t, path)
-    check_finite(t, path, REQUIRED)
-    for c in ("dir1", "dir2"):
+    check_finite(t, path, required)
+    for c in DIRECTIONS if directions else ():
         check_values(t, path, c, (-1.0, 1.0))
     j = check_indices(t, path, "reflector")
-    return CampaignData(j, JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]),
-                        t["displacement_mm"], t["_line"], name, int((~keep).sum()))
+    cmd = (JointCommands(t["theta1_deg"], t["theta2_deg"], t["dir1"], t["dir2"]) if directions
+           else JointCommands.without_directions(t["theta1_deg"], t["theta2_deg"]))
+    return CampaignData(j, cmd, t["displacement_mm"], t["_line"], name, int((~keep).sum()))
+
+
+def _has_directions(table: Dict[str, np.ndarray], path) -> bool:
+    """Does a table read with ``dir1, dir2`` optional have them? Both or neither: one alone is a slip, not a
+    one-directional file, and is refused naming the other as missing."""
+    present = [c for c in DIRECTIONS if c in table]
+    if len(present) == 1:
+        other = DIRECTIONS[1 - DIRECTIONS.index(present[0])]
+        raise InputError(f"{os.fspath(path)}: missing required column '{other}' (it has '{present[0]}'; "
+                         f"a one-directional file has neither)")
+    return bool(present)
 
 
 def campaign_digest(data) -> dict:
@@ -387,6 +412,8 @@ def campaign_digest(data) -> dict:
         more = () if cmd.shape[1] == 2 else (cmd[:, 2], data.tool[data.target])
         return data_digest(data.station, data.target, cmd[:, 0], cmd[:, 1], *more, data.displacement_mm)
     c = data.commands
+    if getattr(c, "one_directional", False):  # no direction columns: none digested
+        return data_digest(data.reflector, c.theta1_deg, c.theta2_deg, data.displacement_mm)
     return data_digest(data.reflector, c.theta1_deg, c.theta2_deg, c.dir1, c.dir2, data.displacement_mm)
 
 
@@ -406,10 +433,16 @@ def check_campaign_matches(result: dict, data, result_path) -> str:
 
 
 def load_commands(path):
-    """Load a ``commands.csv`` (θ1*, θ2* deg; dir1, dir2 ±1), formats.md -> (JointCommands, file lines)."""
-    cols = ("theta1_deg", "theta2_deg", "dir1", "dir2")
-    t = read_table(path, cols, integer=("dir1", "dir2"))
+    """Load a ``commands.csv`` (θ1*, θ2* deg; dir1, dir2 ±1), formats.md -> (JointCommands, file lines).
+
+    Without ``dir1, dir2`` the commands are one-directional (:attr:`JointCommands.one_directional`): a
+    one-directional result predicts them, a bidirectional one refuses them (the predict verb)."""
+    t = read_table(path, ("theta1_deg", "theta2_deg"), DIRECTIONS, integer=("dir1", "dir2"))
+    directions = _has_directions(t, path)
+    cols = ("theta1_deg", "theta2_deg") + (DIRECTIONS if directions else ())
     check_finite(t, path, cols)
-    for c in ("dir1", "dir2"):
+    if not directions:
+        return JointCommands.without_directions(t["theta1_deg"], t["theta2_deg"]), t["_line"]
+    for c in DIRECTIONS:
         check_values(t, path, c, (-1.0, 1.0))
     return JointCommands(*(t[c] for c in cols)), t["_line"]

@@ -14,6 +14,8 @@ from olti_drake.io.outputs import writing
 from olti_drake.model.plan import BidirectionalGrid, Plan
 
 COLUMNS = ("theta1_deg", "theta2_deg", "measure")
+#: Columns of a campaign (readings), never of a plan: a file with one is refused as a plan, naming it.
+CAMPAIGN_COLUMNS = ("displacement_mm",)
 
 
 def _fmt(x: float) -> str:
@@ -60,7 +62,12 @@ def load_plan(path) -> Plan:
     path = Path(path)
     if path.suffix.lower() in (".yaml", ".yml"):
         return _load_yaml(path)
-    t = read_table(path, COLUMNS[:2], optional=COLUMNS[2:])
+    t = read_table(path, COLUMNS[:2], optional=COLUMNS[2:] + CAMPAIGN_COLUMNS)
+    campaign = [c for c in CAMPAIGN_COLUMNS if c in t]
+    if campaign:  # a campaign's readings at the commands: its angles read as a plan would repeat every reflector
+        raise ValueError(f"{path}: a campaign (it has the readings' column '{campaign[0]}'), not a plan: a plan "
+                         f"is the commanded angles only (theta1_deg,theta2_deg[,measure], e.g. "
+                         f"data/plan_paper000.csv, or a BidirectionalGrid YAML such as data/plan_paper000.yaml)")
     check_finite(t, path, [c for c in COLUMNS if c in t])
     if "measure" in t:
         check_values(t, path, "measure", (0.0, 1.0))

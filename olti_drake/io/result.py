@@ -18,7 +18,7 @@ from olti_drake.model.scara import ScaraModel
 def _values(model: ScaraModel, P, d0) -> dict:
     out = {"L1_mm": float(model.L1_mm), "L2_mm": float(model.L2_mm)}
     if model.is_errormap:
-        out["error_map"] = {"J1": model.map1.to_dict(), "J2": model.map2.to_dict()}
+        out["error_map"] = {"J1": model.map_dict(model.map1), "J2": model.map_dict(model.map2)}
     else:
         out["theta20_deg"] = float(model.theta20_deg)
     out["reflectors_mm"] = np.asarray(P, dtype=float).reshape(-1, 2).tolist()
@@ -39,9 +39,14 @@ def uncertainty_layout(model: ScaraModel, v) -> dict:
 
 
 def result_dict(ident) -> dict:
-    """The ``result.json`` object of an :class:`~olti_drake.estimation.identification.Identification`."""
+    """The ``result.json`` object of an :class:`~olti_drake.estimation.identification.Identification`.
+
+    An error map identified without direction columns is one-directional: ``"bidirectional": false`` and
+    ``forward_deg`` only in each map (formats.md, as the serial robots' result)."""
     model = ident.model
     out = {**result_header("scara"), "model": "errormap" if model.is_errormap else "dh"}
+    if model.is_errormap and not model.bidirectional:
+        out["bidirectional"] = False
     out.update(_values(model, ident.reflectors_mm, ident.dead_paths_mm))
     out["gauge"] = ident.gauge
     out["residual_rms_mm"] = ident.residual_rms_mm
@@ -94,10 +99,15 @@ def load_result(path, outside: str = "error", identified: bool = False):
         raise InputError(f"{name}: 'model' must be 'dh' or 'errormap', got {kind!r}")
     L1, L2 = (float(json_numbers(data, name, k, positive=True)) for k in ("L1_mm", "L2_mm"))
     maps = [_load_map(data, name, axis, outside) for axis in ("J1", "J2")] if kind == "errormap" else [None, None]
+    # A map with forward_deg only is one-directional (formats.md: a campaign without dir columns); both alike.
+    bidirectional = all("reverse_deg" in data["error_map"][a] for a in ("J1", "J2")) if kind == "errormap" else True
+    if kind == "errormap" and bidirectional != any("reverse_deg" in data["error_map"][a] for a in ("J1", "J2")):
+        raise InputError(f"{name}: key 'error_map': one map has reverse_deg and the other not (both "
+                         f"bidirectional or both one-directional)")
     theta20 = float(json_numbers(data, name, "theta20_deg")) if kind == "dh" else None
     P = json_numbers(data, name, "reflectors_mm", (None, 2)) if "reflectors_mm" in data else np.zeros((0, 2))
     d0 = json_numbers(data, name, "dead_paths_mm", (len(P),)) if "dead_paths_mm" in data or len(P) else np.zeros(0)
-    model = ScaraModel(L1, L2, theta20, *maps)
+    model = ScaraModel(L1, L2, theta20, *maps, bidirectional=bidirectional)
     if isinstance(data.get("uncertainty"), dict):
         _check_uncertainty(data["uncertainty"], uncertainty_layout(model, np.zeros(
             len(model.parameter_names()) + 3 * len(P))), name, "uncertainty")
@@ -112,7 +122,9 @@ def _load_map(data, name, axis, outside) -> ErrorMap:
     grid = json_numbers(m, name, "grid_deg", (None,), label=label + "grid_deg")
     if np.any(np.diff(grid) <= 0) or not grid.size:
         raise InputError(f"{name}: key '{label}grid_deg': the map nodes must be strictly ascending")
-    values = [json_numbers(m, name, k, (len(grid),), label=label + k) for k in ("forward_deg", "reverse_deg")]
+    values = [json_numbers(m, name, k, (len(grid),), label=label + k) for k in ("forward_deg", "reverse_deg")
+              if k in m or k == "forward_deg"]
+    values += values[:1] if len(values) == 1 else []  # one-directional: the reverse values mirror the forward ones
     try:
         return ErrorMap(grid, *values, axis=axis, outside=outside)
     except ValueError as e:  # anything else ErrorMap refuses

@@ -161,6 +161,10 @@ def scara_gauge(robot, n_params: int, fixed_reflectors: bool = False) -> NamedGa
     m = robot.map1
     at = float(np.clip(0.0, m.grid_deg[0], m.grid_deg[-1]))
     A = np.zeros((1, n_params))
+    if not getattr(robot, "bidirectional", True):  # one branch: its (forward) value at a is the gauge
+        A[0, 2:2 + m.n_nodes] = m.weights([at], [1.0]).toarray()[0, :m.n_nodes]
+        return NamedGauge("J1", A, np.zeros(1), f"rotation about J1 fixed by the constraint dtheta1({at:g} deg) = 0: "
+                                                f"X lies along the arm at theta1* = {at:g} deg (one-directional map)")
     A[0, 2:2 + 2 * m.n_nodes] = m.weights([at, at], [1.0, -1.0]).toarray().sum(axis=0) / 2
     return NamedGauge("J1", A, np.zeros(1), f"rotation about J1 fixed by the constraint (dtheta1({at:g} deg, +1) + "
                                             f"dtheta1({at:g} deg, -1))/2 = 0: X lies along the arm at theta1* = "

@@ -45,18 +45,29 @@ PAPER_L2_MM = 225.0
 
 @dataclass(frozen=True)
 class JointCommands:
-    """Commanded J1, J2 angles (deg) and approach directions (+1/-1), each (N,)."""
+    """Commanded J1, J2 angles (deg) and approach directions (+1/-1), each (N,).
+
+    ``one_directional``: the file had no direction columns (formats.md: a one-directional campaign); the
+    directions are then +1 placeholders, which a single-branch map ignores and a bidirectional one refuses
+    (:meth:`ScaraModel.interpolation`)."""
 
     theta1_deg: np.ndarray
     theta2_deg: np.ndarray
     dir1: np.ndarray
     dir2: np.ndarray
+    one_directional: bool = False
+
+    @classmethod
+    def without_directions(cls, theta1_deg, theta2_deg) -> "JointCommands":
+        """Commands of a file without ``dir1, dir2`` (one-directional; +1 placeholders)."""
+        n = np.asarray(theta1_deg).size
+        return cls(theta1_deg, theta2_deg, np.ones(n), np.ones(n), one_directional=True)
 
     def __post_init__(self):
-        arrays = [np.asarray(getattr(self, f.name), dtype=float).ravel()
-                  for f in dataclasses.fields(self)]
+        fields = [f for f in dataclasses.fields(self) if f.name != "one_directional"]
+        arrays = [np.asarray(getattr(self, f.name), dtype=float).ravel() for f in fields]
         n = arrays[0].size
-        for f, a in zip(dataclasses.fields(self), arrays):
+        for f, a in zip(fields, arrays):
             if a.size != n:
                 raise ValueError(f"joint commands: {f.name} has {a.size} entries, expected {n}")
             if not np.all(np.isfinite(a)):
@@ -160,6 +171,9 @@ class ScaraModel:
     * D-H: ``L1_mm``, ``L2_mm``, ``theta20_deg``; maps are None.
     * Error map: ``L1_mm``, ``L2_mm`` and maps for J1 and J2 (θ20 absorbed in
       the J2 map, so ``theta20_deg`` is None).
+    * ``bidirectional=False`` (error map of a campaign without direction columns): each map has a single
+      branch, its forward values (the reverse values mirror them), parameters ``Jn_forward_deg[i]`` only,
+      and directions are ignored -- no backlash identified (as :class:`olti_drake.model.serial.JointMap`).
 
     The parameter vector (:meth:`parameter_names`) is ordered as in Eq. (4)/(6):
     lengths mm, angles deg.
@@ -170,6 +184,7 @@ class ScaraModel:
     theta20_deg: Optional[float] = 0.0
     map1: Optional[ErrorMap] = None
     map2: Optional[ErrorMap] = None
+    bidirectional: bool = True
 
     def __post_init__(self):
         if (self.map1 is None) != (self.map2 is None):
@@ -187,15 +202,24 @@ class ScaraModel:
         if not self.is_errormap:
             return names + ["theta20_deg"]
         for axis, m in (("J1", self.map1), ("J2", self.map2)):
-            for block in ("forward", "reverse"):
+            for block in self.branches:
                 names += [f"{axis}_{block}_deg[{i}]" for i in range(m.n_nodes)]
         return names
+
+    @property
+    def branches(self) -> tuple:
+        """The map branches identified: ("forward", "reverse"), or ("forward",) for a one-directional model."""
+        return ("forward", "reverse") if self.bidirectional else ("forward",)
+
+    def map_values(self, m: ErrorMap) -> np.ndarray:
+        """A map's parameters: [forward..., reverse...], or the forward values of a one-directional model."""
+        return m.values if self.bidirectional else m.forward_deg.copy()
 
     def parameter_vector(self) -> np.ndarray:
         head = [self.L1_mm, self.L2_mm]
         if not self.is_errormap:
             return np.array(head + [self.theta20_deg])
-        return np.concatenate([head, self.map1.values, self.map2.values])
+        return np.concatenate([head, self.map_values(self.map1), self.map_values(self.map2)])
 
     def with_parameters(self, x) -> "ScaraModel":
         """A copy with the parameter vector ``x`` (same layout as :meth:`parameter_names`)."""
@@ -204,9 +228,19 @@ class ScaraModel:
             raise ValueError(f"expected {len(self.parameter_names())} parameters, got {x.size}")
         if not self.is_errormap:
             return ScaraModel(float(x[0]), float(x[1]), float(x[2]))
-        n1 = 2 * self.map1.n_nodes
-        return ScaraModel(float(x[0]), float(x[1]), None,
-                          self.map1.with_values(x[2:2 + n1]), self.map2.with_values(x[2 + n1:]))
+        n1 = len(self.branches) * self.map1.n_nodes
+        v1, v2 = x[2:2 + n1], x[2 + n1:]
+        if not self.bidirectional:  # one branch: the reverse values mirror the forward ones
+            v1, v2 = np.concatenate([v1, v1]), np.concatenate([v2, v2])
+        return ScaraModel(float(x[0]), float(x[1]), None, self.map1.with_values(v1), self.map2.with_values(v2),
+                          self.bidirectional)
+
+    def map_dict(self, m: ErrorMap) -> dict:
+        """A map's ``error_map.Jn`` object (formats.md); a one-directional map has ``forward_deg`` only."""
+        out = m.to_dict()
+        if not self.bidirectional:
+            out.pop("reverse_deg")
+        return out
 
     def positions(self, cmd: JointCommands) -> np.ndarray:
         """Predicted actual end-effector positions (N, 2) mm (Eq. 3 with Eq. 7)."""
@@ -219,6 +253,10 @@ class ScaraModel:
         takes them precomputed."""
         if not self.is_errormap:
             return None
+        if not self.bidirectional:  # one branch (block 0..n-1): the directions are ignored
+            return (*self.map1.interpolation(cmd.theta1_deg, 1.0), *self.map2.interpolation(cmd.theta2_deg, 1.0))
+        if getattr(cmd, "one_directional", False):
+            raise ValueError("approach directions (dir1, dir2) are needed: the error maps are bidirectional")
         return (*self.map1.interpolation(cmd.theta1_deg, cmd.dir1), *self.map2.interpolation(cmd.theta2_deg, cmd.dir2))
 
     def jacobian_rows(self, cmd: JointCommands, X=None, interpolation=None):
@@ -252,7 +290,7 @@ class ScaraModel:
                  for c in (0, 1)]
         else:
             c1, w1, c2, w2 = self.interpolation(cmd) if interpolation is None else interpolation
-            off2 = 2 + 2 * self.map1.n_nodes
+            off2 = 2 + len(self.branches) * self.map1.n_nodes
             # Eq. (7), the two bracketing nodes summed as np.sum(w * X[:, cols], axis=-1) would, ~3x faster.
             t1 = cmd.theta1_deg + (w1[:, 0] * X[:, 2 + c1[:, 0]] + w1[:, 1] * X[:, 2 + c1[:, 1]])
             t2 = cmd.theta2_deg + (w2[:, 0] * X[:, off2 + c2[:, 0]] + w2[:, 1] * X[:, off2 + c2[:, 1]])
@@ -408,7 +446,7 @@ class ScaraPositionModel:
         if not m.is_errormap:
             out["theta20_deg"] = float(m.theta20_deg)
             return out
-        out["error_map"] = {"J1": m.map1.to_dict(), "J2": m.map2.to_dict()}
+        out["error_map"] = {"J1": m.map_dict(m.map1), "J2": m.map_dict(m.map2)}
         if uncertainty:
             for axis in out["error_map"].values():
                 axis.pop("grid_deg")

@@ -107,7 +107,7 @@ def _truth_robot(truth: dict, truth_path):
             t20 = float(truth["theta20_deg"])
             dev = {"J2": MapTable([0.0], [t20], [t20])}
         else:
-            dev = {a: MapTable(m["grid_deg"], m["forward_deg"], m["reverse_deg"])
+            dev = {a: MapTable(m["grid_deg"], m["forward_deg"], m.get("reverse_deg", m["forward_deg"]))
                    for a, m in truth["error_map"].items() if a in ("J1", "J2")}
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{os.fspath(truth_path)}: not a usable truth ({e})") from None
@@ -143,6 +143,11 @@ def _parameter_rows(raw, model, std_src, k):
         u = s.get("dead_paths_mm")
         add(f"d0_{j}", d, "mm", None if u is None else u[j])
     return rows
+
+
+def _branch(m: dict, block: str):
+    """A map's ``<block>_deg`` values; a one-directional map (``forward_deg`` only) mirrors them as reverse."""
+    return m.get(f"{block}_deg", m["forward_deg"])
 
 
 def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, truth_path, k):
@@ -227,7 +232,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
         for axis, m in (("J1", model.map1), ("J2", model.map2)):
             for block in ("forward", "reverse"):
                 names += [f"{axis}_{block}_deg[{i}]" for i in range(m.n_nodes)]
-                std_vec += (list(np.ravel(std_src["error_map"][axis][f"{block}_deg"])) if std_src is not None
+                std_vec += (list(np.ravel(_branch(std_src["error_map"][axis], block))) if std_src is not None
                             else [0.0] * m.n_nodes)
         std_vec = np.asarray(std_vec, dtype=float)
         page.add("<h2>Identified bidirectional angular positioning deviation (000 Fig. 6)</h2>")
@@ -247,7 +252,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
                 sd = np.sqrt(np.maximum(np.diag(C), 0.0))
                 if std_src is not None:  # the stated u, the linear method's correlations
                     s = np.concatenate([np.ravel(std_src["error_map"][axis]["forward_deg"]),
-                                        np.ravel(std_src["error_map"][axis]["reverse_deg"])])
+                                        np.ravel(_branch(std_src["error_map"][axis], "reverse"))])
                     with np.errstate(invalid="ignore", divide="ignore"):
                         Rm = np.where(np.outer(sd, sd) > 0, C / np.outer(sd, sd), 0.0)
                     np.fill_diagonal(Rm, 1.0)
@@ -260,8 +265,8 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
                       "the uncertainty of the arg-max/arg-min node combination at the estimate.")
             stats = map_statistics(model, cov=node_cov)
         elif std_src is not None:
-            stats = map_statistics(model, std={a: np.concatenate([np.ravel(std_src["error_map"][a]["forward_deg"]),
-                                                                  np.ravel(std_src["error_map"][a]["reverse_deg"])])
+            stats = map_statistics(model, std={a: np.concatenate([np.ravel(_branch(std_src["error_map"][a], b))
+                                                                  for b in ("forward", "reverse")])
                                                for a in ("J1", "J2")})
             u_note = ("Uncertainties: node standard uncertainties from " + std_label + "; without the campaign "
                       "(--campaign) the correlations between node values are unknown and independence is assumed: "

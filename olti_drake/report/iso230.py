@@ -268,4 +268,6 @@ def node_indices(names, axis: str, n: int) -> np.ndarray:
     """Indices of an axis's node values [forward..., reverse...] in a parameter-name list
     (``J1_forward_deg[0]``, ... as :class:`~olti_drake.estimation.identification.Identifier` names them)."""
     names = list(names)
-    return np.array([names.index(f"{axis}_{block}_deg[{i}]") for block in ("forward", "reverse") for i in range(n)])
+    # a one-directional map (no reverse parameters): the reverse values are the forward ones, mirrored
+    blocks = ("forward", "reverse") if f"{axis}_reverse_deg[0]" in names else ("forward", "forward")
+    return np.array([names.index(f"{axis}_{block}_deg[{i}]") for block in blocks for i in range(n)])
