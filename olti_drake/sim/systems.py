@@ -512,6 +512,24 @@ class _BeamReading:
         reading = reading / 1e3 if isinstance(reading, T) else T(float(reading) / 1e3)   # (no T input: a constant)
         value.set_value(np.array([reading, T(float(r.valid[0])), T(r.miss_mm[0] / 1e3)], dtype=object))
 
+    # -- the stations and their dead paths: numeric Parameters ``_stations``, ``_dead_paths`` of the system --------
+    def SetStations(self, context, stations_mm) -> None:
+        """Set the stations P_j (Nt, 3) mm in ``context``: the heads' centres (floor tracers, a machine's pan/tilt
+        heads) or floor reflectors (robot-mounted)."""
+        context.get_mutable_numeric_parameter(self._stations).SetFromVector(np.reshape(stations_mm, -1))
+
+    def GetStations(self, context) -> np.ndarray:
+        """The stations P_j (Nt, 3) mm used in ``context``."""
+        return context.get_numeric_parameter(self._stations).CopyToVector().reshape(-1, 3)
+
+    def SetDeadPaths(self, context, dead_paths_mm) -> None:
+        """Set the counter zeros d0_j / L0_j (mm) of the stations in ``context`` (000 Eq. 5, 001 Eq. 3)."""
+        context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
+
+    def GetDeadPaths(self, context) -> np.ndarray:
+        """The dead paths d0_j / L0_j (mm) used in ``context``."""
+        return context.get_numeric_parameter(self._dead_paths).CopyToVector()
+
 
 class BeamInterferometer(_BeamReading, LeafSystem):
     """A float 3D interferometer: a subclass declares its inputs, calls :meth:`DeclareReading` and gives
@@ -870,22 +888,6 @@ def SerialLaserInterferometer_(T):
             """The location errors and tool offset (6N + 3; mm, deg) used in ``context``."""
             return context.get_numeric_parameter(self._params).CopyToVector()
 
-        def SetStations(self, context, stations_mm) -> None:
-            """Set the stations P_j (Nt, 3) mm: head centres (floor tracers) or floor reflectors (robot-mounted)."""
-            context.get_mutable_numeric_parameter(self._stations).SetFromVector(np.reshape(stations_mm, -1))
-
-        def GetStations(self, context) -> np.ndarray:
-            """The stations P_j (Nt, 3) mm used in ``context``."""
-            return context.get_numeric_parameter(self._stations).CopyToVector().reshape(-1, 3)
-
-        def SetDeadPaths(self, context, dead_paths_mm) -> None:
-            """Set the counter zero d0_j (mm) of every station's run in ``context`` (000 Eq. 5)."""
-            context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
-
-        def GetDeadPaths(self, context) -> np.ndarray:
-            """The dead paths d0_j (mm) used in ``context``."""
-            return context.get_numeric_parameter(self._dead_paths).CopyToVector()
-
         # -- the kinematics ------------------------------------------------------------------------
         def _location(self, g):
             """Δ = Trans(δ)·Rx(δrx)·Ry(δry)·Rz(δrz) of one joint frame's location errors ``g`` (6,) mm, deg, in T."""
@@ -1096,22 +1098,6 @@ def PanTiltInterferometer_(T):
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, *other._args, converter=converter)
-
-        def SetStations(self, context, stations_mm) -> None:
-            """Set the heads' true centres P_j (Nt, 3) mm in ``context``."""
-            context.get_mutable_numeric_parameter(self._stations).SetFromVector(np.reshape(stations_mm, -1))
-
-        def GetStations(self, context) -> np.ndarray:
-            """The heads' centres P_j (Nt, 3) mm used in ``context``."""
-            return context.get_numeric_parameter(self._stations).CopyToVector().reshape(-1, 3)
-
-        def SetDeadPaths(self, context, dead_paths_mm) -> None:
-            """Set the counter zeros L0_j (mm) in ``context`` (001 Eq. 3)."""
-            context.get_mutable_numeric_parameter(self._dead_paths).SetFromVector(dead_paths_mm)
-
-        def GetDeadPaths(self, context) -> np.ndarray:
-            """The counter zeros L0_j (mm) used in ``context``."""
-            return context.get_numeric_parameter(self._dead_paths).CopyToVector()
 
         def beam(self, context):
             from olti_drake.model.aiming3d import PanTiltHeads, pan_tilt_beam
