@@ -36,6 +36,8 @@ UNCERTAINTY = "olti-uncertainty/1"
 DESIGN = "olti-design/1"
 ISO230 = "olti-iso230/1"
 RUN = "olti-run/1"
+#: ``olti validate``: K-fold cross-validation by pose of candidate models (estimation.validation).
+CROSS_VALIDATION = "olti-cv/1"
 
 
 def result_header(kind: str) -> dict:

@@ -78,7 +78,8 @@ def _both(kind):
     scara_fit, serial_fit, scara_held, serial_held = _split_campaign()
     a = Identifier(scara_fit, IdentificationOptions(model=kind)).solve()
     chain = load_robot("scara", "beam")
-    b = identify_serial(chain, serial_fit, SerialIdentificationOptions(model=kind, grids=_scara_grids(scara_fit)))
+    b = identify_serial(chain, serial_fit, SerialIdentificationOptions(model=kind, grids=_scara_grids(scara_fit),
+                                                                       smoothing="off"))  # (as the SCARA path)
     return a, b, scara_held, serial_held
 
 

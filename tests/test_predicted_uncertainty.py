@@ -200,6 +200,13 @@ def _function_at(tree, line: int) -> str:
 NOT_PREDICTIONS = {
     ("estimation/serial_plan.py", "plan_report"):
         "the parameters' own variances within the gauge, diag(Z (ZᵀJᵀJZ)⁺ Zᵀ): Z is the gauge's null basis",
+    ("estimation/machine_design.py", "_parts"): "the design's per-station blocks (a aᵀ, a w aᵀ), no covariance",
+    ("estimation/machine_design.py", "_u"):
+        "the design's target variances of candidate layouts by block elimination (3 x 3 per target, the stations' "
+        "Schur complement): a layout's cost, not a prediction from an identification's covariance",
+    ("estimation/smoothing.py", "reml_scan"): "the roughness prior's value xᵀPx at the solution (issue 23)",
+    ("estimation/serial_uncertainty.py", "_covariance_sigma"):
+        "the parameters' own variances per unit σ², diag(B (JᵀJ + Q) Bᵀ): the σ² a stored covariance was formed with",
 }
 
 

@@ -161,6 +161,13 @@ def test_one_station_without_directions_refused_by_name_then_regularized(tmp_pat
     write_distance(tmp_path / "c.csv", camp, dirs=False)
     args = ["identify", tmp_path / "c.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG, "--model",
             "errormap", "--grid-step-deg", 30, "--out", tmp_path / "r.json"]
+    # The default smoothness prior holds the maps straight where the readings cannot shape them, and says so.
+    olti(*args)
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert res["smoothing"]["method"] == "restricted maximum likelihood"
+    assert any("the prior outweighs the readings at" in n for n in res["notes"])
+    (tmp_path / "r.json").unlink()
+    args += ["--smoothing", "off"]
     err = olti(*args, expect=2).stderr
     assert "not identifiable: shoulder_lift_joint_dx_mm" in err and "--regularize" in err
     assert not (tmp_path / "r.json").exists()

@@ -31,6 +31,22 @@ def real(lo=None, hi=None, lo_open=False, hi_open=False):
     return parse
 
 
+def smoothing(text: str):
+    """``--smoothing``: ``auto``, ``off`` or a weight >= 0 (the roughness prior's, estimation.smoothing)."""
+    if text in ("auto", "off"):
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, off or a weight >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be auto, off or a finite weight >= 0, got {text!r}")
+    return v
+
+
+smoothing.__name__ = "smoothing"
+
+
 def integer(lo=None, hi=None):
     """A whole number in [lo, hi] (None: unbounded)."""
     want = _range_text(lo, hi, False, False)

@@ -12,9 +12,16 @@ from dataclasses import dataclass
 from typing import Callable
 
 
-def _solver_options(args) -> dict:
-    return dict(loss=args.loss, huber_k=args.huber_k, outlier_threshold=args.outlier_threshold,
-                regularize=args.regularize, solver=args.solver)
+def _solver_options(args, default_loss: str = "l2") -> dict:
+    """The shared solver options (calibration.SolverOptions); ``default_loss`` when --loss is not given (the
+    serial robots' ``auto``; the SCARA and machine kinds keep ``l2``); --max-iterations only when given (else
+    the cap that fits the problem's size)."""
+    loss = getattr(args, "loss", None)
+    o = dict(loss=loss if loss is not None else default_loss, huber_k=args.huber_k,
+             outlier_threshold=args.outlier_threshold, regularize=args.regularize, solver=args.solver)
+    if getattr(args, "max_iterations", None) is not None:
+        o["max_iterations"] = int(args.max_iterations)
+    return o
 
 
 # -- the SCARA of paper 000 ------------------------------------------------------------------------------------
@@ -26,7 +33,8 @@ def _scara_options(args) -> dict:
              grid1_deg=parse_grid(args.grid1_deg, "--grid1-deg") if args.grid1_deg else None,
              grid2_deg=parse_grid(args.grid2_deg, "--grid2-deg") if args.grid2_deg else None,
              reflectors_mm=args.reflectors_mm, fix_reflectors=args.fix_reflectors, budget=args.budget,
-             **_solver_options(args))
+             # (off by default: the paper's campaigns command every node both ways; the prior is there to ask for)
+             smoothing="off" if args.smoothing is None else args.smoothing, **_solver_options(args))
     if args.fix_reflectors and args.reflectors_mm is None:
         raise ValueError("--fix-reflectors needs --reflectors-mm")
     return o
@@ -62,8 +70,9 @@ def _serial_check(args) -> None:
 def _serial_options(args) -> dict:
     return dict(tool_frame=args.tool_frame,
                 tool_offset_mm=tuple(args.tool_offset_mm[0]) if args.tool_offset_mm else (0.0, 0.0, 0.0),
-                grid_step_deg=15.0 if args.grid_step_deg is None else args.grid_step_deg,
-                compliance=args.compliance, drift=args.drift, budget=args.budget, **_solver_options(args))
+                grid_step_deg=args.grid_step_deg,
+                compliance=args.compliance, drift=args.drift, budget=args.budget,
+                smoothing="auto" if args.smoothing is None else args.smoothing, **_solver_options(args, "auto"))
 
 
 def _chain(problem):
@@ -82,7 +91,7 @@ def _serial_document(ident, problem, args) -> dict:
     digest = problem.campaign.digest()  # (its valid readings)
     return serial_result_dict(kind=args.model, robot_file=robot_reference(args.robot, args.out),
                               measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
-                              campaign_digest=digest, notes=list(chain.notes) + ident.notes)
+                              campaign_digest=digest, notes=list(chain.notes) + ident.notes, program=problem.program)
 
 
 def _serial_summary(ident, doc, problem) -> str:

@@ -30,6 +30,18 @@ HANDLERS = {
                    "volumetric": "olti_drake.cli.volumetric_verbs:compensate"},
 }
 
+#: The body of each verb that takes a campaign (not a result), by calibration kind
+#: (:data:`olti_drake.estimation.problem.KINDS`' names); another kind is refused in one line (:data:`CAMPAIGN_REFUSED`).
+CAMPAIGN_HANDLERS = {
+    "validate": {"serial": "olti_drake.cli.validate:validate"},
+}
+
+#: A campaign verb's sentence for a kind it does not take ({campaign}: the file, {what}: what the kind is).
+CAMPAIGN_REFUSED = {
+    "validate": "olti validate: {campaign} is {what}; cross-validation takes the campaigns of N-joint robots from a "
+                "model file for now (--robot FILE|ur5 --tool-frame NAME)",
+}
+
 #: A verb's own sentence for a result kind it does not take ({path}: the file), instead of read_result's.
 REFUSED = {
     ("uncertainty", "volumetric"): "{path}: a volumetric result carries its linear uncertainties (key "
@@ -91,6 +103,9 @@ OPTIONS = (
     _robot_only("--grid-step-deg", "grid_step_deg"),
     _robot_only("--compliance", "compliance", False),
     _robot_only("--drift", "drift", False),
+    _robot_only("--cv", "cv"),
+    Option("identify", "--smoothing", "smoothing", ("serial", "scara"),
+           {None: "{flag} applies to the robots' error maps (--model errormap), not to --model volumetric"}),
     # olti uncertainty: the result kinds (io.documents.read_result)
     Option("uncertainty", "--maps", "maps", ("scara",), {
         "serial": "{flag} is the SCARA figure; for a robot from a model file the maps with these error bars are in "
@@ -115,6 +130,12 @@ OPTIONS = (
     # olti compensate
     Option("compensate", "--urdf-out", "urdf_out", ("serial",),
            {None: "{flag} needs the result of a robot model file (olti identify --robot)"}),
+    Option("compensate", "--cartesian-out", "cartesian_out", ("serial",),
+           {None: "{flag} (pre-distorted Cartesian targets for the controller's IK) needs the result of a robot "
+                  "model file (olti identify --robot)"}),
+    Option("compensate", "--ros2-control-out", "ros2_control_out", ("serial",),
+           {None: "{flag} (joint offsets for ros2_control) needs the result of a robot model file (olti identify "
+                  "--robot)"}),
     Option("compensate", "--elbow", "elbow", ("scara",),
            {None: "{flag} applies to SCARA results (a robot from a model file keeps its nominal pose's)"}, 1),
     Option("compensate", "--pitch-mm", "pitch_mm", ("volumetric",),
@@ -139,6 +160,25 @@ def refuse_inapplicable(verb: str, kind: str, args) -> None:
 def handler(verb: str, kind: str):
     """The body of ``verb`` for ``kind`` (:data:`HANDLERS`)."""
     module, _, name = HANDLERS[verb][kind].partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def campaign_handler(verb: str, args):
+    """The body of the campaign verb ``verb`` for the kind of ``args.campaign`` (:data:`CAMPAIGN_HANDLERS`): a robot
+    model given (``--robot``) is the serial kind, else a machine-tool campaign (``x_cmd_mm``) or the SCARA's;
+    a kind ``verb`` does not take refused in one line (:data:`CAMPAIGN_REFUSED`)."""
+    if getattr(args, "robot", None):
+        kind, what = "serial", "an N-joint robot's campaign"
+    else:
+        from olti_drake.io.serial_io import header
+
+        machine = "x_cmd_mm" in header(args.campaign)[1]
+        kind, what = (("multilateration", "a machine-tool campaign") if machine else
+                      ("scara", "a SCARA campaign (no --robot given)"))
+    if kind not in CAMPAIGN_HANDLERS[verb]:
+        raise ValueError(CAMPAIGN_REFUSED[verb].format(campaign=args.campaign, what=what))
+    refuse_inapplicable(verb, kind, args)
+    module, _, name = CAMPAIGN_HANDLERS[verb][kind].partition(":")
     return getattr(importlib.import_module(module), name)
 
 

@@ -52,7 +52,9 @@ def _joint_columns(jt) -> tuple:
 
 def predict(args) -> int:
     """``olti predict RESULT.json FILE.csv --out PRED.csv`` for a serial robot: the tool point (x, y, z mm,
-    root frame) per row; for a distance campaign also ``predicted_displacement_mm`` (cross-validation)."""
+    root frame) per row with ``u_x_mm, u_y_mm, u_z_mm`` (k = 1, the result's covariance propagated); for a
+    distance campaign also ``predicted_displacement_mm`` (cross-validation) and ``u_predicted_displacement_mm``.
+    A result that stores no covariance (an older version's, a truth) gives no u columns, and says why."""
     import numpy as np
 
     from olti_drake.io.csvio import write_table
@@ -64,23 +66,43 @@ def predict(args) -> int:
     scol = station_column(args.commands) if distance else None
     jt = _commands(res, args.commands, (scol, "displacement_mm") if distance else (), (scol,) if distance else (),
                    valid_only=distance)
+    from olti_drake.estimation.serial_uncertainty import predicted_point_std, predicted_reading_std
+
     p = _positions(res.model, jt, args.commands)
+    _, u = predicted_point_std(res, jt.commands, jt.dirs)  # (None: the result stores no covariance)
     out, fmt = _joint_columns(jt)
     out.update({"x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2]})
+    if u is not None:
+        out.update({"u_x_mm": u[:, 0], "u_y_mm": u[:, 1], "u_z_mm": u[:, 2]})
     fmt.update({"x_mm": "%.6f", "y_mm": "%.6f", "z_mm": "%.6f", scol: "%d", "displacement_mm": "%.6f",
-                "predicted_displacement_mm": "%.6f"})
+                "predicted_displacement_mm": "%.6f", "u_x_mm": "%.3e", "u_y_mm": "%.3e", "u_z_mm": "%.3e",
+                "u_predicted_displacement_mm": "%.3e"})
     text = f"predicted {len(p)} tool points"
+    if u is not None:
+        un = np.linalg.norm(u, axis=1)
+        text += f" (u (k = 1) of the point up to {1e3 * un.max():.2f} um, median {1e3 * np.median(un):.2f} um)"
     if distance:
         pred = _predicted_readings(res, jt, p, scol, args.commands)
         out = {scol: jt.table[scol], **out, "displacement_mm": jt.table["displacement_mm"],
                "predicted_displacement_mm": pred}
+        if u is not None:
+            out["u_predicted_displacement_mm"] = predicted_reading_std(res, jt.commands, jt.dirs, jt.table[scol],
+                                                                       jt.table.get("time_s"))[1]
         miss = pred - jt.table["displacement_mm"]
         text += (f" and readings of {args.commands} ({jt.table['_skipped']} rows with valid = 0 skipped): "
                  f"predicted - read RMS {1e3 * np.sqrt(np.mean(miss ** 2)):.3f} um, "
                  f"max {1e3 * np.abs(miss).max():.3f} um")
-    write_table(args.out, out, fmt, comments=[f"olti predict: {args.result} applied to {args.commands}; "
-                                              f"tool point in the robot's root frame; mm and degrees"])
+        if u is not None:
+            text += f", RMS of its u {1e3 * np.sqrt(np.mean(out['u_predicted_displacement_mm'] ** 2)):.3f} um"
+    note = res.covariance_note
+    comments = [f"olti predict: {args.result} applied to {args.commands}; tool point in the robot's root frame; "
+                f"mm and degrees"]
+    comments.append("u_*: standard uncertainties (k = 1) from the identification's covariance (linear propagation, "
+                    "JCGM 100)" if u is not None else f"{note}: no u_* columns")
+    write_table(args.out, out, fmt, comments=comments)
     print(text)
+    if note:
+        print(f"note: {note}: no u columns")
     print(f"wrote {args.out}")
     return 0
 
@@ -112,43 +134,73 @@ def _predicted_readings(res, jt, p, scol, path):
     return np.linalg.norm(p - res.stations_mm[idx], axis=1) - d0
 
 
+#: Exit status of ``olti compensate`` when some targets (not all) could not be compensated: the others are written.
+EXIT_TARGETS_FAILED = 3
+
+
 def compensate(args) -> int:
-    """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]`` for a
-    serial robot: targets x_mm, y_mm, z_mm with their nominal pose theta1_deg .. thetaN_deg (and dirs)."""
+    """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]
+    [--cartesian-out FILE] [--ros2-control-out FILE]`` for a serial robot: targets x_mm, y_mm, z_mm with their
+    nominal pose theta1_deg .. thetaN_deg (and dirs). Every target is solved; one that cannot be is a row with
+    ``status`` != 0 (its nominal command kept), one line on stderr naming its file line, and exit
+    :data:`EXIT_TARGETS_FAILED`; a program none of whose targets can be compensated is refused (exit 2, nothing
+    written)."""
+    import sys
+
     import numpy as np
 
     from olti_drake.estimation.compensation import compensation_table
-    from olti_drake.estimation.serial_compensation import compensate_serial
+    from olti_drake.estimation.serial_compensation import STATUS_LEGEND, STATUSES, solve_program
     from olti_drake.io.csvio import write_table
     from olti_drake.io.serial_io import load_serial_result
 
     res = load_serial_result(args.result, outside=args.outside)
     model = res.model
+    cartesian_out = getattr(args, "cartesian_out", None)
+    ros2_out = getattr(args, "ros2_control_out", None)
     tables = [os.path.join(args.tables, f"{m.joint}_compensation.csv") for m in model.maps] if args.tables else []
-    _preflight(args, [args.out, args.urdf_out] + tables,
+    _preflight(args, [args.out, args.urdf_out, cartesian_out, ros2_out] + tables,
                [args.result, args.targets, res.robot_path], dirs=[args.tables] if args.tables else [])
     if args.tables and not model.maps:
         raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is "
                          f"'{model.kind}'")
     jt = _commands(res, args.targets, ("x_mm", "y_mm", "z_mm"))
     targets = np.column_stack([jt.table[c] for c in ("x_mm", "y_mm", "z_mm")])
-    comp = compensate_serial(model, targets, jt.commands, jt.dirs, jt.line, args.targets)
+    comp = solve_program(model, targets, jt.commands, jt.dirs, jt.line, args.targets)
+    failed = comp.failures()
+    if len(failed) == len(targets):
+        raise ValueError(failed[0] + (f"; none of the {len(targets)} targets can be compensated (nothing written)"
+                                      if len(targets) > 1 else ""))
     from olti_drake.io.serial_io import JointTable
 
+    ok = comp.ok
     out, fmt = _joint_columns(JointTable(comp.commands, jt.dirs, jt.table, jt.source))
     out.update({"x_mm": targets[:, 0], "y_mm": targets[:, 1], "z_mm": targets[:, 2],
-                "residual_mm": comp.residual_mm, "orientation_change_deg": comp.orientation_change_deg})
+                "residual_mm": comp.residual_mm, "orientation_change_deg": comp.orientation_change_deg,
+                "status": comp.status_codes})
     fmt.update({"x_mm": "%.6f", "y_mm": "%.6f", "z_mm": "%.6f", "residual_mm": "%.3g",
-                "orientation_change_deg": "%.3g"})
+                "orientation_change_deg": "%.3g", "status": "%d"})
     write_table(args.out, out, fmt, comments=[
         f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm and degrees",
         "executed with these directions the commands put the tool point on x_mm, y_mm, z_mm by the model; "
-        "residual_mm: how far by the model; orientation_change_deg: tool orientation off the nominal pose's"])
-    corr = np.abs(comp.correction_deg)
-    print(f"compensated {len(targets)} targets ({model.kind} model of {res.data['robot']['file']}): "
-          f"{comp.iterations} Newton iteration(s), max residual {comp.residual_mm.max():.2g} mm, corrections up to "
-          f"{1e3 * corr.max():.2f} mdeg, tool orientation kept within {comp.orientation_change_deg.max():.2g} deg")
+        "residual_mm: how far by the model; orientation_change_deg: tool orientation off the nominal pose's",
+        f"status: {STATUS_LEGEND}; a row whose status is not 0 keeps its nominal command, uncompensated (stderr "
+        f"says why, by line)"])
+    corr = np.abs(comp.correction_deg[ok])
+    print(f"compensated {int(ok.sum())} of {len(targets)} targets ({model.kind} model of "
+          f"{res.data['robot']['file']}): {comp.iterations} Newton iteration(s), max residual "
+          f"{comp.residual_mm[ok].max():.2g} mm, corrections up to {1e3 * corr.max():.2f} mdeg, tool orientation "
+          f"kept within {comp.orientation_change_deg[ok].max():.2g} deg")
     print(f"wrote {args.out}")
+    if cartesian_out:
+        _write_cartesian(cartesian_out, model, comp, targets, args)
+        print(f"wrote {cartesian_out} (pre-distorted Cartesian targets for the controller's nominal IK)")
+    if ros2_out:
+        from olti_drake.io.ros2_control import write_ros2_control_offsets
+
+        offsets = write_ros2_control_offsets(model, ros2_out, res.data["robot"]["file"], args.result)
+        print(f"wrote {ros2_out} (ros2_control joint offsets, radians: "
+              f"{', '.join(f'{j} {v:.3g}' for j, v in offsets.items())})")
     if tables:
         from olti_drake.io.outputs import make_dir
 
@@ -164,4 +216,43 @@ def compensate(args) -> int:
 
         point = write_identified_urdf(model, res.robot_path, args.urdf_out, f"Result: {args.result}.")
         print(f"wrote {args.urdf_out} (identified joint origins; tool point = link '{point}')")
+    for reason, status in zip(comp.reasons, comp.status):
+        if status != "ok":
+            print(f"{reason} (status {STATUSES.index(status)} {status}: the row keeps its nominal command)",
+                  file=sys.stderr)
+    if failed:
+        print(f"{len(failed)} of {len(targets)} targets not compensated (status column of {args.out}); the "
+              f"others are written", file=sys.stderr)
+        return EXIT_TARGETS_FAILED
     return 0
+
+
+def _write_cartesian(path, model, comp, targets, args) -> None:
+    """The pre-distorted Cartesian targets (``--cartesian-out``): the nominal model's tool point and tool-frame
+    orientation at every row's command (:func:`olti_drake.estimation.serial_compensation.cartesian_targets`)."""
+    import numpy as np
+
+    from olti_drake.estimation.serial_compensation import STATUS_LEGEND, cartesian_targets, rotation_angles
+    from olti_drake.io.csvio import write_table
+
+    p, rot = cartesian_targets(model, comp.commands)
+    rpy, quat = rotation_angles(rot)
+    tool = model.chain_parameters(model.start_vector())[6 * model.chain.n_joints:]
+    cols = {"x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2], "rx_deg": rpy[:, 0], "ry_deg": rpy[:, 1],
+            "rz_deg": rpy[:, 2], "qw": quat[:, 0], "qx": quat[:, 1], "qy": quat[:, 2], "qz": quat[:, 3],
+            "wanted_x_mm": targets[:, 0], "wanted_y_mm": targets[:, 1], "wanted_z_mm": targets[:, 2],
+            "shift_mm": np.linalg.norm(p - targets, axis=1), "status": comp.status_codes}
+    fmt = {c: "%.6f" for c in cols}
+    fmt.update({c: "%.12f" for c in ("rx_deg", "ry_deg", "rz_deg", "qw", "qx", "qy", "qz")})
+    fmt.update({"shift_mm": "%.4g", "status": "%d"})
+    write_table(path, cols, fmt, comments=[
+        f"olti compensate --cartesian-out: pre-distorted Cartesian targets of {args.targets} by {args.result}; mm "
+        f"and degrees, root frame of {model.chain.path}",
+        f"x_mm, y_mm, z_mm: the TCP = the tool point, ({', '.join(f'{v:.6g}' for v in tool)}) mm in tool frame "
+        f"'{model.chain.tool_frame}', by the NOMINAL model (the model file: the controller's own kinematics) at "
+        f"the compensated command; send it with this orientation to the controller's IK (TCP set to that offset)",
+        "rx_deg, ry_deg, rz_deg: the tool frame's orientation, fixed-axis X-Y-Z roll-pitch-yaw, R = Rz(rz) Ry(ry) "
+        "Rx(rx); qw, qx, qy, qz: the same rotation as a unit quaternion (qw >= 0)",
+        "the IK solution on the nominal pose's branch is the compensated command, which puts the real robot's tool "
+        "point on wanted_x_mm, wanted_y_mm, wanted_z_mm (shift_mm: how far the target was moved); a row whose "
+        f"status is not 0 is the nominal command's pose, uncompensated (status: {STATUS_LEGEND})"])

@@ -212,7 +212,18 @@ def cmd_identify(args) -> int:
     """campaign CSV -> calibration_problem -> fit -> result document -> written (olti_drake.cli.identify)."""
     from olti_drake.cli.identify import identify
 
+    if getattr(args, "cv", None) is not None:  # the validation printed first (olti_drake.cli.validate)
+        from olti_drake.cli.validate import cv_before_identify
+
+        cv_before_identify(args)
     return identify(args, args.model)
+
+
+def cmd_validate(args) -> int:
+    """K-fold cross-validation by pose of candidate models (olti_drake.cli.validate; serial robots: cli.kinds)."""
+    from olti_drake.cli.kinds import campaign_handler
+
+    return campaign_handler("validate", args)(args)
 
 
 def cmd_multilaterate(args) -> int:
@@ -230,8 +241,15 @@ def _add_force(p):
 
 def _add_solver_options(p):
     """The solver options every identification verb shares (calibration.SolverOptions)."""
-    p.add_argument("--loss", choices=("l2", "huber"), default="l2", help="robust loss for outliers (default l2)")
-    p.add_argument("--huber-k", type=cliargs.positive, default=3.0, help="Huber threshold in robust sigmas (default 3)")
+    p.add_argument("--loss", choices=("l2", "huber", "soft_l1", "cauchy", "auto"), default=None,
+                   help="loss: l2, or a robust loss for outliers (huber, soft_l1, cauchy: IRLS, scale --huber-k robust "
+                        "sigmas); auto: l2 unless its residuals show outliers, then Huber at k = 1.345, said in a "
+                        "note naming the outlying lines (default: auto for robots from a model file, else l2)")
+    p.add_argument("--huber-k", type=cliargs.positive, default=3.0,
+                   help="scale of the robust losses in robust sigmas (default 3; --loss auto's refit uses 1.345)")
+    p.add_argument("--max-iterations", type=cliargs.integer(1, 1_000_000), default=None, metavar="N",
+                   help="LM's iteration cap (default: fits the problem's size, max(100, 10 x the unknowns) up to "
+                        "2000)")
     p.add_argument("--outlier-threshold", type=cliargs.positive, default=4.0,
                    help="report readings whose normalized residual exceeds this (default 4)")
     p.add_argument("--regularize", action="store_true",
@@ -282,6 +300,10 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
+    # --step-mm not given: 50 mm for the robots; a machine tool in 3D derives its own from the regions' size.
+    args.step_mm_default = args.step_mm is None
+    if args.step_mm is None:
+        args.step_mm = 50.0
     return _result_verb(args, "design", [args.out], [args.result, args.plan, args.regions, args.budget])
 
 
@@ -479,16 +501,54 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
     p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
-                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default 15)")
+                   help="with --robot: error-map nodes every S degrees over each joint's commanded range (default "
+                        "7.5 with the smoothness prior, 15 with --smoothing off)")
     p.add_argument("--compliance", action="store_true",
                    help="with --robot: joint compliance under gravity, c_i deg/(N m) times the gravity torque from the "
                         "model file's masses (joints with too little torque variation are dropped by name)")
     p.add_argument("--drift", action="store_true",
                    help="with --robot: linear drift of each station's dead path in time, mm/h (distance campaigns "
                         "with a time_s column)")
+    p.add_argument("--smoothing", type=cliargs.smoothing, default=None,
+                   help="with --robot errormap: the maps' roughness prior (second differences of each direction and "
+                        "of the backlash): auto (default; its weight by generalized cross-validation, stated in the "
+                        "result), off, or the weight itself (as a result's 'smoothing.weight' states it)")
+    p.add_argument("--cv", type=cliargs.integer(2), default=None, metavar="K",
+                   help="with --robot: first print a K-fold cross-validation by pose of the candidate models "
+                        "(olti validate's defaults and the model asked), then identify --model as asked")
     _add_solver_options(p)
     _add_force(p)
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("validate", help="K-fold cross-validation by pose of candidate models; the recommended one",
+                       description="Cross-validate candidate models of a serial robot (--robot FILE --tool-frame "
+                                   "NAME) on a distance or tracker campaign: K folds of its poses (the rows of a pose "
+                                   "together, folds seeded), each model identified on the other folds with the "
+                                   "identify options given and its held-out RMS (mm) with the spread over the folds; "
+                                   "the recommended model by the one-standard-error rule; write CV.json. mm, deg.")
+    p.add_argument("campaign", help="campaign CSV of an N-joint robot (formats.md)")
+    p.add_argument("--out", required=True, help="CV JSON to write")
+    p.add_argument("--folds", type=cliargs.integer(2), default=5, metavar="K",
+                   help="number of folds, 2 .. the number of poses (default 5)")
+    p.add_argument("--models", default=None,
+                   help="candidates, comma list: dh, errormap (at --grid-step-deg), errormap:STEP_DEG, compliance, "
+                        "drift, or BASE+compliance / BASE+drift (default: dh,errormap:30,errormap:15,errormap:7.5 "
+                        "and dh+compliance, dh+drift where they apply)")
+    p.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the fold assignment (default 0)")
+    p.add_argument("--robot", help="a URDF/SDFormat model file, or a shipped model (ur5, scara)")
+    p.add_argument("--tool-frame", help="the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
+                   help="nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
+    p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
+                   help="the grid step of the candidate 'errormap' without a step (default 15)")
+    p.add_argument("--compliance", action="store_true", help="every candidate with joint compliance under gravity")
+    p.add_argument("--drift", action="store_true", help="every candidate with the stations' dead-path drift (time_s)")
+    p.add_argument("--smoothing", type=cliargs.smoothing, default=None,
+                   help="the error maps' roughness prior, as olti identify's: auto (default), off or a weight")
+    p.add_argument("--budget", help="budget YAML (as olti identify's)")
+    _add_solver_options(p)
+    _add_force(p)
+    p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("predict", help="predicted actual positions for commanded angles and directions",
                        description="Apply an identified model to commands (formats.md commands.csv); write "
@@ -573,8 +633,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--criterion", choices=("max", "mean"), default="max",
                    help="minimize the worst (default) or the mean predicted-position u over the workspace")
     p.add_argument("--budget", help="budget YAML (default: 000 Table 2)")
-    p.add_argument("--step-mm", type=cliargs.length_mm, default=50.0,
-                   help="candidate grid step in the regions (default 50)")
+    p.add_argument("--step-mm", type=cliargs.length_mm, default=None,
+                   help="candidate grid step in the regions (default 50; machine tools in 3D: from the regions' "
+                        "size, about 100 candidates)")
     p.add_argument("--workspace-step-mm", type=cliargs.length_mm, default=50.0,
                    help="step of the workspace XY grid the cost is evaluated on (default 50; SCARA)")
     p.add_argument("--workspace-poses", type=cliargs.integer(10, 100_000), default=300,
@@ -627,7 +688,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(formats.md rule). Targets beyond the reach or the map grid are refused "
                                    "with their line. A serial robot's result: TARGETS.csv has x_mm, y_mm, z_mm "
                                    "and the nominal pose theta1_deg .. thetaN_deg [, dir1 .. dirN]; the commands "
-                                   "keep the nominal pose's tool orientation and directions. mm and degrees.")
+                                   "keep the nominal pose's tool orientation (damped near a singularity) and "
+                                   "directions; every target is solved, one that cannot be (unreachable, "
+                                   "joint_limit, outside_map) keeps its nominal command with that status, is named "
+                                   "by its line on stderr, and the exit status is 3. mm and degrees.")
     p.add_argument("result", help="result JSON from olti identify (errormap or dh)")
     p.add_argument("targets", help="targets CSV: x_mm, y_mm [, dir1, dir2]")
     p.add_argument("--out", required=True, help="commands CSV to write (theta1_deg, theta2_deg, dir1, dir2, "
@@ -637,6 +701,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elbow", type=int, choices=(1, -1), default=1, help="+1: theta2 >= 0 (default); -1")
     p.add_argument("--urdf-out", help="serial robots (olti identify --robot): also write the robot's URDF with the "
                                       "identified joint origins and the tool point as a link")
+    p.add_argument("--cartesian-out", help="serial robots: also write pre-distorted Cartesian targets (the tool "
+                                           "point x_mm, y_mm, z_mm and the tool orientation rx/ry/rz_deg, fixed-axis "
+                                           "XYZ, and qw..qz, by the NOMINAL model at the compensated commands) to send "
+                                           "to the controller's own IK")
+    p.add_argument("--ros2-control-out", help="serial robots: also write the identified joint offsets as ros2_control "
+                                              "joint 'offset' parameters (YAML, radians)")
     p.add_argument("--pitch-mm", type=cliargs.length_mm,
                    help="volumetric --tables: axis tables every S mm (default 10)")
     p.add_argument("--grid-pitch-mm", type=cliargs.length_mm,

@@ -114,6 +114,40 @@ RESIDUAL_WARNING_RATIO = 3.0
 #: An l2 fit's reading beyond this many robust sigma (and this many budget reading u, when there is a budget)
 #: is a gross outlier -- a blunder, not the model: its warning comes first and names the Huber loss.
 GROSS_OUTLIER_SIGMA = 20.0
+#: The losses of :attr:`SolverOptions.loss`: least squares, the robust ones (IRLS, :meth:`LeastSquaresProgram._weights`;
+#: scale c = k x the robust sigma, k = ``huber_k``), and ``auto`` (:meth:`LeastSquaresProgram._auto_loss_fit`).
+ROBUST_LOSSES = ("huber", "soft_l1", "cauchy")
+LOSSES = ("l2",) + ROBUST_LOSSES + ("auto",)
+#: Huber's usual k (95 % efficiency at Gaussian readings): the k of the Huber refit that ``loss='auto'`` makes.
+AUTO_HUBER_K = 1.345
+#: ``loss='auto'``: an l2 fit whose residual RMS exceeds this multiple of its robust sigma (1.4826 MAD) has a heavy
+#: tail (Gaussian residuals: 1.0; Laplace: 1.38; clean six-axis campaigns, truths outside the model family: 1.0-1.23
+#: measured; 8 % of the readings in a 2.5-8.7 mm dead-path jump over ~0.7 mm of resolution noise and model error:
+#: 2.1-2.4, tests/test_real_data.py) -- outliers, besides the gross ones (:data:`GROSS_OUTLIER_SIGMA`).
+HEAVY_TAIL_RATIO = 1.5
+#: The iteration cap that fits the problem's size (:class:`SizeCap`, the default of
+#: :attr:`SolverOptions.max_iterations`): max(100, this many per unknown), at most :data:`MAX_SIZE_CAP`. Measured: a
+#: six-axis ``dh`` program (31 unknowns) from the nominal start takes 3-28 LM iterations on synthetic single-anchor
+#: campaigns (tests/test_real_data.py, l2, Huber, with and without priors); issue 23 reports 126 on its real
+#: single-anchor draw-wire data with a weak prior (~4 per unknown), 441-1734 without (towards implausible values).
+ITERATIONS_PER_UNKNOWN = 10
+MAX_SIZE_CAP = 2000
+#: A refused fit that did not converge names this many of the parameters that kept moving over the last
+#: :data:`MOVING_STEPS` LM steps (their change over their standard uncertainty at the start).
+MOVING_NAMED, MOVING_STEPS = 4, 5
+
+
+class SizeCap(int):
+    """The default iteration cap (an int, 100): LM then runs up to max(100, :data:`ITERATIONS_PER_UNKNOWN` x the
+    unknowns) iterations, at most :data:`MAX_SIZE_CAP` (:meth:`LeastSquaresProgram.iteration_cap`). A plain int
+    given as ``max_iterations`` (``--max-iterations N``) is the cap itself."""
+
+    def cap(self, unknowns: int) -> int:
+        return int(max(int(self), min(ITERATIONS_PER_UNKNOWN * int(unknowns), MAX_SIZE_CAP)))
+
+
+#: The default of :attr:`SolverOptions.max_iterations`.
+SIZE_CAP = SizeCap(100)
 
 
 class UnidentifiableError(InputError):
@@ -129,15 +163,26 @@ class FitRefused(InputError):
     impossible parameters. Raised before anything is written; the message is one line."""
 
 
+class VagueSolution(UnidentifiableError, FitRefused):
+    """A solution whose named parameters have a u beyond what is physically plausible
+    (:meth:`LeastSquaresProgram.plausible_u`): refused, and unidentifiable -- a prior (``regularize``) helps."""
+
+
 @dataclass
 class SolverOptions:
     """How to solve, for every model.
 
-    ``loss``: ``l2`` or ``huber`` (IRLS, threshold ``huber_k`` robust sigmas).
+    ``loss``: ``l2``; ``huber``, ``soft_l1`` or ``cauchy`` (IRLS, scale ``huber_k`` robust sigmas: the k of every
+    robust loss); or ``auto``: l2 unless its residuals show outliers (gross ones, or a heavy tail), then Huber at
+    k = :data:`AUTO_HUBER_K`, said in a note naming the outlying lines (:meth:`LeastSquaresProgram._auto_loss_fit`).
+    ``max_iterations``: LM's cap; the default (:data:`SIZE_CAP`) fits the problem's size.
     ``outlier_threshold``: report readings whose normalized residual exceeds it.
     ``regularize``: instead of stopping on unidentifiable parameters, add a
     weak prior pulling them to their initial value (and say so).
     ``solver``: ``lm`` or ``nlp``.
+    ``smoothing``: the roughness prior of a map model (:meth:`LeastSquaresProgram.roughness`; issue 23):
+    ``"off"``, ``"auto"`` (its weight by restricted maximum likelihood, :mod:`olti_drake.estimation.smoothing`)
+    or a weight λ ≥ 0 (the cost ½ λ ‖R x‖² beside ½ Σ w r², mm² per (deg/deg²)²·deg).
     """
 
     loss: str = "l2"
@@ -145,9 +190,10 @@ class SolverOptions:
     outlier_threshold: float = 4.0
     regularize: bool = False
     solver: str = "lm"
-    max_iterations: int = 100
+    max_iterations: int = SIZE_CAP
     #: Budget whose predicted reading uncertainty the residual RMS is checked against (None: the model's default).
     budget: object = None
+    smoothing: object = "off"
 
 
 @dataclass
@@ -170,6 +216,10 @@ class Fit:
     warnings: list = field(default_factory=list)
     #: The user's own decision variables (added to ``prog``), by name: their solved values.
     extra: dict = field(default_factory=dict)
+    #: The smoothness prior of a map model, as stated in the result: method (how the weight was chosen, or
+    #: "given"), weight, score
+    #: (−2 log restricted likelihood), effective parameters, readings, rounds; None without one.
+    smoothing: dict = None
 
 
 def _covariance_get(fit):
@@ -307,6 +357,11 @@ class LeastSquaresProgram:
         """The budget whose reading uncertainty the residual is compared with when the options name none."""
         return None
 
+    def roughness(self):
+        """Roughness rows R (sparse, over :attr:`names`) of the model's maps for the smoothness prior ½ λ ‖R x‖²
+        (:attr:`SolverOptions.smoothing`), or None: the model has no map."""
+        return None
+
     @property
     def source(self) -> str:
         return getattr(getattr(self, "data", None), "source", "") or "campaign"
@@ -389,6 +444,107 @@ class LeastSquaresProgram:
         """Hook: a model may add where in the campaign the named parameters' readings are."""
         return error
 
+    #: Appended to an error about parameters whose u at the start would exceed physical plausibility.
+    vague_hint = "add readings that determine them, or fix them"
+
+    def plausible_u(self):
+        """Hook: the largest physically plausible standard uncertainty of every parameter (:attr:`names`, model
+        units; inf: no bound), or None (no such check: the default). A parameter whose u at the start -- the
+        identifiability check's factorization times the reading variance (:meth:`reading_sigma`) -- would exceed
+        it is not identifiable (:meth:`_raise_if_vague`), though the rank is full."""
+        return None
+
+    def reading_sigma(self):
+        """(u mm, what it is) of one reading, to weigh priors and to judge u before solving: the RMS reading u of
+        the budget (``options.budget``, else :meth:`default_budget`) at the start's beam lengths; without a budget
+        the robust sigma (1.4826 MAD) of the residuals of the least-squares fit linearized at the start (one
+        Gauss-Newton step: by the identifiability check's factorization when at hand, else the minimum-norm step
+        by LSQR on the column-scaled Jacobian; the gauge changes no residual), times √(m / (m − n)) for the n
+        unknowns it fits -- robust, so a block of outliers does not inflate it. Computed once per program."""
+        cached = getattr(self, "_reading_sigma", None)
+        if cached is not None:
+            return cached
+        budget = self.options.budget if self.options.budget is not None else self.default_budget()
+        if budget is not None:
+            u = _rms(ReadingErrors(budget).std(self.beam_lengths(self.x0)))
+            out = (float(u), f"the reading uncertainty of the budget '{getattr(budget, 'name', '')}'")
+        else:
+            checked = getattr(self, "_checked", None)
+            at_start = checked is not None and np.array_equal(checked[0], self.x0)
+            r, J = checked[1:] if at_start else self.residuals(self.x0)
+            J = sp.csr_matrix(J)
+            norms = np.sqrt(np.asarray(J.multiply(J).sum(axis=0)).ravel())
+            within = getattr(self, "_within0", None)
+            if at_start and within is not None and (not within.large or within.factorized):
+                # The identifiability check's factorization at the start: the Gauss-Newton step within the
+                # program's constraints (gauge, ties), exactly.
+                g = self._pad(J).T @ np.asarray(r, float)
+                step = within.to_full(within.solve(within.to_null(-g / within.s))) / within.s
+                lin = r + J @ step[:J.shape[1]]
+            else:  # (rank deficient: no factorization) the minimum-norm step by LSQR, column-scaled
+                from scipy.sparse.linalg import lsqr
+
+                s = np.where(norms > 0, norms, 1.0)
+                y = lsqr(J @ sp.diags(1.0 / s), -np.asarray(r, float), atol=1e-10, btol=1e-10,
+                         iter_lim=min(max(200, 2 * J.shape[1]), 2000))[0]
+                lin = r + J @ (y / s)
+            m, k = len(r), int(np.sum(norms > 0))
+            if m - k < max(10, 0.1 * m):
+                # Hardly more readings than unknowns: the linearized fit runs through them (its residuals are
+                # rounding), so they tell no reading uncertainty -- take a stated one.
+                out = (UNKNOWN_READING_MM, f"stated: the readings ({m}) barely exceed the unknowns they fit ({k}), "
+                                           f"so their residuals tell no reading uncertainty")
+            else:
+                u = _robust_sigma(lin) * np.sqrt(m / max(m - k, 1)) if m else 0.0
+                out = (float(u), "the robust sigma of the residuals of the least-squares fit linearized at the "
+                                 "start")
+        self._reading_sigma = out
+        return out
+
+    #: Judge u before solving (:meth:`_raise_if_vague`); a model may turn it off for a second try, leaving the
+    #: judgment to the solution's u (:meth:`accept`).
+    vague_at_start = True
+
+    def _raise_if_vague(self) -> None:
+        """Raise :class:`UnidentifiableError` naming the parameters whose u at the start (the identifiability
+        check's factorization, priors included, times :meth:`reading_sigma` squared) exceeds :meth:`plausible_u`,
+        each with its u; parameters with a prior already are not named again."""
+        within = getattr(self, "_within0", None)
+        if not self.vague_at_start or within is None or self.plausible_u() is None:
+            return
+        sigma, what = self.reading_sigma()
+        u = np.sqrt(np.maximum(within.inverse_diagonal()[:len(self.names)], 0.0)) * sigma
+        error = self._vague_error(u, f"u at the start, readings of u {1e3 * sigma:.3g} um: {what}",
+                                  UnidentifiableError)
+        if error is not None:
+            raise self._explain(error)
+
+    def _vague_error(self, u, basis: str, cls):
+        """``cls`` (an :class:`UnidentifiableError`) naming the parameters whose u (``u``, model units) exceeds
+        :meth:`plausible_u` -- not those with a prior already --, their u in ``u_at_start``; None when none does."""
+        bounds = self.plausible_u()
+        if bounds is None:
+            return None
+        n = len(self.names)
+        bounds = np.asarray(bounds, float)
+        u = np.asarray(u, float)[:n]
+        prior = self._prior_hessian()
+        held = np.diag(prior)[:n] > 0 if prior is not None else np.zeros(n, bool)
+        idx = np.flatnonzero((u > bounds) & ~held)
+        if not idx.size:
+            return None
+        idx = idx[np.argsort(-(u[idx] / bounds[idx]))]
+
+        def unit(name):
+            return "deg" if "_deg" in name else "mm"
+        shown = ", ".join(f"{self.names[i]} (u {u[i]:.3g} {unit(self.names[i])}, bound {bounds[i]:g})"
+                          for i in idx[:8]) + (f" and {len(idx) - 8} more" if len(idx) > 8 else "")
+        error = cls(f"not identifiable: {shown} -- the readings would determine {'it' if len(idx) == 1 else 'them'} "
+                    f"only to a standard uncertainty beyond what the physical part can have ({basis}; "
+                    f"{self.vague_hint})", [self.names[i] for i in idx])
+        error.u_at_start = {self.names[i]: float(u[i]) for i in idx}  # (vague, not rank deficient)
+        return error
+
     def _confirm_identifiable(self, wait: bool = True) -> None:
         """The deferred part of :meth:`check_identifiability`: raise its error once the thread has decided
         (``wait`` False: only if it already has -- polled by LM, so a deficient problem stops early)."""
@@ -450,20 +606,259 @@ class LeastSquaresProgram:
         o = self.options
         if o.solver not in ("lm", "nlp"):
             raise InputError(f"solver must be 'lm' or 'nlp', got {o.solver!r}")
-        if o.loss not in ("l2", "huber"):
-            raise InputError(f"loss must be 'l2' or 'huber', got {o.loss!r}")
+        if o.loss not in LOSSES:
+            raise InputError(f"loss must be {', '.join(repr(v) for v in LOSSES[:-1])} or 'auto', got {o.loss!r}")
+        if isinstance(o.max_iterations, bool) or not (isinstance(o.max_iterations, (int, np.integer))
+                                                      and o.max_iterations >= 1):
+            raise InputError(f"max_iterations must be a whole number >= 1, got {o.max_iterations!r}")
         if o.solver == "lm":
             self.check_lm_program()
-        # One BLAS thread at every size: small algebra gains nothing from threads (5.7 -> 4.4 ms at paper scale),
-        # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
-        # results then also do not depend on the thread count.
-        with single_thread_blas():
-            fit = self._fit()
-        self.accept(fit)
+        fit = self._auto_loss_fit() if o.loss == "auto" else self._accepted_fit()
         if uncertainty:  # (the residual's warning compares it with the budget: for a result, not a solution only)
             fit.warnings.extend(self.gross_outlier_warnings(fit))
             fit.warnings.extend(self.residual_warnings(fit))
         return fit
+
+    def _accepted_fit(self) -> "Fit":
+        """The solve (with the smoothness prior when asked for) and :meth:`accept`."""
+        # One BLAS thread at every size: small algebra gains nothing from threads (5.7 -> 4.4 ms at paper scale),
+        # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
+        # results then also do not depend on the thread count.
+        with single_thread_blas():
+            fit = self._smoothed_fit() if self._smoothing_rows() is not None else self._fit()
+        self.accept(fit)
+        return fit
+
+    def _auto_loss_fit(self) -> "Fit":
+        """``loss='auto'``: the l2 fit, returned as it is (a note saying so) unless its residuals -- or, when it is
+        refused, those of its last iterate -- show outliers: a gross one (:meth:`gross_outliers`) or a heavy tail
+        (RMS over the robust sigma above :data:`HEAVY_TAIL_RATIO`). Then the program is fitted again from its
+        start with the Huber loss at k = :data:`AUTO_HUBER_K`, the note naming the outlying lines (beyond the
+        outlier threshold of the l2 residuals). Every other option as given."""
+        import dataclasses
+        import types
+
+        given = self.options
+        try:
+            self.options = dataclasses.replace(given, loss="l2")
+            refused, fit = None, None
+            self._final = None
+            if getattr(self, "_given", None) is not None:  # a solution found elsewhere: no refit to choose
+                fit = self._accepted_fit()
+                fit.notes.append("loss auto: the solution was given (another solver's): judged as l2")
+                return fit
+            try:
+                fit = self._accepted_fit()
+                r, x = np.asarray(fit.residuals, float), fit.x
+            except FitRefused as e:
+                final = getattr(self, "_final", None)
+                if final is None:
+                    raise
+                refused, x, r = e, final[0][:len(self.names)], np.asarray(final[1], float)
+            if not r.size:
+                if refused is not None:
+                    raise refused
+                return fit
+            sigma = _robust_sigma(r)
+            tail = _rms(r) / max(sigma, 1e-300)
+            gross = self.gross_outliers(types.SimpleNamespace(residuals=r, x=x))
+            if not gross and tail <= HEAVY_TAIL_RATIO:
+                if refused is not None:
+                    raise refused
+                fit.notes.append(f"loss auto: l2 -- its residuals show no outliers (none beyond "
+                                 f"{GROSS_OUTLIER_SIGMA:g} robust sigma; RMS {tail:.2f} x the robust sigma "
+                                 f"{1e3 * sigma:.4g} um, at most {HEAVY_TAIL_RATIO:g})")
+                return fit
+            zr = r / sigma
+            order = np.argsort(-np.abs(zr))
+            out = [dict(self.reading_label(k), normalized=float(zr[k]))
+                   for k in order[np.abs(zr[order]) > given.outlier_threshold]]
+            self.options = dataclasses.replace(given, loss="huber", huber_k=AUTO_HUBER_K)
+            self._final = None
+            robust = self._accepted_fit()
+            why = (f"{len(gross)} reading(s) beyond {GROSS_OUTLIER_SIGMA:g} robust sigma" if gross else
+                   f"a heavy tail: RMS {tail:.2f} x the robust sigma {1e3 * sigma:.4g} um, above {HEAVY_TAIL_RATIO:g}")
+            what = "did not converge" if refused is not None else "converged"
+            robust.notes.append(
+                f"loss auto: the l2 fit's residuals ({what}) show outliers ({why}); refitted with the Huber loss, "
+                f"k = {AUTO_HUBER_K:g} robust sigma, which down-weights them: {len(out)} reading(s) beyond "
+                f"{given.outlier_threshold:g} robust sigma of the l2 residuals: {_outlier_listing(out)}")
+            return robust
+        finally:
+            self.options = given
+
+    def _smoothing_rows(self):
+        """The roughness rows when :attr:`SolverOptions.smoothing` asks for the prior and the model has maps."""
+        setting = getattr(self.options, "smoothing", "off")
+        if setting is None or (isinstance(setting, str) and setting == "off"):
+            return None
+        if not (setting == "auto" or (isinstance(setting, (int, float)) and np.isfinite(setting) and setting >= 0)):
+            raise InputError(f"smoothing: 'auto', 'off' or a weight >= 0, got {setting!r}")
+        R = self.roughness()
+        return R if R is not None and R.shape[0] else None
+
+    #: Rounds of refit and likelihood scan until the chosen weight moves by less than a factor 10^0.1.
+    SMOOTHING_ROUNDS = 4
+
+    def smoothing_weight(self) -> dict:
+        """The smoothness prior ½ λ ‖R x‖² of :attr:`SolverOptions.smoothing` on :attr:`prog` (issue 23), its weight
+        λ given or chosen: by restricted maximum likelihood (:func:`olti_drake.estimation.smoothing.reml_scan`) at
+        a solution, refitted there, in rounds until it settles (each fit a solution only, from the last one).
+        Once per program: {"weight", "P" (RᵀR), "choice", "rounds", "x" (the last solution), "binding"}; the
+        binding stays on :attr:`prog` (a solver given the program solves with the prior)."""
+        state = getattr(self, "_smoothing", None)
+        if state is not None:
+            return state
+        R = self._smoothing_rows()
+        n = len(self.names)
+        P = np.asarray((R.T @ R).todense())
+        setting, uncertainty, x0, given = self.options.smoothing, self._uncertainty, self.x0.copy(), getattr(self, "_given", None)
+        if setting == "auto":  # start at a weight the prior and the data share (c of the scan, 10^-3 of it)
+            _, J = self.residuals(x0)
+            lam = 1e-3 * float(np.sum(J.multiply(J))) / max(float(np.trace(P)), 1e-300)
+        else:
+            lam = float(setting)
+        binding = self.prog.AddQuadraticCost(lam * P, np.zeros(n), self.variables, is_convex=True)
+        binding.evaluator().set_description("smoothness prior: roughness of the maps (second differences)")
+        choice, rounds, x = None, 0, x0
+        options = self.options
+        try:
+            import dataclasses
+
+            self._given, self._uncertainty = None, False
+            if options.loss == "auto":  # (the weight is chosen on the l2 fit; a robust refit keeps it)
+                self.options = dataclasses.replace(options, loss="l2")
+            for rounds in range(1, self.SMOOTHING_ROUNDS + 1):
+                first = self._fit()
+                x = self.x0 = first.x
+                z = np.concatenate([x, np.array(list(first.extra.values()), dtype=float)])
+                choice = self._scan_smoothing(z, P, lam, given=setting != "auto")
+                if setting != "auto" or abs(np.log10(max(choice.weight, 1e-300) / max(lam, 1e-300))) < 0.1:
+                    break
+                lam = choice.weight
+                binding.evaluator().UpdateCoefficients(lam * P, np.zeros(n))
+        except Exception:
+            self.prog.RemoveCost(binding)
+            raise
+        finally:
+            self.x0, self._uncertainty, self._given, self.options = x0, uncertainty, given, options
+        self._smoothing = {"weight": lam, "P": P, "choice": choice, "rounds": rounds, "x": x, "binding": binding}
+        return self._smoothing
+
+    def add_smoothing_prior(self, weight: float) -> dict:
+        """The smoothness prior at a stated weight on :attr:`prog`, not chosen and without a fit (a result's prior,
+        re-added for its propagation: ``olti uncertainty``); later fits of the program use it as given."""
+        from olti_drake.estimation.smoothing import SmoothingChoice
+
+        import dataclasses
+
+        self.options = dataclasses.replace(self.options, smoothing=float(weight))
+        R = self._smoothing_rows()
+        if R is None:
+            raise InputError(f"{self.source}: a smoothness prior needs a model with error maps")
+        P = np.asarray((R.T @ R).todense())
+        n = len(self.names)
+        binding = self.prog.AddQuadraticCost(float(weight) * P, np.zeros(n), self.variables, is_convex=True)
+        binding.evaluator().set_description("smoothness prior: roughness of the maps (second differences)")
+        choice = SmoothingChoice(float(weight), float("nan"), float("nan"), float("nan"), 0, method="given")
+        self._smoothing = {"weight": float(weight), "P": P, "choice": choice, "rounds": 0, "x": self.x0.copy(),
+                           "binding": binding}
+        return self._smoothing
+
+    def _smoothed_fit(self) -> "Fit":
+        """:meth:`_fit` with the smoothness prior at its weight (:meth:`smoothing_weight`), with uncertainty: the
+        residual variance over m − tr A (the readings less the parameters they determine), from the last solution
+        of the weight's choice; the start is restored after."""
+        state = self.smoothing_weight()
+        lam, P, choice = state["weight"], state["P"], state["choice"]
+        x0 = self.x0.copy()
+        try:
+            effective = choice.effective_parameters
+            self.x0, self._effective = state["x"], effective if np.isfinite(effective) else None
+            fit = self._fit()
+        finally:
+            self.x0, self._effective = x0, None
+        auto = self.options.smoothing == "auto"
+        fit.smoothing = {"method": choice.method if auto else "given", "weight": lam,
+                         "score": choice.score if np.isfinite(choice.score) else None,
+                         "effective_parameters": choice.effective_parameters, "readings": choice.readings,
+                         "rounds": state["rounds"]}
+        fit.notes.append(self._smoothing_note(fit, P, lam, choice))
+        return fit
+
+    def _scan_smoothing(self, z, P, lam: float, given: bool = False):
+        """The choice of the smoothness weight at the solution z (over all decision variables; its data, the
+        program's other quadratic costs and equalities) by restricted maximum likelihood
+        (:func:`~olti_drake.estimation.smoothing.reml_scan`); ``given``: only the statement of the weight ``lam``
+        (its effective parameters)."""
+        from olti_drake.estimation import smoothing as sm
+
+        n = len(self.names)
+        r, J = self.residuals(z[:n])
+        w = self._weights(r)
+        J = self._pad(J)
+        H = _normal_matrix(J, w)
+        g_data = J.T @ (w * r)
+        Q, q = self.quadratic_costs()
+        Pn = np.zeros_like(Q)
+        Pn[:n, :n] = P
+        Q_other = Q - lam * Pn
+        g = g_data + Q_other @ z + q
+        other = Q_other if np.any(Q_other) else None
+        A = self._equality_rows()[0]
+        rss = float(np.sum(w * r * r))
+        if given:
+            tr = sm.effective_parameters(H, H + Q, A)
+            return sm.SmoothingChoice(lam, float("nan"), tr, rss, len(r), method="given")
+        other0 = float(z @ Q_other @ z + 2.0 * q @ z)
+        return sm.reml_scan(H, other, Pn, g, z, A, rss, len(r), g_data=g_data, other0=other0)
+
+    def _smoothing_note(self, fit: "Fit", P, lam: float, choice) -> str:
+        """What the prior did: its weight and how it was chosen, and the map values the readings leave to it."""
+        n = len(self.names)
+        _, J = self.residuals(fit.x)
+        data = np.asarray(J.multiply(J).sum(axis=0)).ravel()[:n]
+        prior = lam * np.diag(P)
+        tied = set(getattr(self, "tied", ()))  # (tied nodes follow read ones: no prior's work)
+        unread = [self.names[i] for i in np.flatnonzero((data == 0) & (prior > 0)) if self.names[i] not in tied]
+        led = [self.names[i] for i in np.flatnonzero((data > 0) & (data < prior)) if self.names[i] not in tied]
+        auto = fit.smoothing["method"] != "given"
+        how = f"chosen by {choice.method}" if auto else "as given"
+        score = f"-2 log likelihood {choice.score:.6g}, " if auto else ""
+        text = (f"smoothness prior on the maps (second differences of each direction and of the backlash), weight "
+                f"{lam:.4g} {how} ({score}{choice.effective_parameters:.1f} effective parameters of {n}, "
+                f"{choice.readings} readings)")
+        if choice.at_edge and auto:
+            text += "; the choice lies at the end of the scanned weights"
+        if unread:
+            text += (f"; no reading reaches {_listing(unread)}: their values follow the prior (the neighbours' "
+                     f"trend), not the readings")
+        if led:
+            text += f"; the prior outweighs the readings at {_listing(led)}"
+        wide = self._wide_uncertainties(fit)
+        if wide:
+            text += (f"; u far beyond their peers' (over {self.WIDE_U_RATIO:g} x the median u of their map branch): "
+                     f"{_listing(wide)}")
+        return text
+
+    #: A map value whose u exceeds this multiple of the median u of its branch is named (issue 23).
+    WIDE_U_RATIO = 10.0
+
+    def _wide_uncertainties(self, fit: "Fit") -> list:
+        """Indexed parameters (``name[i]``: the nodes of one map branch) whose u exceeds :data:`WIDE_U_RATIO`
+        times their branch's median u."""
+        if fit.std is None or not np.all(np.isfinite(fit.std)):
+            return []
+        branches = {}
+        for i, name in enumerate(self.names):
+            if "[" in name:
+                branches.setdefault(name.split("[")[0], []).append(i)
+        out = []
+        for idx in branches.values():
+            u = fit.std[idx]
+            median = float(np.median(u))
+            out += [self.names[i] for i, v in zip(idx, u) if median > 0 and v > self.WIDE_U_RATIO * median]
+        return out
 
     def gross_outliers(self, fit: "Fit") -> list:
         """The readings of an l2 fit beyond :data:`GROSS_OUTLIER_SIGMA` robust sigma -- and as many budget reading
@@ -566,9 +961,12 @@ class LeastSquaresProgram:
         positive definite within the gauge, and :meth:`implausible` finds nothing."""
         where = f"{self.source}: refused, nothing written --"
         if not fit.converged_by:
+            moving = getattr(self, "_moving", None)
+            kept = f"; still moving: {moving}" if moving else ""
+            more = " or allow more iterations (--max-iterations)" if getattr(self, "_stop", None) is None else ""
             raise FitRefused(f"{where} the solver did not converge: {self._stop_text()} after {fit.iterations} "
-                             f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um); check the units "
-                             f"(mm), the nominal values and the start")
+                             f"iterations (residual RMS {1e3 * _rms(fit.residuals):.4g} um){kept}; check the units "
+                             f"(mm), the nominal values and the start{more}")
         std_ok = np.isfinite(fit.std) | (not self._uncertainty)  # (NaN: none asked for)
         bad = [self.names[i] for i in np.flatnonzero(~np.isfinite(fit.x) | ~std_ok)]
         if bad:
@@ -582,6 +980,11 @@ class LeastSquaresProgram:
             cause = self.implausible_cause(fit)
             raise FitRefused(f"{where} {cause + ' -- it gives a ' if cause else ''}physically impossible solution: "
                              f"{'; '.join(problems)}")
+        if self._uncertainty and fit.std is not None and np.all(np.isfinite(fit.std)):
+            vague = self._vague_error(fit.std, "u at the solution", VagueSolution)
+            if vague is not None:
+                vague.args = (f"{where} {vague}",)
+                raise vague
 
     def implausible_cause(self, fit: "Fit") -> str:
         """Hook: the input at fault for a physically impossible solution (e.g. given values in another unit),
@@ -609,7 +1012,11 @@ class LeastSquaresProgram:
 
     def _stop_text(self) -> str:
         stop = getattr(self, "_stop", None)
-        return f"iteration cap {self.options.max_iterations} reached" if stop is None else stop[1]
+        if stop is not None:
+            return stop[1]
+        cap = getattr(self, "_cap_used", None) or self.iteration_cap()
+        option = "" if isinstance(self.options.max_iterations, SizeCap) else " (max_iterations)"
+        return f"iteration cap {cap}{option} reached"
 
     def residual_warnings(self, fit: "Fit") -> list:
         """A warning when the residual RMS exceeds :data:`RESIDUAL_WARNING_RATIO` times the reading
@@ -650,9 +1057,14 @@ class LeastSquaresProgram:
             for _ in range(len(self.names)):
                 try:
                     self.check_identifiability(defer=defer)
+                    later = getattr(self, "_deferred", False)  # (the large path's variances: beside the solver)
+                    if not later:
+                        self._raise_if_vague()
                     x, iterations, weights = (self._solve_given(*given) if given is not None else
                                               self._solve_lm() if o.solver == "lm" else self._solve_nlp())
                     self._confirm_identifiable()
+                    if later:
+                        self._raise_if_vague()
                     break
                 except UnidentifiableError as e:
                     if not o.regularize:
@@ -668,17 +1080,9 @@ class LeastSquaresProgram:
 
     def _reading_spans(self):
         """(the readings' spread, the spread of the points they are read at), mm, or None: the measurement's
-        ``reading_spans()``, or a machine campaign's widest per-station spread against its commanded points."""
+        ``reading_spans()`` (every measurement of the package has one)."""
         spans = getattr(getattr(self, "measurement", None), "reading_spans", None)
-        if spans is not None:
-            return spans()
-        d = getattr(self, "data", None)
-        cmd, station = getattr(d, "commands_mm", None), getattr(d, "station", None)
-        if cmd is None or station is None or not len(d.displacement_mm):
-            return None
-        r = np.asarray(d.displacement_mm, dtype=float)
-        return (max(float(np.ptp(r[station == j])) for j in np.unique(station)),
-                float(np.ptp(np.asarray(cmd, dtype=float), axis=0).max()))
+        return spans() if spans is not None else None
 
     def _real_cause(self, error: Exception) -> Exception:
         """The error to raise for ``error`` (unidentifiable, or a numpy LinAlgError) of the solve: readings in
@@ -729,10 +1133,20 @@ class LeastSquaresProgram:
         return z, 0, self._weights(r)
 
     def _weights(self, r):
-        if self.options.loss == "l2":
+        """IRLS weights w = ψ(r)/r of the loss at residuals r, with a = |r| / c, c = k x the robust sigma (k =
+        ``huber_k``): Huber min(1, 1/a); soft-L1 (pseudo-Huber, ρ = 2c²(√(1 + a²) − 1)) 1/√(1 + a²); Cauchy
+        (ρ = c² log(1 + a²)) 1/(1 + a²); l2 1."""
+        loss = self.options.loss
+        if loss == "l2":
             return np.ones_like(r)
         sigma = _robust_sigma(r)
         a = np.abs(r) / (self.options.huber_k * sigma)
+        if loss == "soft_l1":
+            return 1.0 / np.sqrt(1.0 + a * a)
+        if loss == "cauchy":
+            return 1.0 / (1.0 + a * a)
+        if loss != "huber":
+            raise InputError(f"loss {loss!r} has no weights (l2, huber, soft_l1, cauchy)")
         return np.where(a <= 1, 1.0, 1.0 / np.maximum(a, 1e-300))
 
     def _user_cost(self, x) -> float:
@@ -752,7 +1166,10 @@ class LeastSquaresProgram:
         prior = None
         if self._steps_by_cg():
             prior = self.quadratic_costs() if self._has_quadratic_costs() else (None, None)
-        for _ in range(self.options.max_iterations):
+        self._moving = None
+        recent = []  # the last MOVING_STEPS accepted steps (a refusal names what kept moving)
+        self._cap_used = self.iteration_cap()
+        for _ in range(self._cap_used):
             self._confirm_identifiable(wait=False)
             w = self._weights(r)
             H = _NormalOperator(J, w) if prior is not None else self._normal(J, w)
@@ -798,12 +1215,49 @@ class LeastSquaresProgram:
                            f"{predicted / max(abs(cost), 1e-300):.1e} of it")
                 break
             x, r, J, steps = x_new, r_new, J_new, steps + 1
+            recent = (recent + [delta])[-MOVING_STEPS:]
             lam = max(lam / 4.0, 1e-9)
             if cost - cost_new <= tol:
                 self._stop = (True, "the relative cost decrease of the last step is below 1e-12")
                 break
         self._final = (x, r, J)
+        if self._stop is None and recent:
+            self._moving = self._moving_text(np.sum(recent, axis=0), len(recent), r, self._weights(r))
         return x, steps, self._weights(r)
+
+    def iteration_cap(self) -> int:
+        """LM's iteration cap: ``max_iterations`` as given, or (the default :data:`SIZE_CAP`) fitting the problem's
+        size, max(100, :data:`ITERATIONS_PER_UNKNOWN` x the unknowns within the constraints, at most
+        :data:`MAX_SIZE_CAP`)."""
+        cap = self.options.max_iterations
+        if isinstance(cap, SizeCap):
+            within = getattr(self, "_within0", None)
+            return cap.cap(within.dim if within is not None else self.n_all)
+        return int(cap)
+
+    def _moving_text(self, change, steps: int, r, w) -> str:
+        """The parameters that kept moving: the largest changes over the last ``steps`` LM steps relative to
+        their standard uncertainty at the start (the identifiability check's factorization times the residual
+        variance; their column scale 1/√(JᵀJ)_ii when it is not at hand), one phrase."""
+        names = self._all_names()
+        n = len(change)
+        scale, what = None, "u"
+        within = getattr(self, "_within0", None)
+        try:
+            if within is not None:
+                sigma2 = float(np.sum(w * r * r)) / max(len(r) - within.dim, 1)
+                scale = np.sqrt(np.maximum(within.inverse_diagonal()[:n] * sigma2, 0.0))
+        except Exception:  # (a diagnosis only: never hide the refusal it explains)
+            scale = None
+        if scale is None or not np.all(np.isfinite(scale)) or not np.any(scale > 0):
+            scale, what = 1.0 / within.s[:n] if within is not None else np.ones(n), "its scale"
+        rel = np.abs(change) / np.where(scale > 0, scale, np.inf)
+        top = [i for i in np.argsort(-rel)[:MOVING_NAMED] if rel[i] > 0]
+
+        def unit(name):
+            return " mm" if "_mm" in name else " deg" if "_deg" in name else ""
+        return ", ".join(f"{names[i]} {change[i]:+.4g}{unit(names[i])} ({rel[i]:.3g} {what})" for i in top) + (
+            f" over the last {steps} step(s)")
 
     def _negligible_decrease(self, r, w) -> float:
         """The predicted cost decrease of a step that changes no parameter by more than :data:`STEP_FRACTION`
@@ -893,7 +1347,7 @@ class LeastSquaresProgram:
 
         z = self._start()
         all_vars = self.prog.decision_variables()
-        rounds = 3 if self.options.loss == "huber" else 1
+        rounds = 3 if self.options.loss in ROBUST_LOSSES else 1
         self._cost_weights = np.ones(len(self.residuals(self.x0)[0]))
         try:
             for _ in range(rounds):  # IRLS: re-weight, re-solve
@@ -971,7 +1425,10 @@ class LeastSquaresProgram:
         cond = data.condition()
         self._stop = getattr(self, "_stop", (True, "solved"))
         self._weak = within.weak_names(self._all_names())  # what the covariance (with priors) cannot determine
-        dof = max(len(r) - within.dim, 1)
+        # With a smoothness prior, the parameters the readings determine are tr A (< dim): the residual variance
+        # divides by the readings less them (:meth:`_smoothed_fit`).
+        effective = getattr(self, "_effective", None)
+        dof = max(len(r) - (within.dim if effective is None else effective), 1)
         sigma2 = np.sum(weights * r * r) / dof
         if within.large:  # the variances from the factor; the (n, n) matrix only when read
             var = within.inverse_diagonal()[:n] * sigma2
@@ -1588,8 +2045,22 @@ def _robust_sigma(r) -> float:
     return float(s) if s > 0 else float(np.sqrt(np.mean(r * r)) + 1e-300)
 
 
+def _outlier_listing(out, most=12) -> str:
+    """'line 12 (+8.1 sigma), ...' of reading labels with ``normalized`` (largest first)."""
+    def where(o):
+        label = f"line {o['line']}" if "line" in o else f"reading {o.get('row', '?')}"
+        return f"{label} ({o['normalized']:+.1f} sigma)"
+    return ", ".join(where(o) for o in out[:most]) + (f" and {len(out) - most} more" if len(out) > most else "")
+
+
 def _listing(names, most=8) -> str:
     return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+#: The reading uncertainty a prior is weighed against when neither a budget nor the readings tell it (fewer than
+#: 10 % spare readings: :meth:`LeastSquaresProgram.reading_sigma`), mm: a laser tracker's or interferometer's
+#: order in a robot cell.
+UNKNOWN_READING_MM = 0.01
 
 
 class Calibration(LeastSquaresProgram):
@@ -1610,6 +2081,16 @@ class Calibration(LeastSquaresProgram):
             self.prog.AddLinearEqualityConstraint(np.asarray(gauge.A, float), np.asarray(gauge.b, float),
                                                   self.variables).evaluator().set_description("gauge")
             self.gauge = gauge.sentence
+        ties = getattr(measurement, "ties", None)
+        A, tied, targets = ties() if ties is not None else (np.zeros((0, len(self.names))), [], [])
+        if len(tied):  # map nodes beyond the readings: no parameters (the model's ties, issue 23)
+            self.prog.AddLinearEqualityConstraint(A, np.zeros(len(A)), self.variables).evaluator().set_description(
+                "map nodes beyond the readings")
+            self.notes.append(f"map nodes the readings barely reach in a direction (less than one pose's weight) are "
+                              f"no parameters, {len(tied)} of them: " + "; ".join(
+                                  f"{t} follows {w}" for t, w in list(zip(tied, targets))[:6])
+                              + (f"; and {len(tied) - 6} more" if len(tied) > 6 else ""))
+            self.tied = list(tied)
         if hasattr(measurement, "residual_rows"):  # batched residuals: the Monte Carlo's fast path (uncertainty)
             self.residual_rows = measurement.residual_rows
 
@@ -1630,6 +2111,11 @@ class Calibration(LeastSquaresProgram):
 
     def layout(self, v) -> dict:
         return self.measurement.layout(np.asarray(v, dtype=float))
+
+    def roughness(self):
+        rows = getattr(self.measurement, "roughness", None)
+        return rows() if rows is not None else None
+
 
 
 def station_fit(points_mm, readings_mm, start_mm=None):

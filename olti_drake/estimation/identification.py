@@ -90,6 +90,8 @@ class Identification:
     resolution: Optional[dict] = None
     #: The user's own decision variables (added to ``prog``), by name: their solved values (``Fit.extra``).
     extra: dict = field(default_factory=dict)
+    #: The maps' smoothness prior when asked for (``--smoothing``; ``Fit.smoothing``), else None.
+    smoothing: Optional[dict] = None
 
     @property
     def residual_rms_mm(self) -> float:
@@ -237,7 +239,8 @@ class Identifier(Calibration):
             notes.append(ONE_DIRECTIONAL_NOTE)
         return Identification(model, P, d0, f.names, f.x, f.std, deferred_covariance(f), f.residuals, f.iterations,
                               f.condition_number, self.gauge, f.solver, f.outliers, notes, len(f.residuals),
-                              f.converged_by, warnings, campaign_digest(self.data), resolution, dict(f.extra))
+                              f.converged_by, warnings, campaign_digest(self.data), resolution, dict(f.extra),
+                              f.smoothing)
 
     def at_solution(self, x, r, J) -> None:
         """The under-resolution check of an error map (:meth:`resolution_check`), run by :meth:`fit`."""
@@ -511,6 +514,9 @@ def identifier_at_result(result_path, data):
                          f"{'bidirectional' if model.bidirectional else 'one-directional'}, but the campaign "
                          f"{data.source} {'has no' if data.one_directional else 'has'} direction columns (dir1, dir2)")
     ident = Identifier(data, opts)
+    smoothing = raw.get("smoothing") if model.is_errormap else None
+    if isinstance(smoothing, dict) and isinstance(smoothing.get("weight"), (int, float)):
+        ident.add_smoothing_prior(smoothing["weight"])  # the estimator that made the result, propagated
     if len(P) != ident.n_t or len(d0) != ident.n_t:
         raise InputError(f"{os.fspath(result_path)}: {len(P)} reflectors, but the campaign {data.source} has "
                          f"{ident.n_t}")

@@ -39,7 +39,7 @@ from typing import Optional
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.formats import MULTILATERATION_RESULT as FORMAT, result_header
+from olti_drake.formats import MULTILATERATION_RESULT as FORMAT
 from olti_drake.io.csvio import (check_finite, check_indices, check_no_duplicate_rows, check_spread, check_values,
                                  json_numbers, read_json, read_table)
 from olti_drake.model.free_points import FreePoints, fit_tool_offsets
@@ -200,25 +200,26 @@ class MultilaterationResult:
         return self.commands_mm + self.tool_offsets_mm[self.tools]
 
     def to_dict(self) -> dict:
-        """The machine-tool ``result.json`` of formats.md (2D, or 3D with ``tools`` and ``tool_offsets_mm``)."""
+        """The machine-tool ``result.json`` of formats.md (2D, or 3D with ``tools`` and ``tool_offsets_mm``): the
+        targets, stations, dead paths and gauge kind of 001, the common fields by the one codec
+        (:func:`olti_drake.io.documents.result_document`)."""
+        from olti_drake.io import documents
+
         f = self.fit
         n_i, n_j, D = len(self.targets_mm), len(self.stations_mm), self.dim
         std = f.std
         tools = {} if self.tool_offsets_mm is None else {"tools": self.tools.tolist(),
                                                           "tool_offsets_mm": self.tool_offsets_mm.tolist()}
-        return {**result_header("multilateration"), "targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
-                "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge": self.gauge, "gauge_kind": self.gauge_kind,
-                "residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
-                "commands_mm": self.commands_mm.tolist(), **tools,
-                "uncertainty": {"k": 1, "targets_mm": self.targets_std_mm.tolist(),
-                                "stations_mm": std[D * n_i:D * n_i + D * n_j].reshape(-1, D).tolist(),
-                                "dead_paths_mm": std[D * n_i + D * n_j:].tolist(),
-                                "method": "linear propagation (JCGM 100): " + (
-                                    "of the budget" if any("budget" in n for n in f.notes)
-                                    else "of the residual variance")},
-                "iterations": f.iterations, "condition_number": f.condition_number, "solver": f.solver,
-                "outliers": f.outliers, "converged": f.converged_by, "warnings": list(f.warnings),
-                **({"campaign": self.campaign} if self.campaign else {}), **({"notes": f.notes} if f.notes else {})}
+        values = {"targets_mm": self.targets_mm.tolist(), "stations_mm": self.stations_mm.tolist(),
+                  "dead_paths_mm": self.dead_paths_mm.tolist(), "gauge_kind": self.gauge_kind,
+                  "commands_mm": self.commands_mm.tolist(), **tools}
+        unc = {"targets_mm": self.targets_std_mm.tolist(),
+               "stations_mm": std[D * n_i:D * n_i + D * n_j].reshape(-1, D).tolist(),
+               "dead_paths_mm": std[D * n_i + D * n_j:].tolist()}
+        method = "linear propagation (JCGM 100): " + (
+            "of the budget" if any("budget" in n for n in f.notes) else "of the residual variance")
+        return documents.result_document("multilateration", values, f, gauge=self.gauge, uncertainty=unc,
+                                         method=method, campaign=self.campaign)
 
 
 def counting_bound(n_stations: int, dim: int) -> float:

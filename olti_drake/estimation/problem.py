@@ -124,7 +124,9 @@ def check_serial_map_size(data, options) -> None:
 
     if options.model != "errormap" or options.grids is not None:
         return
-    step = float(options.grid_step_deg)
+    from olti_drake.estimation.serial_identification import grid_step
+
+    step = grid_step(options)
     if not (math.isfinite(step) and step > 0):
         return  # refused by name where the grid is made
     th = np.asarray(data.commands, float)
@@ -262,6 +264,15 @@ class CalibrationProblem:
             c = prog.AddLinearConstraint(A * self._scale[idx], e.lower_bound() - shift, e.upper_bound() - shift,
                                          self._variables[idx])
             c.evaluator().set_description(e.get_description() or "constraint of the model")
+            self._remember(self._own, c.evaluator())
+        if program._smoothing_rows() is not None:
+            # The maps' smoothness prior at its weight (chosen from the data once, by the engine): every solver of
+            # prog solves the program LM fits. ½ λ (x0 + s z)ᵀ P (x0 + s z), its constant dropped.
+            state = program.smoothing_weight()
+            Sz = self._scale[:, None] * state["P"] * self._scale[None, :]
+            c = prog.AddQuadraticCost(state["weight"] * Sz, state["weight"] * self._scale * (state["P"] @ self.x0),
+                                      self._variables, is_convex=True)
+            c.evaluator().set_description(state["binding"].evaluator().get_description())
             self._remember(self._own, c.evaluator())
         prog.SetSolverOption(SnoptSolver.id(), "Major optimality tolerance", NLP_OPTIMALITY_TOLERANCE)
         prog.SetSolverOption(SnoptSolver.id(), "Major iterations limit", NLP_MAJOR_ITERATIONS)

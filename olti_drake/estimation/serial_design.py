@@ -258,46 +258,65 @@ def _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_s
     if len(feasible) < n_stations:
         raise InputError(f"only {len(feasible)} candidate position(s) see at least {MIN_READINGS} plan poses "
                          f"(line of sight, ±80° acceptance); {n_stations} stations are needed: widen the regions")
-    dist = np.linalg.norm(cand[:, None] - cand[None], axis=2)
+
+    def slot_costs(others, trial):
+        base = sum(blocks[i] for i in others)
+        return np.array([layout_cost(info, [base + blocks[c]], criterion) for c in trial])
+
+    best, best_cost, evaluations = coordinate_exchange(
+        cand, feasible, n_stations, lambda layout: layout_cost(info, [blocks[i] for i in layout], criterion),
+        slot_costs, seed=seed, starts=starts, max_sweeps=max_sweeps, min_separation_mm=min_separation_mm,
+        progress=progress)
+    u = info.position_u(sum(blocks[i] for i in best))
+    return StationDesign(cand[best], best_cost, criterion, cand, counts, evaluations, starts, u)
+
+
+def coordinate_exchange(cand, feasible, n_stations: int, layout_cost, slot_costs, *, seed: int, starts: int,
+                        max_sweeps: int, min_separation_mm: float, progress=None):
+    """The station layout search of every design (robots and machine tools): from ``starts`` seeded random layouts
+    of ``feasible`` candidates (indices into ``cand`` (C, 3) mm) pairwise ``min_separation_mm`` apart, sweeps in
+    which each slot takes the candidate that lowers the cost most -- ``slot_costs(others, trial)`` (the costs of
+    the layouts ``others`` + each of ``trial``, (T,)); ``layout_cost(layout)`` one layout's -- until a sweep
+    improves nothing or ``max_sweeps``. Returns (best layout, its cost, layouts evaluated); ``progress(start,
+    sweep, cost)`` after each sweep."""
     rng = np.random.default_rng(seed)
     best, best_cost, evaluations = None, np.inf, 0
     for start in range(starts):
-        layout = _random_layout(rng, feasible, dist, n_stations, min_separation_mm)
+        layout = _random_layout(rng, cand, feasible, n_stations, min_separation_mm)
         if layout is None:
             raise InputError(f"no {n_stations} feasible candidates are {min_separation_mm:g} mm apart: widen the "
                              f"regions or lower --min-separation-mm")
-        cost = layout_cost(info, [blocks[i] for i in layout], criterion)
+        cost = float(layout_cost(layout))
         evaluations += 1
         for sweep in range(max_sweeps):
             improved = False
             for slot in range(n_stations):
                 others = [i for k, i in enumerate(layout) if k != slot]
-                base = sum(blocks[i] for i in others)
-                for c in feasible:
-                    if c in layout or (others and dist[c, others].min() < min_separation_mm):
-                        continue
-                    u = info.position_u(base + blocks[c])
-                    evaluations += 1
-                    trial = float(np.max(u) if criterion == "max" else np.mean(u))
-                    if trial < cost * (1 - 1e-9):
-                        cost, layout[slot], improved = trial, c, True
+                near = (np.linalg.norm(cand[feasible, None] - cand[others][None], axis=2).min(axis=1) if others
+                        else np.full(len(feasible), np.inf))
+                trial = feasible[(near >= min_separation_mm) & ~np.isin(feasible, layout)]
+                if not trial.size:
+                    continue
+                c = np.asarray(slot_costs(others, trial), dtype=float)
+                evaluations += len(trial)
+                k = int(np.argmin(c))
+                if c[k] < cost * (1 - 1e-9):
+                    cost, layout[slot], improved = float(c[k]), int(trial[k]), True
             if progress:
                 progress(start, sweep, cost)
             if not improved:
                 break
-        if cost < best_cost:
+        if cost < best_cost or best is None:  # (every layout inf: the caller refuses it by name)
             best, best_cost = list(layout), cost
-    u = info.position_u(sum(blocks[i] for i in best))
-    return StationDesign(cand[best], best_cost, criterion, cand, counts, evaluations, starts, u)
+    return best, best_cost, evaluations
 
 
-def _random_layout(rng, feasible, dist, n, min_sep):
+def _random_layout(rng, cand, feasible, n, min_sep):
     """A seeded random set of n feasible candidates pairwise ≥ ``min_sep`` apart (None if none found)."""
     for _ in range(200):
-        order = rng.permutation(feasible)
         chosen = []
-        for c in order:
-            if all(dist[c, k] >= min_sep for k in chosen):
+        for c in rng.permutation(feasible):
+            if all(np.linalg.norm(cand[c] - cand[k]) >= min_sep for k in chosen):
                 chosen.append(int(c))
                 if len(chosen) == n:
                     return chosen

@@ -16,9 +16,13 @@ by the least-squares rigid fit (Kabsch) of the nominal tool points to the tracke
 
 Identifiability is checked before solving: parameters the readings cannot determine are refused by
 name, or with ``regularize`` given a stated weak prior: each named parameter ~ N(start,
-:data:`PRIOR_SIGMA`) (1 mm for lengths, 1 deg for angles) weighed against readings of
-:data:`PRIOR_READING_MM` (1 µm) standard uncertainty, i.e. the quadratic cost ½ (u_r/σ)² (x − x0)² next
-to the data cost ½ Σ r². Units: mm and degrees.
+:data:`PRIOR_SIGMA`) (1 mm for lengths, 1 deg for angles) weighed against the campaign's own reading
+uncertainty u_r (the budget's, else the robust sigma of the fit linearized at the start; at least
+:data:`PRIOR_READING_MM`), i.e. the quadratic cost ½ (u_r/σ)² (x − x0)² next to the data cost ½ Σ r².
+Judged also by u, not only by rank (issue 23): a location error, joint offset or tool coordinate whose u at
+the start would exceed :data:`U_BOUND` (10 mm, 5 deg) is named with its u -- with ``regularize`` it gets
+the weak prior N(start, U_BOUND); without, the fit is tried anyway and refused by name when its u at the
+solution still exceeds the bound. Units: mm and degrees.
 """
 
 from __future__ import annotations
@@ -31,15 +35,36 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import Calibration, station_fit
-from olti_drake.estimation.calibration import SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import FitRefused, SolverOptions, UnidentifiableError
 from olti_drake.model.chain import plane_frame, robot_plane
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
 PRIOR_SIGMA = {"_mm": 1.0, "_deg": 1.0}
-#: The reading standard uncertainty the prior is weighed against (mm): the prior counts as much as a
-#: reading of this uncertainty would that measured the parameter directly with uncertainty PRIOR_SIGMA.
+#: The least reading standard uncertainty the prior is weighed against (mm): the prior counts as much as a
+#: reading of the campaign's own reading uncertainty (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.
+#: reading_sigma`: the budget's, else the robust sigma of the fit linearized at the start) would that measured the
+#: parameter directly with uncertainty PRIOR_SIGMA -- never less than this (exact readings of a simulation).
 PRIOR_READING_MM = 1e-3
+#: The largest plausible standard uncertainty of a location error, joint offset or tool coordinate (1/5 and 1/2 of
+#: :attr:`~olti_drake.model.serial.SerialPositionModel.LOCATION_BOUND_MM` / ``LOCATION_BOUND_DEG``, so that a
+#: result within ~2 u of its start stays inside those bounds): one whose u at the start would exceed it is not
+#: identifiable (named with its u), or with ``regularize`` gets a weak prior of this sigma.
+U_BOUND = {"_mm": 10.0, "_deg": 5.0}
+
+
+#: The default map grid with the smoothness prior (deg): the prior holds thin nodes between read ones, so the
+#: grid may follow deviations of shorter period (random-pose six-axis campaigns, issue 23: unseen-reading RMS
+#: 4-11 um on 7.5 deg against 5-21 um on 15 deg); without it, the grid whose nodes readings can determine.
+SMOOTH_GRID_STEP_DEG = 7.5
+PLAIN_GRID_STEP_DEG = 15.0
+
+
+def grid_step(options) -> float:
+    """The map grid step of ``options`` (deg): its own, or the default for its smoothing."""
+    if options.grid_step_deg is not None:
+        return float(options.grid_step_deg)
+    return PLAIN_GRID_STEP_DEG if options.smoothing == "off" else SMOOTH_GRID_STEP_DEG
 
 
 @dataclass
@@ -52,13 +77,19 @@ class SerialIdentificationOptions(SolverOptions):
 
     model: str = "errormap"
     tool_offset_mm: Sequence[float] = (0.0, 0.0, 0.0)
-    grid_step_deg: float = 15.0
+    #: Map nodes every this many degrees; None: :data:`SMOOTH_GRID_STEP_DEG` with the smoothness prior,
+    #: :data:`PLAIN_GRID_STEP_DEG` without.
+    grid_step_deg: Optional[float] = None
     #: Joint compliance under gravity (``--compliance``, :func:`~olti_drake.model.serial.build_position_model`).
     compliance: bool = False
     #: Dead-path drift of every station in time (``--drift``; distance campaigns with ``time_s``).
     drift: bool = False
     #: Map nodes per joint name (deg), instead of every ``grid_step_deg`` (e.g. the SCARA path's grids).
     grids: Optional[Dict[str, Sequence[float]]] = None
+    #: The maps' roughness prior (issue 23): 'auto' (weight by restricted maximum likelihood), 'off', or a weight (SolverOptions.smoothing).
+    smoothing: object = "auto"
+    #: 'auto' (as ``olti identify --robot``): l2 unless its residuals show outliers, then Huber (SolverOptions.loss).
+    loss: str = "auto"
 
 
 @dataclass
@@ -89,6 +120,15 @@ class SerialCalibration(Calibration):
 
     rank_hint = "add stations, approach directions or poses, or run with --regularize"
     untouched_hint = "add readings that move those joints, or run with --regularize"
+    vague_hint = ("add stations or poses that move those joints further, or run with --regularize (a weak prior "
+                  "of that sigma, stated)")
+
+    def plausible_u(self):
+        """:data:`U_BOUND` for the position model's location errors, joint offsets and tool point (not map nodes,
+        not the stations, dead paths or tracker frame: inf)."""
+        model = self.measurement.model
+        own = set(model.names)
+        return np.array([_u_bound(n) if n in own and "[" not in n else np.inf for n in self.names])
 
     def __init__(self, measurement, options, gauge, source, lines):
         super().__init__(measurement, options, gauge, source)
@@ -235,7 +275,7 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
                if plane is not None else None)
     planar = None if heights is not None else plane  # stations off the plane see the robot in 3D: not planar
     model = build_position_model(chain, campaign.commands, campaign.dirs, kind=options.model,
-                                 grid_step_deg=options.grid_step_deg, grids=options.grids,
+                                 grid_step_deg=grid_step(options), grids=options.grids,
                                  tool_offset_mm=options.tool_offset_mm, compliance=options.compliance,
                                  planar=planar)
     if options.drift and (campaign.kind != "distance" or campaign.time_s is None):
@@ -263,22 +303,54 @@ def build_problem(chain, campaign, options: SerialIdentificationOptions, above=(
                             start_frame(model, campaign)), [], ()
 
 
-def prior_weight(name: str) -> float:
-    """Weight (u_r/σ)² of the ``regularize`` prior on a parameter (by its unit suffix)."""
-    for suffix, sigma in PRIOR_SIGMA.items():
+def _by_unit(name: str, table: dict) -> float:
+    for suffix, value in table.items():
         if name.endswith(suffix) or suffix + "[" in name:
-            return (PRIOR_READING_MM / sigma) ** 2
-    return (PRIOR_READING_MM / 1.0) ** 2
+            return value
+    return 1.0
 
 
-def _regularize(cal: SerialCalibration, names) -> str:
+def _u_bound(name: str) -> float:
+    return _by_unit(name, U_BOUND) if name.endswith(("_mm", "_deg")) else np.inf
+
+
+def prior_sigma(name: str) -> float:
+    """The ``regularize`` prior's σ of a parameter the readings cannot identify (:data:`PRIOR_SIGMA`, by unit)."""
+    return _by_unit(name, PRIOR_SIGMA)
+
+
+def prior_weight(name: str, reading_mm: float = PRIOR_READING_MM, sigma: Optional[float] = None) -> float:
+    """Weight (u_r/σ)² of the ``regularize`` prior on a parameter: σ its :func:`prior_sigma` (or ``sigma``), u_r
+    the reading uncertainty it is weighed against (mm, at least :data:`PRIOR_READING_MM`)."""
+    sigma = prior_sigma(name) if sigma is None else float(sigma)
+    return (max(float(reading_mm), PRIOR_READING_MM) / sigma) ** 2
+
+
+def _regularize(cal: SerialCalibration, names, u_at_start=None) -> str:
+    """The weak stated prior N(start, σ) on ``names``, weighed against the campaign's reading uncertainty
+    (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.reading_sigma`): σ :data:`PRIOR_SIGMA` for what
+    the rank cannot determine; for what it determines too vaguely (``u_at_start``: {name: u}) σ
+    :data:`U_BOUND`. The note says which, with σ and the reading u."""
+    u_at_start = u_at_start or {}
     idx = [cal.names.index(n) for n in names]
-    w = np.array([prior_weight(n) for n in names])
-    cal.prog.AddQuadraticCost(np.diag(w), -w * cal.x0[idx], cal.variables[idx], is_convex=True)
+    reading, what = cal.reading_sigma()
+    u_r = max(reading, PRIOR_READING_MM)
+    sigma = np.array([_u_bound(n) if n in u_at_start else prior_sigma(n) for n in names])
+    w = np.array([prior_weight(n, u_r, s) for n, s in zip(names, sigma)])
+    binding = cal.prog.AddQuadraticCost(np.diag(w), -w * cal.x0[idx], cal.variables[idx], is_convex=True)
+    binding.evaluator().set_description("prior (olti identify --regularize)")
     listing = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    weighed = (f"weighed against readings of {1e3 * u_r:.3g} um ({what}"
+               + (", at least 1 um" if u_r > reading else "") + ")")
+    if u_at_start:
+        shown = ", ".join(f"{n} {u_at_start[n]:.3g}" for n in names[:8])
+        return (f"regularized: the readings determine {listing} only vaguely (u at the start {shown}, beyond "
+                f"{U_BOUND['_mm']:g} mm or {U_BOUND['_deg']:g} deg); each has a weak prior N(start, sigma) with "
+                f"sigma {U_BOUND['_mm']:g} mm or {U_BOUND['_deg']:g} deg, {weighed} "
+                f"(estimation.serial_identification.U_BOUND)")
     return (f"regularized: the readings cannot identify {listing}; each has a weak prior N(start, sigma) "
-            f"with sigma {PRIOR_SIGMA['_mm']:g} mm or {PRIOR_SIGMA['_deg']:g} deg, weighed against readings "
-            f"of {1e3 * PRIOR_READING_MM:g} um (estimation.serial_identification.PRIOR_SIGMA)")
+            f"with sigma {PRIOR_SIGMA['_mm']:g} mm or {PRIOR_SIGMA['_deg']:g} deg, {weighed} "
+            f"(estimation.serial_identification.PRIOR_SIGMA)")
 
 
 #: A fitted tool point this far (mm) from the start that was given (or the tool frame's origin) rebuilds the
@@ -368,7 +440,7 @@ def serial_problem(chain, campaign, options: SerialIdentificationOptions, above=
         raise InputError(f"{campaign.source}: {e}") from None
     solver = SolverOptions(loss=options.loss, huber_k=options.huber_k, outlier_threshold=options.outlier_threshold,
                            regularize=False, solver=options.solver, max_iterations=options.max_iterations,
-                           budget=options.budget)
+                           budget=options.budget, smoothing=options.smoothing)
     cal = SerialCalibration(meas, solver, gauge, campaign.source, campaign.line)
     notes += [f"dropped from the model: {len(meas.model.dropped)} parameter(s) the readings cannot separate "
               f"(listed under 'dropped' with the reason)"] if meas.model.dropped else []
@@ -379,17 +451,32 @@ def serial_problem(chain, campaign, options: SerialIdentificationOptions, above=
         """The fit; ``pristine`` (nothing added to the program, no solution given): then :func:`_refined`."""
         # fit() checks identifiability first (one factorization: at thousands of unknowns the check's own is
         # reused by the solver and the covariance); what it cannot see is named, or regularized and fitted again.
-        said = list(notes)
-        for _ in range(len(cal.names)):
-            try:
-                fit = cal.fit()
-                break
-            except UnidentifiableError as e:
-                if not options.regularize or not e.names:
-                    raise InputError(f"{campaign.source}: {e}") from None
-                said.append(_regularize(cal, [n for n in e.names if n in cal.names]))
-        else:  # (each round adds priors to what was named: all are determined long before this)
-            raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
+        # A parameter whose u at the start is beyond what is plausible (SerialCalibration.plausible_u) gets the
+        # weak prior with options.regularize; without it the fit is tried anyway -- the start's u can mislead (a
+        # tool point started on the last axis hides the wrist) -- and judged by the u at its solution.
+        said, start_error = list(notes), None
+        try:
+            for _ in range(len(cal.names)):
+                try:
+                    fit = cal.fit()
+                    break
+                except UnidentifiableError as e:
+                    refused = isinstance(e, FitRefused)  # (VagueSolution: u beyond plausible at the solution)
+                    if getattr(e, "u_at_start", None) and not refused and not options.regularize \
+                            and cal.vague_at_start:
+                        start_error, cal.vague_at_start = e, False
+                        continue
+                    if not options.regularize or not e.names:
+                        raise InputError(str(e) if refused else f"{campaign.source}: {e}") from None
+                    said.append(_regularize(cal, [n for n in e.names if n in cal.names],
+                                            getattr(e, "u_at_start", None)))
+            else:  # (each round adds priors to what was named: all are determined long before this)
+                raise InputError(f"{campaign.source}: regularization did not make every parameter identifiable")
+        except FitRefused as e:
+            if start_error is None:
+                raise
+            raise FitRefused(f"{campaign.source}: refused, nothing written -- {start_error}; solved anyway: "
+                             f"{str(e).split(' -- ', 1)[-1]}") from None
         ident = SerialIdentification(meas, fit, cal.gauge, said, off_plane, tuple(above))
         return _refined(chain, campaign, options, ident) if pristine else ident
     return cal, finish

@@ -90,6 +90,15 @@ class VolumetricOptions(SolverOptions):
     knot_spacing_mm: Optional[float] = None
     topology: str = "serial"
     pitch_mm: float = 10.0
+    #: Run :meth:`VolumetricIdentification.resolution_check` after the solve (a second fit on finer knots; the
+    #: stated u inflated when the two disagree beyond it).
+    check_resolution: bool = True
+
+
+#: The under-resolution check fires when the tool points of the fit on finer knots differ from this fit's by an
+#: RMS (over the targets' coordinates) above this many times sqrt(u² + u_finer²): with the budget right and the
+#: truth in the coarser family the nested fits differ by sqrt(u_finer² − u²) in expectation, always below it.
+RESOLUTION_RATIO = 1.0
 
 
 def default_knot_spacing(commands_mm) -> float:
@@ -163,6 +172,30 @@ def _check_positions(data: MachineCampaign, config: MachineConfig) -> None:
                 f"<= {config.knot_spacing_mm:g} mm) and need at least {need}: "
                 + ("a cubic spline needs 4 -- add positions along " + a if need == 4 else
                    f"give a larger --knot-spacing-mm or more positions along {a}"), list(motion_names(a)))
+
+
+def finer_knot_spacing(config: MachineConfig, commands_mm) -> Optional[float]:
+    """The finest knot spacing in [s/2, s) (s: ``config.knot_spacing_mm``; rounded up to 0.1 mm) that changes the
+    representation and whose splines the commanded positions still identify (every axis at no fewer distinct
+    positions than its spline has coefficients, :func:`_check_positions`): the representation of the
+    under-resolution check (:meth:`VolumetricIdentification.resolution_check`). None when there is none."""
+    import dataclasses
+
+    c = np.asarray(commands_mm, float)
+    s = float(config.knot_spacing_mm)
+    distinct = [len(np.unique(np.round(c[:, k], 6))) for k in range(3)]
+    travel = [config.travel_mm[a][1] - config.travel_mm[a][0] for a in AXES]
+    # The spacings where an axis' interval count changes (travel / n), and s/2 itself.
+    candidates = {s / 2} | {t / n for t in travel for n in range(1, 2 * int(np.ceil(t / s)) + 2) if s / 2 <= t / n < s}
+    now = [config.n_basis(a) for a in AXES]
+    for v in sorted(float(np.ceil(v * 10.0 - 1e-9) / 10.0) for v in candidates):
+        if not s / 2 - 1e-9 <= v < s - 1e-9:
+            continue
+        finer = dataclasses.replace(config, knot_spacing_mm=v)
+        need = [finer.n_basis(a) for a in AXES]
+        if need != now and all(n <= d for n, d in zip(need, distinct)):
+            return v
+    return None
 
 
 def _priority(obs, name) -> tuple:
@@ -328,6 +361,15 @@ class VolumetricIdentification(Calibration):
         f = self.fit()
         f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
         f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
+        resolution = self.resolution_check(f, budget) if self.options.check_resolution else None
+        if resolution:
+            f.resolution = resolution  # (the result's ``resolution_check``: io.documents.result_document)
+        if resolution and resolution.get("inflation", 1.0) > 1.0:
+            # Too coarse for the data: the stated u is made to cover what the finer knots show it misses.
+            g = resolution["inflation"]
+            f.covariance = f.covariance * g * g
+            f.std = f.std * g
+            f.warnings = list(f.warnings) + [resolution["warning"]]
         E = np.zeros((self.model.n_params, len(self.names)))  # the model's parameters from x (held: 0)
         E[self.free_cols, np.arange(self.n_model)] = 1.0
         theta, P, L0 = self.split(f.x)
@@ -336,8 +378,84 @@ class VolumetricIdentification(Calibration):
                                 f.std[self.n_model:self.n_model + 3 * n_j].reshape(n_j, 3),
                                 f.std[self.n_model + 3 * n_j:], f, self.gauge, dict(self.held),
                                 self.observability.describe(), campaign_digest(self.data),
-                                f"linear propagation (JCGM 100) of the budget '{budget.name}'",
-                                self.options.pitch_mm)
+                                f"linear propagation (JCGM 100) of the budget '{budget.name}'"
+                                + (f", inflated {resolution['inflation']:.3g} x by the under-resolution check "
+                                   f"(resolution_check)" if resolution and resolution.get("inflation", 1.0) > 1.0
+                                   else ""),
+                                self.options.pitch_mm, resolution=resolution)
+
+    def resolution_check(self, fit, budget) -> Optional[dict]:
+        """Does the representation hold what the data resolve? The same campaign refitted on finer knots.
+
+        The residual cannot tell: the budget's reading u (001 Table 4: ~1 µm) is above the misfit of a too
+        coarse spline, while the stated u of the tool points (a fraction of it) is below. Here the campaign is
+        identified again on the finest knots in [s/2, s) it can identify (:func:`finer_knot_spacing`; same
+        tools, budget and gauge -- fixed in the representation, so both fits are in one frame), and the tool
+        points of the two at every target are compared: their difference d against c = sqrt(u² + u_f²) (u
+        this fit's stated, u_f the finer's). With the truth in this family the nested fits differ by about
+        sqrt(u_f² − u²) < c; ``ratio`` = RMS(d / c) above :data:`RESOLUTION_RATIO` says the representation
+        is too coarse for the data. Then the stated u misses d too: every u (the covariance) is inflated by
+        ``inflation`` = sqrt(1 + mean((d / u)²)), the factor that makes its RMS cover d besides the noise,
+        and the warning names the knot spacing that holds more (re-run with it: its own check says whether
+        it is enough). Inflating rather than refusing: the fit is still the best this representation gives,
+        and its u is then honest about what it misses. Returns {"done": False, "why": ...} when no finer
+        knots can be identified or their fit is refused; None when the campaign has no target to compare.
+        """
+        import dataclasses
+
+        from olti_drake.model.propagation import predicted_std
+
+        s = float(self.config.knot_spacing_mm)
+        if self.n_all > len(self.names) or self.prog.GetAllConstraints() or self._user_costs():
+            return {"method": f"refit on finer knots than {s:g} mm", "done": False, "knot_spacing_mm": s,
+                    "why": "the program carries the user's own variables, constraints or costs: a refit on other "
+                           "knots cannot carry them"}
+        finer = finer_knot_spacing(self.config, self.data.commands_mm)
+        if finer is None:
+            distinct = ", ".join(f"{a} {len(np.unique(np.round(self.data.commands_mm[:, k], 6)))}"
+                                 for k, a in enumerate(AXES))
+            return {"method": f"refit on finer knots than {s:g} mm", "done": False, "knot_spacing_mm": s,
+                    "why": f"no finer knot spacing in [{s / 2:g}, {s:g}) mm is identifiable from the commanded "
+                           f"positions ({distinct} distinct): more positions along the axes would allow it"}
+        how = (f"the campaign refitted on <= {finer:g} mm knots (this fit: <= {s:g} mm); the tool points of the "
+               f"two compared at its {len(self.data.commands_mm)} targets against their stated u")
+        options = dataclasses.replace(self.options, knot_spacing_mm=finer, check_resolution=False,
+                                      tool_offsets_mm=[list(t) for t in self.config.tools])
+        try:
+            other = VolumetricIdentification(self.data, options).solve(budget)
+        except InputError as e:  # unidentifiable or refused on the finer knots: say so, do not fail
+            return {"method": how, "done": False, "knot_spacing_mm": s, "finer_knot_spacing_mm": finer,
+                    "why": " ".join(str(e).split())}
+        cmd, tool = self.data.commands_mm, self.data.tool
+        E = np.zeros((self.model.n_params, len(self.names)))
+        E[self.free_cols, np.arange(self.n_model)] = 1.0
+        theta, _, _ = self.split(fit.x)
+        p, J = self.model.jacobian(cmd, tool, theta)
+        u = predicted_std(J, E @ fit.covariance @ E.T)
+        p_f, J_f = other.model.jacobian(cmd, tool, other.params)
+        u_f = predicted_std(J_f, other.covariance)
+        d = p - p_f
+        seen = u > 1e-9 * max(float(u.max()), 1e-300)  # (tool 0 at the travel start is the origin: u = 0)
+        if not seen.any():
+            return None
+        ratio = float(np.sqrt(np.mean((d[seen] / np.hypot(u[seen], u_f[seen])) ** 2)))
+        missed = float(np.sqrt(np.mean((d[seen] / u[seen]) ** 2)))
+        out = {"method": how, "done": True, "knot_spacing_mm": s, "finer_knot_spacing_mm": finer,
+               "targets": int(len(cmd)), "difference_rms_mm": float(np.sqrt(np.mean(d ** 2))),
+               "difference_max_mm": float(np.abs(d).max()), "u_rms_mm": float(np.sqrt(np.mean(u[seen] ** 2))),
+               "ratio": ratio, "threshold": RESOLUTION_RATIO, "difference_over_u_rms": missed,
+               "resolved": ratio <= RESOLUTION_RATIO, "inflation": 1.0}
+        if ratio > RESOLUTION_RATIO:
+            g = float(np.sqrt(1.0 + missed ** 2))
+            out["inflation"] = g
+            out["warning"] = (
+                f"under-resolution check: the tool points of the fit on <= {finer:g} mm knots differ from this "
+                f"fit's (<= {s:g} mm) by RMS {1e3 * out['difference_rms_mm']:.2f} um, max "
+                f"{1e3 * out['difference_max_mm']:.2f} um, {missed:.2f} x the stated u (RMS over the {len(cmd)} "
+                f"targets; {ratio:.2f} x their combined u, above {RESOLUTION_RATIO:g}): the knots are too coarse "
+                f"for the data -- every stated u (motions, squareness, tool offsets, stations, dead paths, "
+                f"covariance) is inflated {g:.3g} x to cover it; re-run with --knot-spacing-mm {finer:g}")
+        return out
 
 
 @dataclass
@@ -359,25 +477,24 @@ class VolumetricResult:
     campaign: dict = field(default_factory=dict)
     method: str = ""
     pitch_mm: float = 10.0
+    #: The under-resolution check (:meth:`VolumetricIdentification.resolution_check`; the result's
+    #: ``resolution_check``), None when not run.
+    resolution: Optional[dict] = None
 
     @property
     def residual_rms_mm(self) -> float:
         return float(np.sqrt(np.mean(self.fit.residuals ** 2)))
 
     def to_dict(self) -> dict:
-        """The ``olti-volumetric/1`` result (formats.md; :func:`olti_drake.io.volumetric_io.result_document`)."""
-        from olti_drake.io.volumetric_io import result_document
+        """The ``olti-volumetric/1`` result (formats.md; :func:`olti_drake.io.volumetric_io.volumetric_result_dict`:
+        the common fields by the one codec, :func:`olti_drake.io.documents.result_document`)."""
+        from olti_drake.io.volumetric_io import volumetric_result_dict
 
-        f = self.fit
-        return result_document(
-            self.model, self.params, self.covariance, self.pitch_mm, stations_mm=self.stations_mm,
+        return volumetric_result_dict(
+            self.model, self.params, self.covariance, self.pitch_mm, self.fit, stations_mm=self.stations_mm,
             dead_paths_mm=self.dead_paths_mm, stations_std_mm=self.stations_std_mm,
             dead_paths_std_mm=self.dead_paths_std_mm, gauge=self.gauge, gauge_conditions=list(GAUGE_CONDITIONS),
-            held=self.held, observability=self.observability, method=self.method, campaign=self.campaign,
-            fit={"residual_rms_mm": self.residual_rms_mm, "n_readings": int(len(f.residuals)),
-                 "iterations": f.iterations, "condition_number": f.condition_number, "solver": f.solver,
-                 "converged": f.converged_by, "warnings": list(f.warnings), "outliers": f.outliers,
-                 "notes": list(f.notes)})
+            held=self.held, observability=self.observability, method=self.method, campaign=self.campaign)
 
 
 def identify_volumetric(data: MachineCampaign, options: VolumetricOptions = None, budget=None) -> VolumetricResult:

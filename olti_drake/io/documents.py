@@ -8,6 +8,12 @@ Anything else is refused in one line naming the file. :func:`read_result` reads 
 ``(kind, document)``; every verb that takes a result dispatches on that kind once. The kind's own loader
 (``io.result.load_result``, ``io.serial_io.load_serial_result``, ``estimation.multilateration.load_result``,
 ``io.volumetric_io.load_volumetric_result``) then checks the schema where it reads it.
+
+:func:`result_document` is the one writer of a result document: the header, the kind's own values, and the
+fields every identification has (:data:`COMMON_FIELDS`: gauge, residual RMS, readings, uncertainty with ``k`` and
+``method``, the solver's facts, campaign digest, notes) in one order and one spelling, from the identification's
+fit. The four kinds' writers (``io.result.result_dict``, ``io.serial_io.serial_result_dict``,
+``MultilaterationResult.to_dict``, ``io.volumetric_io.volumetric_result_dict``) give it only what is the kind's.
 """
 
 import os
@@ -74,6 +80,75 @@ def not_taken(path, kind: str, doc: dict, kinds, user: str = "") -> InputError:
     """The one-line refusal of a result of ``kind`` by a ``user`` that takes ``kinds`` only."""
     return InputError(f"{os.fspath(path)}: {RESULT_WHAT[kind]}, 'format' {doc['format']!r}: {user or 'this'} takes "
                       f"{kinds_text(kinds)}")
+
+
+#: The common fields of every result document, in the order :func:`result_document` writes them (after
+#: ``format``, ``kind`` and the kind's own values; before the kind's ``tail``). Optional ones (``smoothing``,
+#: ``campaign``, ``resolution_check``, ``notes``) are left out when empty.
+COMMON_FIELDS = ("gauge", "residual_rms_mm", "n_readings", "uncertainty", "iterations", "condition_number",
+                 "solver", "outliers", "converged", "warnings", "smoothing", "campaign", "resolution_check", "notes")
+
+#: How the standard uncertainties of an identification are obtained, unless the kind states its own
+#: (the machine kinds name the budget propagated).
+UNCERTAINTY_METHOD = ("linear propagation of the identification Jacobian (JCGM 100), residual-based reading "
+                      "uncertainty")
+
+
+def residual_rms(residuals) -> float:
+    """RMS of the residuals (mm; 0 for none): a result's ``residual_rms_mm``."""
+    import numpy as np
+
+    r = np.asarray(residuals, float)
+    return float(np.sqrt(np.mean(np.square(r)))) if r.size else 0.0
+
+
+def result_document(kind: str, values: dict, fit, *, gauge: str, uncertainty: dict,
+                    method: str = UNCERTAINTY_METHOD, n_readings=None, campaign=None, notes=(), tail=None,
+                    empty_notes: bool = False) -> dict:
+    """The one writer of a result document (issue 22): ``format`` and ``kind``, the kind's own ``values``,
+    then the :data:`COMMON_FIELDS` in one order and one spelling, then the kind's ``tail``.
+
+    ``values``: the kind's own keys (its parameters in its layout, e.g. ``model``/``L1_mm``/``error_map``/
+    ``reflectors_mm`` of the SCARA, ``robot`` and the named errors of a serial robot, ``targets_mm`` and
+    ``stations_mm`` of a multilateration, the ISO motions of a volumetric result). ``fit``: what every
+    identification has -- the engine's :class:`~olti_drake.estimation.calibration.Fit` or the SCARA's
+    ``Identification``: ``residuals`` (or ``residuals_mm``), ``iterations``, ``condition_number``, ``solver``,
+    ``outliers``, ``converged_by``, ``warnings``, ``notes``, optionally ``smoothing`` (the maps' roughness prior)
+    and ``resolution`` (an error map's under-resolution check). ``uncertainty``: the standard uncertainties
+    (k = 1) in the kind's keys (``layout(std, uncertainty=True)``); ``k`` and ``method`` are added here.
+    ``n_readings``: the readings identified from (default: one per residual). ``notes``: said after the fit's.
+    ``tail``: the kind's keys written last (a serial robot's ``covariance``, ``priors``, ``dropped``).
+    ``empty_notes``: write ``notes`` even when there are none (the volumetric result always had the key)."""
+    if kind not in RESULT_FORMAT:
+        raise ValueError(f"unknown result kind {kind!r} (expected {_either(repr(k) for k in RESULT_KINDS)})")
+    residuals = getattr(fit, "residuals", None)
+    if residuals is None:
+        residuals = getattr(fit, "residuals_mm")
+    out = {"format": RESULT_FORMAT[kind], "kind": kind,
+           **{k: v for k, v in values.items() if k not in ("format", "kind")}}
+    out["gauge"] = gauge
+    out["residual_rms_mm"] = residual_rms(residuals)
+    out["n_readings"] = int(len(residuals) if n_readings is None else n_readings)
+    out["uncertainty"] = {**uncertainty, "k": 1, "method": method}
+    out["iterations"] = int(fit.iterations)
+    out["condition_number"] = float(fit.condition_number)
+    out["solver"] = fit.solver
+    out["outliers"] = list(fit.outliers)
+    out["converged"] = fit.converged_by
+    out["warnings"] = list(fit.warnings)
+    smoothing = getattr(fit, "smoothing", None)
+    if smoothing:  # the maps' roughness prior (method, weight, ...): olti uncertainty re-adds it
+        out["smoothing"] = dict(smoothing)
+    if campaign:
+        out["campaign"] = campaign
+    resolution = getattr(fit, "resolution", None)
+    if resolution:
+        out["resolution_check"] = resolution
+    all_notes = list(fit.notes) + list(notes)
+    if all_notes or empty_notes:
+        out["notes"] = all_notes
+    out.update(tail or {})
+    return out
 
 
 def with_kind(kind: str, doc: dict) -> dict:

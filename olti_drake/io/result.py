@@ -9,7 +9,8 @@ import os
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.formats import ROBOT_RESULT as FORMAT, result_header
+from olti_drake.formats import ROBOT_RESULT as FORMAT
+from olti_drake.io import documents
 from olti_drake.io.csvio import json_numbers, read_json
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.scara import ScaraModel
@@ -39,35 +40,21 @@ def uncertainty_layout(model: ScaraModel, v) -> dict:
 
 
 def result_dict(ident) -> dict:
-    """The ``result.json`` object of an :class:`~olti_drake.estimation.identification.Identification`.
+    """The ``result.json`` object of an :class:`~olti_drake.estimation.identification.Identification`: its
+    own values (model, lengths, maps or θ20, reflectors, dead paths) and the common fields written by the one
+    codec (:func:`olti_drake.io.documents.result_document`).
 
     An error map identified without direction columns is one-directional: ``"bidirectional": false`` and
     ``forward_deg`` only in each map (formats.md, as the serial robots' result)."""
     model = ident.model
-    out = {**result_header("scara"), "model": "errormap" if model.is_errormap else "dh"}
+    values = {"model": "errormap" if model.is_errormap else "dh"}
     if model.is_errormap and not model.bidirectional:
-        out["bidirectional"] = False
-    out.update(_values(model, ident.reflectors_mm, ident.dead_paths_mm))
-    out["gauge"] = ident.gauge
-    out["residual_rms_mm"] = ident.residual_rms_mm
-    out["n_readings"] = ident.n_readings
-    unc = uncertainty_layout(model, ident.std)  # the same layout, filled with standard uncertainties
-    unc.update({"k": 1, "method": "linear propagation of the identification Jacobian (JCGM 100), "
-                                  "residual-based reading uncertainty"})
-    out["uncertainty"] = unc
-    out["iterations"] = ident.iterations
-    out["condition_number"] = ident.condition_number
-    out["solver"] = ident.solver
-    out["outliers"] = ident.outliers
-    out["converged"] = ident.converged_by
-    out["warnings"] = list(ident.warnings)
-    if ident.campaign:
-        out["campaign"] = ident.campaign
-    if getattr(ident, "resolution", None):
-        out["resolution_check"] = ident.resolution
-    if ident.notes:
-        out["notes"] = ident.notes
-    return out
+        values["bidirectional"] = False
+    values.update(_values(model, ident.reflectors_mm, ident.dead_paths_mm))
+    # the same layout, filled with standard uncertainties; the common fields from the identification (its fit)
+    return documents.result_document("scara", values, ident, gauge=ident.gauge,
+                                     uncertainty=uncertainty_layout(model, ident.std), n_readings=ident.n_readings,
+                                     campaign=ident.campaign)
 
 
 def write_result(ident, path) -> None:

@@ -12,7 +12,11 @@ commands and targets, results and truths, and the robot model a file names.
 * :func:`serial_result_dict` / :func:`write_serial_result` / :func:`load_serial_result` — the
   ``olti-result/1`` result of a serial robot; the loader rebuilds the
   :class:`~olti_drake.model.serial.SerialPositionModel` (the chain from ``robot.file``, relative to
-  the result file, or a shipped model name) so predict and compensate evaluate it. A truth
+  the result file, or a shipped model name) so predict and compensate evaluate it. The result also stores the
+  identification's parameter covariance (``covariance``: ``names`` and the packed ``lower`` triangle,
+  :func:`covariance_entry`; not stored above :data:`MAX_COVARIANCE_PARAMETERS`), the smoothness prior it had
+  (``smoothing``) and, when the program is given, its ``--regularize`` priors (``priors``, :func:`program_priors`);
+  a result without ``covariance`` (older versions) loads, and its predictions carry no u. A truth
   (:func:`serial_truth_dict`: every location error by name, maps sampled on a fine grid) loads the
   same way.
 
@@ -30,7 +34,8 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.formats import ROBOT_RESULT as FORMAT, result_header
+from olti_drake.formats import ROBOT_RESULT as FORMAT
+from olti_drake.io import documents
 from olti_drake.io.documents import result_kind
 from olti_drake.io.csvio import (check_finite, check_no_duplicate_rows, check_values, data_digest, json_numbers,
                                  read_json, read_table, read_text, write_table)
@@ -354,19 +359,25 @@ def write_serial_campaign(path, commands, dirs=None, *, station=None, displaceme
 
 # -------------------------------------------------------------------- results
 def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: str, campaign_digest: dict = None,
-                       notes: Sequence[str] = (), extra: Optional[dict] = None) -> dict:
+                       notes: Sequence[str] = (), extra: Optional[dict] = None, program=None) -> dict:
     """The ``result.json`` object of an identified serial robot (formats.md).
 
     ``measurement``: the :class:`~olti_drake.model.serial.DistanceMeasurement` or ``PointMeasurement``
     identified (its model gives ``robot.joints``, the location errors and offsets by name,
     ``tool_offset_mm``, ``error_map`` keyed by joint name, and ``dropped``); ``fit``: the
     least-squares fit (x, std, residuals, …). ``held_location_errors_mm_deg``: the location errors not
-    identified (held at these values, zero unless a start said otherwise).
+    identified (held at these values, zero unless a start said otherwise). ``program``: the identification
+    program (its quadratic costs: the ``--regularize`` priors, recorded under ``priors``; optional).
+
+    Also written: ``covariance`` (:func:`covariance_entry`: the fit's parameter covariance, for the u of
+    ``olti predict``), ``smoothing`` (the fit's roughness prior, when it had one). The common fields (gauge,
+    residual RMS, readings, uncertainty with k and method, the fit's facts, campaign, notes) are written by the one
+    codec, :func:`olti_drake.io.documents.result_document`; this adds the serial robot's own.
     """
     model = measurement.model
     chain = model.chain
     x = np.asarray(fit.x, float)
-    out = {**result_header("serial"), "model": kind,
+    out = {"model": kind,
            "robot": {"file": robot_file, "tool_frame": chain.tool_frame, "joints": list(chain.joint_names)}}
     if os.path.isfile(getattr(chain, "path", "") or ""):  # the model file the parameters are errors of
         out["robot"]["sha256"] = robot_digest(chain.path)
@@ -379,31 +390,76 @@ def serial_result_dict(*, kind: str, robot_file: str, measurement, fit, gauge: s
             if name not in model.names and name not in ("tool_x_mm", "tool_y_mm", "tool_z_mm") and v != 0.0}
     if held:
         out["held"] = held
-    out["gauge"] = gauge
-    out["residual_rms_mm"] = float(np.sqrt(np.mean(np.square(fit.residuals)))) if len(fit.residuals) else 0.0
-    out["n_readings"] = int(len(measurement.commands))
     unc = measurement.layout(np.asarray(fit.std, float), uncertainty=True)
     for m in unc.get("error_map", {}).values():
         m.pop("grid_deg", None)
     if "tracker_frame" in unc:
         unc["tracker_frame"].pop("convention", None)
-    unc.update({"k": 1, "method": "linear propagation of the identification Jacobian (JCGM 100), "
-                                  "residual-based reading uncertainty"})
-    out["uncertainty"] = unc
-    out["dropped"] = [{"parameter": p, "reason": why} for p, why in model.dropped]
-    out["iterations"] = int(fit.iterations)
-    out["condition_number"] = float(fit.condition_number)
-    out["solver"] = fit.solver
-    out["outliers"] = list(fit.outliers)
-    out["converged"] = fit.converged_by
-    out["warnings"] = list(fit.warnings)
-    if campaign_digest:
-        out["campaign"] = campaign_digest
-    all_notes = list(fit.notes) + list(notes)
-    if all_notes:
-        out["notes"] = all_notes
-    out.update(extra or {})
-    return out
+    tail = covariance_entry(fit)  # the serial robot's own, after the common fields
+    priors = program_priors(program) if program is not None else []
+    if priors:
+        tail["priors"] = priors
+    tail["dropped"] = [{"parameter": p, "reason": why} for p, why in model.dropped]
+    tail.update(extra or {})
+    return documents.result_document("serial", out, fit, gauge=gauge, uncertainty=unc,
+                                     n_readings=len(measurement.commands), campaign=campaign_digest, notes=notes,
+                                     tail=tail)
+
+
+#: The most parameters whose covariance a result stores (N (N + 1) / 2 numbers: 1000 -> 0.5 M, ~14 MB of JSON);
+#: above, the result says so under ``covariance.omitted`` and its predictions carry no u.
+MAX_COVARIANCE_PARAMETERS = 1000
+
+
+def covariance_entry(fit) -> dict:
+    """``{"covariance": ...}`` of a result (formats.md, serial robots; empty when the fit has none): the
+    covariance C (k = 1, the parameters' units squared: mm², deg², mm·deg) of ``fit.names`` -- the model's
+    parameters, then the stations' and dead paths' or the tracker frame's -- as ``names`` and ``lower``, the
+    lower triangle packed row by row (C[0,0], C[1,0], C[1,1], C[2,0], ...: N (N + 1) / 2 numbers). It is the
+    identification's own (readings' variance from the residual, priors included), the one the result's
+    ``uncertainty`` holds the square roots of the diagonal of; ``olti predict`` propagates it
+    (model.propagation). Above :data:`MAX_COVARIANCE_PARAMETERS` it is not stored: ``{"names": [...],
+    "omitted": reason}``."""
+    names = list(getattr(fit, "names", []) or [])
+    if not names:
+        return {}
+    if len(names) > MAX_COVARIANCE_PARAMETERS:
+        return {"covariance": {"names": names, "omitted": (
+            f"{len(names)} parameters: the covariance would take {len(names) * (len(names) + 1) // 2} numbers "
+            f"(more than {MAX_COVARIANCE_PARAMETERS} parameters are not stored); predictions carry no u")}}
+    C = getattr(fit, "covariance", None)
+    if C is None:
+        return {}
+    C = np.asarray(C, float)
+    if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)):
+        return {}
+    C = 0.5 * (C + C.T)
+    return {"covariance": {"names": names, "lower": C[np.tril_indices(len(names))].tolist(), "k": 1,
+                           "packing": "lower triangle row by row: C[0,0], C[1,0], C[1,1], C[2,0], ..."}}
+
+
+def program_priors(program) -> list:
+    """The diagonal quadratic costs of an identification program (the ``--regularize`` priors ½ w (x − x0)²,
+    :func:`olti_drake.estimation.serial_identification.prior_weight`) as the result's ``priors``:
+    ``[{"kind": "regularize", "names": [...], "weights": [...]}]`` (weights in the data cost's units: mm² per
+    unit² of the parameter). The smoothness prior is not among them: the result states it as ``smoothing``
+    (its weight; the roughness rows follow from the maps)."""
+    from pydrake.solvers import QuadraticCost
+
+    names, weights = [], []
+    costs = getattr(program, "_user_costs", None)
+    for b in (costs() if costs is not None else []):
+        e = b.evaluator()
+        if not isinstance(e, QuadraticCost) or "smoothness" in (e.get_description() or ""):
+            continue
+        Q = np.asarray(e.Q(), float)
+        if np.any(Q - np.diag(np.diag(Q))):
+            continue  # (not a prior on single parameters: no such cost is written by olti identify)
+        for v, w in zip(b.variables(), np.diag(Q)):
+            if w > 0:
+                names.append(v.get_name())
+                weights.append(float(w))
+    return [{"kind": "regularize", "names": names, "weights": weights}] if names else []
 
 
 def write_serial_result(path, result: dict) -> None:
@@ -460,10 +516,41 @@ class SerialResult:
     tracker_frame: Optional[np.ndarray]
     data: dict
     robot_path: str
+    #: The identification's parameter covariance (k = 1) and the names of its rows (:func:`covariance_entry`);
+    #: None when the result stores none (older versions, a truth, or omitted for its size).
+    covariance: Optional[np.ndarray] = None
+    covariance_names: Optional[tuple] = None
 
     @property
     def x(self) -> np.ndarray:
         return self.model.start_vector()
+
+    def covariance_of(self, names) -> Optional[np.ndarray]:
+        """The stored covariance over ``names`` (in that order; e.g. a model's and a measurement's), or None when
+        the result stores none. A name it does not hold is refused (InputError: the result and the names are of
+        different models)."""
+        if self.covariance is None:
+            return None
+        index = {n: i for i, n in enumerate(self.covariance_names)}
+        missing = [n for n in names if n not in index]
+        if missing:
+            raise InputError(f"key 'covariance.names': no row for {missing[0]} (the result's covariance is not "
+                             f"of this model)")
+        idx = np.array([index[n] for n in names], int)
+        return self.covariance[np.ix_(idx, idx)]
+
+    @property
+    def covariance_note(self) -> str:
+        """Why the result's predictions carry no u ("" when they do)."""
+        if self.covariance is not None:
+            return ""
+        entry = self.data.get("covariance")
+        if isinstance(entry, dict) and entry.get("omitted"):
+            return f"u unavailable: the result stores no covariance ({entry['omitted']})"
+        if self.data.get("truth"):
+            return "u unavailable: a simulation truth has no covariance"
+        return ("u unavailable: the result stores no covariance (written by an older version: identify again for "
+                "u_x_mm, u_y_mm, u_z_mm)")
 
     @property
     def station_labels(self) -> np.ndarray:
@@ -553,8 +640,39 @@ def load_serial_result(path, outside: str = "error", identified: bool = False) -
         tf = data["tracker_frame"]
         frame = np.concatenate([json_numbers(tf, name, "translation_mm", (3,), label="tracker_frame.translation_mm"),
                                 json_numbers(tf, name, "rotation_deg", (3,), label="tracker_frame.rotation_deg")])
+    C, cov_names = _load_covariance(data, name, model)
     return SerialResult(model, P, d0, frame, data, str(resolve_robot(robot["file"],
-                                                                     os.path.dirname(os.path.abspath(name)))))
+                                                                     os.path.dirname(os.path.abspath(name)))),
+                        C, cov_names)
+
+
+def _load_covariance(data, name, model):
+    """(C (N, N), names) of a result's ``covariance`` (:func:`covariance_entry`), checked: names distinct strings
+    covering the model's parameters, N (N + 1) / 2 finite numbers, a diagonal >= 0; (None, None) when absent or
+    omitted."""
+    entry = data.get("covariance")
+    if entry is None:
+        return None, None
+    if not isinstance(entry, dict):
+        raise InputError(f"{name}: key 'covariance' must be an object (names, lower)")
+    names = entry.get("names")
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+        raise InputError(f"{name}: key 'covariance.names' must be a list of distinct parameter names")
+    if "lower" not in entry:
+        if entry.get("omitted"):
+            return None, None
+        raise InputError(f"{name}: missing key 'covariance.lower'")
+    n = len(names)
+    lower = json_numbers(entry, name, "lower", (n * (n + 1) // 2,), label="covariance.lower")
+    C = np.zeros((n, n))
+    C[np.tril_indices(n)] = lower
+    C = C + np.tril(C, -1).T
+    if np.any(np.diag(C) < 0):
+        raise InputError(f"{name}: key 'covariance.lower': a negative variance (the diagonal must be >= 0)")
+    missing = [p for p in model.names if p not in names]
+    if missing:
+        raise InputError(f"{name}: key 'covariance.names': no row for the model's parameter {missing[0]}")
+    return C, tuple(names)
 
 
 def _load_maps(data, name, chain, outside, JointMap, ErrorMap):

@@ -36,11 +36,16 @@ def motion_std(model: VolumetricModel, covariance, positions: dict) -> dict:
     return out
 
 
-def result_document(model: VolumetricModel, params, covariance, pitch_mm: float, *, stations_mm, dead_paths_mm,
-                    stations_std_mm, dead_paths_std_mm, gauge: str, gauge_conditions, held: dict,
-                    observability: str, method: str, campaign: dict, fit: dict) -> dict:
-    """The ``olti-volumetric/1`` object. ``covariance`` (P, P) over ``model.parameter_names()`` (k = 1; held
-    motions: rows of 0); ``held``: {motion: why it is held at 0}; ``fit``: solver facts copied as they are."""
+def volumetric_result_dict(model: VolumetricModel, params, covariance, pitch_mm: float, fit, *, stations_mm,
+                           dead_paths_mm, stations_std_mm, dead_paths_std_mm, gauge: str, gauge_conditions,
+                           held: dict, observability: str, method: str, campaign: dict) -> dict:
+    """The ``olti-volumetric/1`` object: the volumetric machine's own keys (the model part, stations, dead paths,
+    the gauge's conditions, the motions held and the observability; the uncertainty of every motion value, the
+    covariance) and the common fields by the one codec (:func:`olti_drake.io.documents.result_document`, from
+    ``fit``: the identification's :class:`~olti_drake.estimation.calibration.Fit`). ``covariance`` (P, P) over
+    ``model.parameter_names()`` (k = 1; held motions: rows of 0); ``held``: {motion: why it is held at 0}."""
+    from olti_drake.io import documents
+
     doc = motions_document(model, params, pitch_mm)
     C = np.asarray(covariance, float)
     C = (C + C.T) / 2  # symmetric to the last bit (the propagation B Jᵀ U J B is, up to rounding)
@@ -57,21 +62,17 @@ def result_document(model: VolumetricModel, params, covariance, pitch_mm: float,
         "pitch_mm": float(pitch_mm),
         "stations_mm": np.asarray(stations_mm, float).tolist(),
         "dead_paths_mm": np.asarray(dead_paths_mm, float).tolist(),
-        "gauge": gauge, "gauge_conditions": list(gauge_conditions),
-        "held_motions": dict(held), "observability": observability,
-        "uncertainty": {
-            "k": 1, "method": method,
-            "error_motions": {n: v.tolist() for n, v in std.items()},
-            "squareness_urad": {s: float(np.sqrt(max(C[model.slices[s], model.slices[s]][0, 0], 0.0)))
-                                for s in SQUARENESS},
-            "tool_offsets_mm": tool_std.tolist(),
-            "stations_mm": np.asarray(stations_std_mm, float).tolist(),
-            "dead_paths_mm": np.asarray(dead_paths_std_mm, float).tolist(),
-            "parameter_names": list(model.parameter_names()),
-            "covariance": C.tolist()},
-        **({"campaign": campaign} if campaign else {}),
-        **fit})
-    return doc
+        "gauge_conditions": list(gauge_conditions), "held_motions": dict(held), "observability": observability})
+    unc = {"error_motions": {n: v.tolist() for n, v in std.items()},
+           "squareness_urad": {s: float(np.sqrt(max(C[model.slices[s], model.slices[s]][0, 0], 0.0)))
+                               for s in SQUARENESS},
+           "tool_offsets_mm": tool_std.tolist(),
+           "stations_mm": np.asarray(stations_std_mm, float).tolist(),
+           "dead_paths_mm": np.asarray(dead_paths_std_mm, float).tolist(),
+           "parameter_names": list(model.parameter_names()),
+           "covariance": C.tolist()}
+    return documents.result_document("volumetric", doc, fit, gauge=gauge, uncertainty=unc, method=method,
+                                     campaign=campaign, empty_notes=True)
 
 
 @dataclass

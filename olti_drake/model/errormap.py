@@ -174,6 +174,28 @@ class ErrorMap:
         alpha = (thc - g[i]) / (g[i + 1] - g[i])  # Eq. (9)
         return np.column_stack([block + i, block + i + 1]), np.column_stack([1.0 - alpha, alpha])
 
+    def roughness(self, bidirectional: bool = True) -> sp.csr_matrix:
+        """Roughness rows R on ``values`` [forward..., reverse...] (2N,): ‖R v‖² ≈ ∫ (Δθ'')² dθ* of the forward
+        and the reverse branch and of the backlash between them (forward − reverse), deg²/deg³ -- the smoothness
+        prior of issue 23 on 000's bidirectional map (Eq. 6-9). Each interior node i gives the divided second
+        difference 2[(v_{i+1} − v_i)/h_1 − (v_i − v_{i−1})/h_0]/(h_0 + h_1) (deg/deg²) times √((h_0 + h_1)/2),
+        its share of the integral, so grids of any spacing weigh alike. A linear map has no roughness; a map of
+        fewer than 3 nodes none at all (0 rows). ``bidirectional`` False: the forward branch only (a single-branch
+        map, whose reverse block mirrors it), columns still over 2N."""
+        g, n = self.grid_deg, self.n_nodes
+        if n < 3:
+            return sp.csr_matrix((0, 2 * n))
+        h0, h1 = np.diff(g)[:-1], np.diff(g)[1:]
+        share = np.sqrt(0.5 * (h0 + h1))
+        coef = np.column_stack([2 / (h0 * (h0 + h1)), -2 / (h0 * h1), 2 / (h1 * (h0 + h1))]) * share[:, None]
+        rows = np.repeat(np.arange(n - 2), 3)
+        cols = (np.arange(n - 2)[:, None] + np.arange(3)).ravel()
+        D = sp.csr_matrix((coef.ravel(), (rows, cols)), shape=(n - 2, n))
+        Z = sp.csr_matrix((n - 2, n))
+        if not bidirectional:
+            return sp.hstack([D, Z], format="csr")
+        return sp.vstack([sp.hstack([D, Z]), sp.hstack([Z, D]), sp.hstack([D, -D])], format="csr")
+
     def weights(self, theta_deg, direction) -> sp.csr_matrix:
         """Sparse interpolation matrix W (K, 2N) with Δθ = W @ values (Eq. 7-9 of 000)."""
         cols, w = self.interpolation(theta_deg, direction)

@@ -141,6 +141,27 @@ class StationDistanceMeasurement:
     def names(self):
         return tuple(self.model.names) + self.own_names
 
+    def reading_spans(self):
+        """(the widest spread of one station's readings, the spread of the points the start model reads them at),
+        mm: readings spread far less than the points move are in another unit (metres?) -- the engine's unit-slip
+        checks (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.residual_warnings`, ``_real_cause``)."""
+        if not len(self.displacement):
+            return 0.0, 0.0
+        spread = max(float(np.ptp(self.displacement[self.station == j])) for j in np.unique(self.station))
+        p = np.asarray(self.model.positions(self.model.start_vector()), dtype=float)
+        return spread, float(np.ptp(p.reshape(-1, self.dim), axis=0).max())
+
+    def roughness(self):
+        """The position model's roughness rows (its maps' smoothness prior, when it has maps) over all of
+        :attr:`names` (stations and dead paths have none); None otherwise."""
+        rows = getattr(self.model, "roughness", None)
+        R = rows() if rows is not None else None
+        if R is None:
+            return None
+        import scipy.sparse as sp
+
+        return sp.hstack([R, sp.csr_matrix((R.shape[0], len(self.own_names)))], format="csr")
+
     def start_vector(self) -> np.ndarray:
         return np.concatenate([self.model.start_vector(), self._own_start])
 

@@ -438,6 +438,24 @@ class ScaraPositionModel:
             p, cols, dx, dy = p[:, points], cols[points], dx[:, points], dy[:, points]
         return p, cols, (dx, dy)
 
+    def roughness(self):
+        """Roughness rows over ``names`` of the J1 and J2 maps (:meth:`~olti_drake.model.errormap.ErrorMap.roughness`:
+        both branches and the backlash, or the single branch), for the smoothness prior; None for ``dh``."""
+        if not self.robot.is_errormap:
+            return None
+        import scipy.sparse as sp
+
+        blocks, start = [], 2
+        for m in (self.robot.map1, self.robot.map2):
+            R = m.roughness(self.robot.bidirectional)
+            width = m.n_nodes * len(self.robot.branches)
+            R = R[:, :width]
+            blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], start)), R,
+                                     sp.csr_matrix((R.shape[0], self.n_params - start - width))]))
+            start += width
+        R = sp.vstack(blocks, format="csr")
+        return R if R.shape[0] else None
+
     def layout(self, v, uncertainty: bool = False) -> dict:
         """A parameter-shaped vector (values or uncertainties) in result.json's keys (formats.md): ``L1_mm``,
         ``L2_mm``, then ``theta20_deg`` or ``error_map`` (its ``grid_deg`` only with values)."""

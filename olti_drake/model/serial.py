@@ -112,6 +112,12 @@ class JointMap:
         cols, w = self.interpolation(theta_deg, direction)
         return np.sum(w * self.values[cols], axis=1)
 
+    def roughness(self) -> sp.csr_matrix:
+        """Roughness rows on ``values`` (:meth:`ErrorMap.roughness`: both branches and the backlash, or the single
+        branch), deg²/deg³."""
+        R = self.emap.roughness(self.bidirectional)
+        return R if self.bidirectional else R[:, :self.emap.n_nodes]
+
     def level_row(self) -> Tuple[np.ndarray, float]:
         """(row, at): the map's level at the node-clipped command 0 deg as a row on ``values``:
         (Δθ(at, +1) + Δθ(at, −1))/2, or Δθ(at) for a single branch — as the SCARA's J1 gauge."""
@@ -412,6 +418,83 @@ class SerialPositionModel:
                                 for s, m in zip(self.map_starts, self.maps)}
         return out
 
+    def roughness(self) -> Optional[sp.csr_matrix]:
+        """Roughness rows R over x (every map's :meth:`JointMap.roughness` at its columns): the smoothness prior
+        ½ λ ‖R x‖² of issue 23; None without maps."""
+        blocks = [(s, m.roughness()) for s, m in zip(self.map_starts, self.maps)]
+        blocks = [(s, R) for s, R in blocks if R.shape[0]]
+        if not blocks:
+            return None
+        rows = [sp.hstack([sp.csr_matrix((R.shape[0], s)), R,
+                           sp.csr_matrix((R.shape[0], self.n_params - s - R.shape[1]))]) for s, R in blocks]
+        return sp.vstack(rows, format="csr")
+
+    def support(self, commands, dirs=None) -> list:
+        """Per map: its readings' interpolation weight on every entry of ``values`` (000 Eq. (7)-(9)), summed over
+        the distinct poses of ``commands`` (M, N) deg: how many poses' worth of readings reach each node in each
+        direction."""
+        th, dirs = self._commands(commands, dirs)
+        key = th if dirs is None else np.hstack([th, dirs])
+        first = np.unique(key, axis=0, return_index=True)[1]
+        th, dirs = th[first], None if dirs is None else dirs[first]
+        out = []
+        for (cols, w), m in zip(self._interpolations(th, dirs), self.maps):
+            sup = np.zeros(m.n_values)
+            np.add.at(sup, cols.ravel(), w.ravel())
+            out.append(sup)
+        return out
+
+    #: The end nodes of a map branch that together are reached by less than this many poses' worth of interpolation
+    #: weight are no parameters (:meth:`ties`): at the ends of a joint's range a random-pose campaign approaches
+    #: each node from one side only, and one reading at weight 0.01 would otherwise set a node to its noise x 100
+    #: (or the smoothness prior extrapolate a slope far beyond the readings). Thin nodes between read ones stay
+    #: parameters: the smoothness prior holds them between their neighbours.
+    MIN_NODE_SUPPORT = 1.0
+
+    def ties(self, commands, dirs=None) -> Tuple[np.ndarray, list, list]:
+        """(A, tied, targets): linear equalities A x = 0 that make the end nodes of every map branch that the readings
+        of ``commands`` barely reach (together less than :attr:`MIN_NODE_SUPPORT` poses' weight counted from the
+        grid's end) follow read ones (issue 23, "maps span the data"):
+        a node read in the other direction only keeps the backlash of the nearest node read both ways
+        (f_i − r_i = f_e − r_e), or, when none is, the value of the nearest node read in its own direction; a
+        node read in neither holds the nearest read value of its direction (as ``--outside clamp`` would).
+        ``tied``: the tied parameters' names; ``targets``: what each follows (text)."""
+        rows, tied, targets = [], [], []
+        for start, m, sup in zip(self.map_starts, self.maps, self.support(commands, dirs)):
+            n = m.emap.n_nodes
+            g = m.emap.grid_deg
+            branches = 2 if m.bidirectional else 1
+            ok = [_read_span(sup[b * n:(b + 1) * n], self.MIN_NODE_SUPPORT) for b in range(branches)]
+            both = ok[0] & ok[1] if branches == 2 else ok[0]
+
+            def nearest(mask, i):
+                idx = np.flatnonzero(mask)
+                return int(idx[np.argmin(np.abs(g[idx] - g[i]))]) if idx.size else None
+
+            for b in range(branches):
+                other = 1 - b
+                for i in np.flatnonzero(~ok[b]):
+                    row = np.zeros(self.n_params)
+                    me = start + b * n + i
+                    row[me] = 1.0
+                    e = nearest(both, i) if branches == 2 and ok[other][i] else None
+                    if e is not None:  # f_i - r_i = f_e - r_e (the backlash of the nearest node read both ways)
+                        row[start + other * n + i] -= 1.0
+                        row[start + b * n + e] -= 1.0
+                        row[start + other * n + e] += 1.0
+                        text = f"the {('reverse', 'forward')[b]} branch there at the backlash of {g[e]:g} deg"
+                    else:
+                        e = nearest(ok[b], i)
+                        if e is None:
+                            continue  # (a branch no reading reaches at all: the identifiability check names it)
+                        row[start + b * n + e] -= 1.0
+                        text = f"its value at {g[e]:g} deg"
+                    rows.append(row)
+                    tied.append(self.names[me])
+                    targets.append(text)
+        A = np.vstack(rows) if rows else np.zeros((0, self.n_params))
+        return A, tied, targets
+
     def level_rows(self) -> Dict[str, Tuple[np.ndarray, str]]:
         """Per joint with an offset or a map: (row on x, text) of its angle level —
         the offset itself (dh) or the map level of :meth:`JointMap.level_row`."""
@@ -485,6 +568,14 @@ class SerialPositionModel:
                 out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no "
                            f"positioning deviation (a joint column in radians?)")
         return out
+
+
+def _read_span(support, least: float) -> np.ndarray:
+    """Nodes of a branch from the first to the last whose cumulative support, counted from that end of the grid,
+    reaches ``least`` (True inside): the branch's nodes beyond are the barely read ends."""
+    lo = np.cumsum(support) >= least
+    hi = np.cumsum(support[::-1])[::-1] >= least
+    return lo & hi
 
 
 def build_position_model(chain: SerialChain, commands, dirs=None, *, kind: str = "errormap",
@@ -601,6 +692,20 @@ class _Measurement:
         (``uncertainty``: held coordinates are 0, not their held values)."""
         vm, own = self._split(v)
         return {**self.model.layout(vm, uncertainty), **self._own_layout(own, uncertainty)}
+
+    def ties(self):
+        """The model's :meth:`SerialPositionModel.ties` for this measurement's poses, over all of ``names``:
+        (A, tied names, what each follows)."""
+        A, tied, targets = self.model.ties(self.commands, self.dirs)
+        return np.hstack([A, np.zeros((A.shape[0], len(self.own_names)))]), tied, targets
+
+    def roughness(self):
+        """The model's roughness rows (:meth:`SerialPositionModel.roughness`) over all of ``names`` (the
+        measurement's own parameters have none); None without maps."""
+        R = self.model.roughness()
+        if R is None:
+            return None
+        return sp.hstack([R, sp.csr_matrix((R.shape[0], len(self.own_names)))], format="csr")
 
     def _position_jacobian(self, x_model):
         """Tool points (M, 3) and their :class:`PositionJacobian`, each distinct pose evaluated once."""
