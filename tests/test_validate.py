@@ -76,7 +76,9 @@ def test_a_small_tracker_set_gets_the_geometric_model_and_a_reason(chain, case):
                                                                   if small else {}))
     camp = point_campaign(synthetic_campaign(truth, 80, seed=5, noise_mm=0.02 if small else 0.01))
     o = options() if small else options(regularize=True, **NO_SMOOTHING)
-    cv = cross_validate(chain, camp, o, folds=5, models="dh,errormap:30,errormap:15", seed=0)
+    # (the over-fitted case with one map grid: its regularized folds take most of this file's time)
+    models = "dh,errormap:30,errormap:15" if small else "dh,errormap:30"
+    cv = cross_validate(chain, camp, o, folds=5, models=models, seed=0)
     if not small:
         assert all(m["n_refused"] == 0 and m["mean_rms_mm"] > cv["models"][0]["mean_rms_mm"]
                    for m in cv["models"][1:]), [(m["name"], m["mean_rms_mm"]) for m in cv["models"]]

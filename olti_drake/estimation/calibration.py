@@ -57,6 +57,7 @@ gradients preconditioned by the identifiability check's factor -- no n³
 eigen-decomposition or n × n products, so ~4 000 unknowns identify in seconds.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import List
 
@@ -146,6 +147,13 @@ class SizeCap(int):
         return int(max(int(self), min(ITERATIONS_PER_UNKNOWN * int(unknowns), MAX_SIZE_CAP)))
 
 
+#: The description of the smoothness prior's cost on a program (results, propagation and the scaled program find
+#: it by it).
+SMOOTHNESS_PRIOR = "smoothness prior: roughness of the maps (second differences)"
+#: LM stops (and the acceptance refuses the fit by name) when every this many iterations the parameters are still
+#: physically impossible (:meth:`LeastSquaresProgram.implausible`): a fit that far off leads nowhere, and the
+#: size-fitted cap would otherwise let a doomed fit run for thousands of iterations.
+OUT_OF_BOUNDS_AFTER = 50
 #: The default of :attr:`SolverOptions.max_iterations`.
 SIZE_CAP = SizeCap(100)
 
@@ -635,7 +643,6 @@ class LeastSquaresProgram:
         (RMS over the robust sigma above :data:`HEAVY_TAIL_RATIO`). Then the program is fitted again from its
         start with the Huber loss at k = :data:`AUTO_HUBER_K`, the note naming the outlying lines (beyond the
         outlier threshold of the l2 residuals). Every other option as given."""
-        import dataclasses
         import types
 
         given = self.options
@@ -712,24 +719,23 @@ class LeastSquaresProgram:
         R = self._smoothing_rows()
         n = len(self.names)
         P = np.asarray((R.T @ R).todense())
-        setting, uncertainty, x0, given = self.options.smoothing, self._uncertainty, self.x0.copy(), getattr(self, "_given", None)
+        setting, uncertainty, x0 = self.options.smoothing, self._uncertainty, self.x0.copy()
+        given = getattr(self, "_given", None)
         if setting == "auto":  # start at a weight the prior and the data share (c of the scan, 10^-3 of it)
             _, J = self.residuals(x0)
             lam = 1e-3 * float(np.sum(J.multiply(J))) / max(float(np.trace(P)), 1e-300)
         else:
             lam = float(setting)
-        binding = self.prog.AddQuadraticCost(lam * P, np.zeros(n), self.variables, is_convex=True)
-        binding.evaluator().set_description("smoothness prior: roughness of the maps (second differences)")
+        binding = self._smoothing_binding(lam, P)
         choice, rounds, x = None, 0, x0
         options = self.options
         try:
-            import dataclasses
-
             self._given, self._uncertainty = None, False
             if options.loss == "auto":  # (the weight is chosen on the l2 fit; a robust refit keeps it)
                 self.options = dataclasses.replace(options, loss="l2")
             for rounds in range(1, self.SMOOTHING_ROUNDS + 1):
                 first = self._fit()
+                self.accept(first)  # (a fit refused here is refused as it is: no more rounds)
                 x = self.x0 = first.x
                 z = np.concatenate([x, np.array(list(first.extra.values()), dtype=float)])
                 choice = self._scan_smoothing(z, P, lam, given=setting != "auto")
@@ -745,21 +751,23 @@ class LeastSquaresProgram:
         self._smoothing = {"weight": lam, "P": P, "choice": choice, "rounds": rounds, "x": x, "binding": binding}
         return self._smoothing
 
+    def _smoothing_binding(self, weight: float, P):
+        """The prior's quadratic cost ½ λ xᵀPx on :attr:`prog`, described as :data:`SMOOTHNESS_PRIOR`."""
+        binding = self.prog.AddQuadraticCost(weight * P, np.zeros(len(self.names)), self.variables, is_convex=True)
+        binding.evaluator().set_description(SMOOTHNESS_PRIOR)
+        return binding
+
     def add_smoothing_prior(self, weight: float) -> dict:
         """The smoothness prior at a stated weight on :attr:`prog`, not chosen and without a fit (a result's prior,
         re-added for its propagation: ``olti uncertainty``); later fits of the program use it as given."""
         from olti_drake.estimation.smoothing import SmoothingChoice
-
-        import dataclasses
 
         self.options = dataclasses.replace(self.options, smoothing=float(weight))
         R = self._smoothing_rows()
         if R is None:
             raise InputError(f"{self.source}: a smoothness prior needs a model with error maps")
         P = np.asarray((R.T @ R).todense())
-        n = len(self.names)
-        binding = self.prog.AddQuadraticCost(float(weight) * P, np.zeros(n), self.variables, is_convex=True)
-        binding.evaluator().set_description("smoothness prior: roughness of the maps (second differences)")
+        binding = self._smoothing_binding(float(weight), P)
         choice = SmoothingChoice(float(weight), float("nan"), float("nan"), float("nan"), 0, method="given")
         self._smoothing = {"weight": float(weight), "P": P, "choice": choice, "rounds": 0, "x": self.x0.copy(),
                            "binding": binding}
@@ -1219,6 +1227,13 @@ class LeastSquaresProgram:
             lam = max(lam / 4.0, 1e-9)
             if cost - cost_new <= tol:
                 self._stop = (True, "the relative cost decrease of the last step is below 1e-12")
+                break
+            problems = (self.implausible(x[:n]) if steps >= OUT_OF_BOUNDS_AFTER and steps % OUT_OF_BOUNDS_AFTER == 0
+                        else [])
+            if problems:
+                # Still beyond physical bounds after so many steps: no iteration leads back (readings in metres,
+                # a wrong model file) -- stop here, not converged, naming what is impossible.
+                self._stop = (False, f"stopped at a physically impossible solution ({'; '.join(problems)})")
                 break
         self._final = (x, r, J)
         if self._stop is None and recent:

@@ -92,7 +92,7 @@ def restore_priors(cal, result, x) -> Priors:
 
     Without them the program of a regularized result is singular ("Singular matrix"), and one with a smoothness
     prior would be propagated as another estimator than the one that made the result."""
-    from olti_drake.estimation.calibration import UnidentifiableError
+    from olti_drake.estimation.calibration import SMOOTHNESS_PRIOR, UnidentifiableError
     from olti_drake.estimation.serial_identification import prior_weight
 
     data, n = result.data, len(cal.names)
@@ -105,7 +105,7 @@ def restore_priors(cal, result, x) -> Priors:
         R = rows() if rows is not None else None
         if R is not None and R.shape[0]:
             P = float(weight) * np.asarray((R.T @ R).todense())
-            _add_cost(cal, P, np.arange(n), x, "smoothness prior: roughness of the maps (second differences)")
+            _add_cost(cal, P, np.arange(n), x, SMOOTHNESS_PRIOR)
             Q += P
             notes.append(f"the result's smoothness prior re-added: weight {float(weight):.4g} "
                          f"({smoothing.get('method', '?')}) on the roughness of the maps")

@@ -95,11 +95,13 @@ def reml_scan(H_data, Q_other, P, g, x, A_eq, rss0: float, m: int, g_data=None, 
     Σ w r² at x, ``other0`` twice the other costs' value there; ``m`` readings (residual rows)."""
     K = H_data if Q_other is None else H_data + Q_other
     Ns, c = _reduced(K, P, A_eq)
-    Kr, Pr, Hr = (Ns.T @ M @ Ns for M in (K, P, H_data))
+    Kr, Pr = Ns.T @ K @ Ns, Ns.T @ P @ Ns
     mu, V = _generalized(Kr, Kr + c * Pr)  # VᵀKrV = diag(μ), Vᵀ(Kr + cPr)V = I: Kr + λPr ~ diag(μ + t(1 − μ))
     penalized = mu < 1.0 - 1e-9
     p0 = int(np.sum(~penalized))
-    Md = V.T @ Hr @ V  # the data's share (diag(μ) without other quadratic costs)
+    # The data's share VᵀHrV: diag(μ) itself without other quadratic costs (no n³ products then).
+    Md = None if Q_other is None else V.T @ (Ns.T @ H_data @ Ns) @ V
+    md = mu if Md is None else np.diag(Md).copy()
     a, b = V.T @ (Ns.T @ g), V.T @ (Ns.T @ (P @ x))
     ad = a if g_data is None else V.T @ (Ns.T @ g_data)
     xPx = float(x @ P @ x)
@@ -114,8 +116,9 @@ def reml_scan(H_data, Q_other, P, g, x, A_eq, rss0: float, m: int, g_data=None, 
         score = (m - p0) * np.log(F) + float(np.sum(np.log(d))) - float(np.sum(np.log(t * (1.0 - mu[penalized]))))
         if best is None or score < best[0]:
             coef = -(a + lam * b) / d
-            rss = rss0 + 2.0 * float(ad @ coef) + float(coef @ (Md @ coef))  # the data's own, at x + δ(λ)
-            best = (score, lam, float(np.sum(np.diag(Md) / d)), rss, e)
+            quad = float(md @ coef ** 2) if Md is None else float(coef @ (Md @ coef))
+            rss = rss0 + 2.0 * float(ad @ coef) + quad  # the data's own, at x + δ(λ)
+            best = (score, lam, float(np.sum(md / d)), rss, e)
     if best is None:
         raise np.linalg.LinAlgError("the smoothness weight's likelihood is nowhere finite")
     score, lam, tr, rss, e = best
