@@ -255,3 +255,21 @@ def test_the_scara_takes_the_prior_when_asked_and_its_uncertainty_re_adds_it(tmp
         return np.median(json.loads((tmp_path / f"u_{result}").read_text())["error_map"]["J2"]["forward_deg"])
 
     assert u("r.json") < 0.85 * u("stripped.json")
+
+
+def test_a_joint_flipped_by_180_degrees_is_named_as_such(ur5):
+    """SerialPositionModel.implausible: a map value or offset near a multiple of 180 deg is a flipped joint (the
+    mirror pose of the arm), named so; hundreds of degrees elsewhere stay the radians hint."""
+    from olti_drake.model.serial import build_position_model
+
+    c = synthetic_campaign(synthetic_truth(ur5, 1), 40, 1)
+    for kind in ("dh", "errormap"):
+        model = build_position_model(ur5, c.commands, c.dirs, kind=kind, tool_offset_mm=TOOL)
+        x = model.start_vector()
+        i = model.n_dense if kind == "errormap" else list(model.names).index("elbow_joint_offset_deg")
+        x[i] = -179.2
+        (flip,) = model.implausible(x)
+        assert model.names[i] in flip and "turned by 180 deg" in flip and "flipped" in flip
+        x[i] = 57.3 * 2  # (2 rad read as degrees)
+        (rad,) = model.implausible(x)
+        assert "radians" in rad and "flipped" not in rad

@@ -565,8 +565,14 @@ class SerialPositionModel:
             dev = np.abs(x[idx])
             if not dev.max() <= self.MAX_DEVIATION_DEG:
                 i = int(idx[np.argmax(np.where(np.isfinite(dev), dev, np.inf))])
+                # A deviation near a multiple of 180 deg is the joint turned over (a fit that found the mirror pose
+                # of the arm from a far start), not a unit slip: say so.
+                turns = abs(x[i]) / 180.0
+                why = (f"the joint turned by {180 * round(turns):g} deg from its zero -- a flipped solution: check "
+                       f"the joint's zero in the model file and the start" if abs(turns - round(turns)) * 180 <=
+                       self.MAX_DEVIATION_DEG and round(turns) >= 1 else "a joint column in radians?")
                 out.append(f"{self.names[i]} = {x[i]:.6g} deg is beyond {self.MAX_DEVIATION_DEG:g} deg, no "
-                           f"positioning deviation (a joint column in radians?)")
+                           f"positioning deviation ({why})")
         return out
 
 
