@@ -247,3 +247,26 @@ def test_recorded_priors_are_re_added_by_name(cases, tmp_path):
     assert any("regularize priors re-added" in t for t in unc["notes"])
     assert not any("rebuilt" in t or "records no priors" in t for t in unc["notes"])
     assert np.all(np.isfinite(unc["parameters"]["std"]))
+
+
+def test_the_lack_of_fit_is_stored_and_added_to_the_predicted_u(cases, tmp_path, capsys):
+    """covariance.lack_of_fit_mm (mm, >= 0) is what olti predict adds in quadrature to every u; a result whose
+    value is not a number >= 0 is refused in one line."""
+    d = cases["dir"]
+    doc = json.loads((d / "result.json").read_text())
+    assert doc["covariance"]["lack_of_fit_mm"] >= 0.0
+    doc["covariance"]["lack_of_fit_mm"] = 0.05
+    (tmp_path / "lack.json").write_text(json.dumps(doc))
+    assert main(["predict", str(d / "result.json"), str(d / "commands.csv"), "--out", str(tmp_path / "a.csv")]) == 0
+    assert main(["predict", str(tmp_path / "lack.json"), str(d / "commands.csv"), "--out", str(tmp_path / "b.csv")]) == 0
+    a, b = _read(tmp_path / "a.csv"), _read(tmp_path / "b.csv")
+    lack0 = json.loads((d / "result.json").read_text())["covariance"]["lack_of_fit_mm"]
+    for c in ("u_x_mm", "u_y_mm", "u_z_mm"):
+        assert np.allclose(b[c] ** 2 - a[c] ** 2, 0.05 ** 2 - lack0 ** 2, rtol=1e-3, atol=1e-9)
+    doc["covariance"]["lack_of_fit_mm"] = -1.0
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert main(["predict", str(tmp_path / "bad.json"), str(d / "commands.csv"), "--out", str(tmp_path / "c.csv")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lack_of_fit_mm" in err[0] and "Traceback" not in err[0], err
+    assert not (tmp_path / "c.csv").exists()

@@ -137,7 +137,8 @@ def _multilateration_summary(res, doc, problem) -> str:
 # -- the 21 ISO 230-1 error motions of a 3-axis machine -------------------------------------------------------------
 def _volumetric_options(args) -> dict:
     return dict(tool_offsets_mm=args.tool_offsets_mm, knot_spacing_mm=args.knot_spacing_mm, topology=args.topology,
-                pitch_mm=args.pitch_mm or 10.0, budget=args.budget, **_solver_options(args))
+                pitch_mm=args.pitch_mm or 10.0, budget=args.budget,
+                smoothing="off" if args.smoothing is None else args.smoothing, **_solver_options(args))
 
 
 def _volumetric_summary(res, doc, problem) -> str:

@@ -104,8 +104,9 @@ OPTIONS = (
     _robot_only("--compliance", "compliance", False),
     _robot_only("--drift", "drift", False),
     _robot_only("--cv", "cv"),
-    Option("identify", "--smoothing", "smoothing", ("serial", "scara"),
-           {None: "{flag} applies to the robots' error maps (--model errormap), not to --model volumetric"}),
+    Option("identify", "--smoothing", "smoothing", ("serial", "scara", "volumetric"),
+           {None: "{flag} applies to error maps and error motions (--model errormap, volumetric), not to the "
+                  "multilateration's free targets"}),
     # olti uncertainty: the result kinds (io.documents.read_result)
     Option("uncertainty", "--maps", "maps", ("scara",), {
         "serial": "{flag} is the SCARA figure; for a robot from a model file the maps with these error bars are in "

@@ -97,8 +97,9 @@ def predict(args) -> int:
     note = res.covariance_note
     comments = [f"olti predict: {args.result} applied to {args.commands}; tool point in the robot's root frame; "
                 f"mm and degrees"]
-    comments.append("u_*: standard uncertainties (k = 1) from the identification's covariance (linear propagation, "
-                    "JCGM 100)" if u is not None else f"{note}: no u_* columns")
+    comments.append(f"u_*: standard uncertainties (k = 1) from the identification's covariance (linear propagation, "
+                    f"JCGM 100) and its lack of fit {1e3 * res.lack_of_fit_mm:.3g} um in quadrature" if u is not None
+                    else f"{note}: no u_* columns")
     write_table(args.out, out, fmt, comments=comments)
     print(text)
     if note:

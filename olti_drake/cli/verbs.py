@@ -510,9 +510,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --robot: linear drift of each station's dead path in time, mm/h (distance campaigns "
                         "with a time_s column)")
     p.add_argument("--smoothing", type=cliargs.smoothing, default=None,
-                   help="with --robot errormap: the maps' roughness prior (second differences of each direction and "
-                        "of the backlash): auto (default; its weight by generalized cross-validation, stated in the "
-                        "result), off, or the weight itself (as a result's 'smoothing.weight' states it)")
+                   help="the smoothness prior of error maps (--robot errormap: second differences of each direction "
+                        "and of the backlash; default auto) and of volumetric error motions (the integral of the "
+                        "squared second derivative, finer knots; default off): auto (its weight by restricted "
+                        "maximum likelihood, stated in the result), off, or the weight itself (as a result's "
+                        "'smoothing.weight' states it)")
     p.add_argument("--cv", type=cliargs.integer(2), default=None, metavar="K",
                    help="with --robot: first print a K-fold cross-validation by pose of the candidate models "
                         "(olti validate's defaults and the model asked), then identify --model as asked")

@@ -228,6 +228,9 @@ class Fit:
     #: "given"), weight, score
     #: (−2 log restricted likelihood), effective parameters, readings, rounds; None without one.
     smoothing: dict = None
+    #: The model's own error (mm, k = 1) that every prediction shares: the residuals' σ beyond the readings' u
+    #: (:meth:`LeastSquaresProgram.lack_of_fit`); a predicted point's or reading's u adds it in quadrature.
+    lack_of_fit_mm: float = 0.0
 
 
 def _covariance_get(fit):
@@ -633,7 +636,7 @@ class LeastSquaresProgram:
         # and on a shared machine their spin-waiting made a Cholesky of 866 unknowns 7.2 s instead of 0.05 s;
         # results then also do not depend on the thread count.
         with single_thread_blas():
-            fit = self._smoothed_fit() if self._smoothing_rows() is not None else self._fit()
+            fit = self._smoothed_fit() if self.smoothing_rows() is not None else self._fit()
         self.accept(fit)
         return fit
 
@@ -694,7 +697,7 @@ class LeastSquaresProgram:
         finally:
             self.options = given
 
-    def _smoothing_rows(self):
+    def smoothing_rows(self):
         """The roughness rows when :attr:`SolverOptions.smoothing` asks for the prior and the model has maps."""
         setting = getattr(self.options, "smoothing", "off")
         if setting is None or (isinstance(setting, str) and setting == "off"):
@@ -716,7 +719,7 @@ class LeastSquaresProgram:
         state = getattr(self, "_smoothing", None)
         if state is not None:
             return state
-        R = self._smoothing_rows()
+        R = self.smoothing_rows()
         n = len(self.names)
         P = np.asarray((R.T @ R).todense())
         setting, uncertainty, x0 = self.options.smoothing, self._uncertainty, self.x0.copy()
@@ -763,7 +766,7 @@ class LeastSquaresProgram:
         from olti_drake.estimation.smoothing import SmoothingChoice
 
         self.options = dataclasses.replace(self.options, smoothing=float(weight))
-        R = self._smoothing_rows()
+        R = self.smoothing_rows()
         if R is None:
             raise InputError(f"{self.source}: a smoothness prior needs a model with error maps")
         P = np.asarray((R.T @ R).todense())
@@ -819,7 +822,14 @@ class LeastSquaresProgram:
             tr = sm.effective_parameters(H, H + Q, A)
             return sm.SmoothingChoice(lam, float("nan"), tr, rss, len(r), method="given")
         other0 = float(z @ Q_other @ z + 2.0 * q @ z)
-        return sm.reml_scan(H, other, Pn, g, z, A, rss, len(r), g_data=g_data, other0=other0)
+        return sm.reml_scan(H, other, Pn, g, z, A, rss, len(r), g_data=g_data, other0=other0,
+                            floor=self._smoothing_floor())
+
+    def _smoothing_floor(self) -> float:
+        """The reading variance (mm²) below which the smoothed fit's σ² is not taken: :meth:`reading_sigma`'s
+        (the budget's; a stated one where the readings barely exceed the unknowns), so that maps able to run
+        through every reading do not (:func:`~olti_drake.estimation.smoothing.reml_scan`)."""
+        return float(self.reading_sigma()[0]) ** 2
 
     def _smoothing_note(self, fit: "Fit", P, lam: float, choice) -> str:
         """What the prior did: its weight and how it was chosen, and the map values the readings leave to it."""
@@ -833,7 +843,7 @@ class LeastSquaresProgram:
         auto = fit.smoothing["method"] != "given"
         how = f"chosen by {choice.method}" if auto else "as given"
         score = f"-2 log likelihood {choice.score:.6g}, " if auto else ""
-        text = (f"smoothness prior on the maps (second differences of each direction and of the backlash), weight "
+        text = (f"smoothness prior on {self.smoothing_subject}, weight "
                 f"{lam:.4g} {how} ({score}{choice.effective_parameters:.1f} effective parameters of {n}, "
                 f"{choice.readings} readings)")
         if choice.at_edge and auto:
@@ -851,6 +861,8 @@ class LeastSquaresProgram:
 
     #: A map value whose u exceeds this multiple of the median u of its branch is named (issue 23).
     WIDE_U_RATIO = 10.0
+    #: What the smoothness prior acts on, as the fit's note says it (a model with other maps says its own).
+    smoothing_subject = "the maps (second differences of each direction and of the backlash)"
 
     def _wide_uncertainties(self, fit: "Fit") -> list:
         """Indexed parameters (``name[i]``: the nodes of one map branch) whose u exceeds :data:`WIDE_U_RATIO`
@@ -1437,7 +1449,9 @@ class LeastSquaresProgram:
             within = self.within(H + prior) if prior is not None else None
             data = self.within(H, overwrite=True)
             within = within or data
-        cond = data.condition()
+        # (smoothed: the problem solved is the readings' and the prior's -- the readings alone need not determine
+        # a fine map, the prior does)
+        cond = (within if getattr(self, "_effective", None) is not None else data).condition()
         self._stop = getattr(self, "_stop", (True, "solved"))
         self._weak = within.weak_names(self._all_names())  # what the covariance (with priors) cannot determine
         # With a smoothness prior, the parameters the readings determine are tr A (< dim): the residual variance
@@ -1445,6 +1459,9 @@ class LeastSquaresProgram:
         effective = getattr(self, "_effective", None)
         dof = max(len(r) - (within.dim if effective is None else effective), 1)
         sigma2 = np.sum(weights * r * r) / dof
+        lack = self.lack_of_fit(sigma2)
+        if effective is not None:  # the smoothed fit's σ², as its weight's choice took it (not below the floor)
+            sigma2 = max(sigma2, self._smoothing_floor())
         if within.large:  # the variances from the factor; the (n, n) matrix only when read
             var = within.inverse_diagonal()[:n] * sigma2
             cov_x = lambda: within.inverse()[:n, :n] * sigma2  # noqa: E731
@@ -1455,7 +1472,36 @@ class LeastSquaresProgram:
         order = np.argsort(-np.abs(zr))
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
                for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
-        return self._make_fit(z, np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond, out)
+        fit = self._make_fit(z, np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond, out)
+        fit.lack_of_fit_mm = lack[0]
+        if lack[1]:
+            fit.notes.append(lack[1])
+        return fit
+
+    #: A lack of fit below this share of the residuals' σ is not stated (the residuals are the readings' noise).
+    LACK_OF_FIT_SHARE = 0.25
+    #: Whether this kind's predictions add :meth:`lack_of_fit` to their u (and its fits state it).
+    predicts_lack_of_fit = False
+
+    def lack_of_fit(self, sigma2: float):
+        """(e mm, note): the model's own error at a prediction -- what the residuals' variance σ² (mm², over the
+        readings less the parameters they determine) holds beyond the readings' u. The parameters' covariance
+        σ² (JᵀJ)⁻¹ is the error of the fit's estimate; a point the model predicts also carries the model's
+        misfit, which the residuals show and a truth outside the model family has everywhere (a geometric model
+        of a robot with joint deviations; maps between their nodes): e² = σ² − u_reading², u_reading of
+        :meth:`reading_sigma` (the budget's; without one the residuals' at the start, or a stated one where the
+        readings barely exceed the unknowns). 0 where it is below :data:`LACK_OF_FIT_SHARE` of σ (the residuals
+        are the readings' noise)."""
+        if not self.predicts_lack_of_fit:
+            return 0.0, ""
+        sigma = float(np.sqrt(max(sigma2, 0.0)))
+        reading, what = self.reading_sigma()
+        e = float(np.sqrt(max(sigma2 - reading ** 2, 0.0)))
+        if not np.isfinite(e) or e <= self.LACK_OF_FIT_SHARE * sigma or e == 0.0:
+            return 0.0, ""
+        return e, (f"lack of fit: the residuals' sigma {1e3 * sigma:.3g} um exceeds the readings' u of "
+                   f"{1e3 * reading:.3g} um ({what}): a model error of {1e3 * e:.3g} um that every predicted point "
+                   f"and reading shares is added to their u")
 
     def at_solution(self, x, r, J) -> None:
         """Hook: a model's own work at the solution x (residuals r, Jacobian J) that needs no covariance -- e.g.

@@ -435,8 +435,7 @@ class Identifier(Calibration):
         P0 = None if o.reflectors_mm is None else np.asarray(o.reflectors_mm, dtype=float).reshape(-1, 2)
         if P0 is not None and len(P0) != self.n_t:
             raise InputError(f"reflectors_mm gives {len(P0)} positions but the campaign has {self.n_t} reflectors")
-        fits = [station_fit(p[self.data.reflector == j], self.data.displacement_mm[self.data.reflector == j],
-                               None if P0 is None else P0[j]) for j in range(self.n_t)]
+        fits = [self._reflector_fit(j, p, None if P0 is None else P0[j]) for j in range(self.n_t)]
         if P0 is None:
             for j, f in enumerate(fits):
                 rows = self.data.reflector == j
@@ -456,13 +455,27 @@ class Identifier(Calibration):
         return P, np.array([f[1] for f in fits])
 
 
+    def _reflector_fit(self, j, p, start):
+        """station_fit of reflector j's readings on the nominal positions p; when its Gauss-Newton meets a singular
+        step (readings of flipped sign may, depending on rounding), the flipped readings are tried first, so that
+        the cause is named as such (:meth:`_check_reading_sign`)."""
+        from olti_drake.estimation.calibration import StationFitFailed
+
+        rows = self.data.reflector == j
+        try:
+            return station_fit(p[rows], self.data.displacement_mm[rows], start)
+        except StationFitFailed:
+            if start is None:
+                self._check_reading_sign(j, p[rows], self.data.displacement_mm[rows], None)
+            raise
+
     def _check_reading_sign(self, j, p, d, fit):
         """Refuse reflector j's readings d (mm) when they fit distances from the nominal tool points p only with
         their sign flipped (start-fit RMS over :data:`SIGN_CHECK_MM` as given, 10 x less flipped): the layout
         or the solution would be blamed otherwise."""
         from olti_drake.estimation.calibration import _rms, lengths
 
-        given = _rms(lengths(p - fit[0]) - fit[1] - d)
+        given = np.inf if fit is None else _rms(lengths(p - fit[0]) - fit[1] - d)  # (None: no fit as given)
         if not given > SIGN_CHECK_MM:
             return
         try:
@@ -470,9 +483,10 @@ class Identifier(Calibration):
         except ValueError:
             return
         flipped = _rms(lengths(p - P) - L0 + d)
-        if flipped < 0.1 * given:
+        if flipped < min(0.1 * given, 10 * SIGN_CHECK_MM):
+            as_given = "no fit" if not np.isfinite(given) else f"start-fit RMS {given:.4g} mm"
             raise InputError(f"{self.data.source}: reflector {j}: refused -- its readings fit distances from the "
-                             f"nominal arm only with their sign flipped (start-fit RMS {given:.4g} mm as given, "
+                             f"nominal arm only with their sign flipped ({as_given} as given, "
                              f"{flipped:.4g} mm flipped): displacement_mm must grow as the beam lengthens (formats.md)")
 
 

@@ -265,7 +265,7 @@ class CalibrationProblem:
                                          self._variables[idx])
             c.evaluator().set_description(e.get_description() or "constraint of the model")
             self._remember(self._own, c.evaluator())
-        if program._smoothing_rows() is not None:
+        if program.smoothing_rows() is not None:
             # The maps' smoothness prior at its weight (chosen from the data once, by the engine): every solver of
             # prog solves the program LM fits. ½ λ (x0 + s z)ᵀ P (x0 + s z), its constant dropped.
             state = program.smoothing_weight()

@@ -122,6 +122,8 @@ class SerialCalibration(Calibration):
     untouched_hint = "add readings that move those joints, or run with --regularize"
     vague_hint = ("add stations or poses that move those joints further, or run with --regularize (a weak prior "
                   "of that sigma, stated)")
+    #: olti predict adds the fit's lack of fit to the u of its tool points and readings.
+    predicts_lack_of_fit = True
 
     def plausible_u(self):
         """:data:`U_BOUND` for the position model's location errors, joint offsets and tool point (not map nodes,

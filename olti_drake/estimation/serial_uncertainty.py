@@ -311,22 +311,31 @@ def predicted_reading_std(result, commands, dirs, station, time_s=None):
     """(predicted readings (M,) mm, their u (M,) mm (k = 1) or None): ‖p − P_j‖ − d0_j of every row by the result,
     and sqrt(diag(J C Jᵀ)) with J the reading's Jacobian over the model's and the stations' parameters (station
     position, dead path, drift: :meth:`~olti_drake.model.serial.DistanceMeasurement.residuals`) and C the result's
-    stored covariance over them; u None when the result stores no covariance."""
+    stored covariance over them, with the result's lack of fit added in quadrature; u None when the result stores
+    no covariance."""
     meas = reading_measurement(result, commands, dirs, station, time_s)
     x = meas.start_vector()
     r, J = meas.residuals(x)
     C = result.covariance_of(meas.names)
-    return r, (None if C is None else predicted_std(J, C))
+    return r, (None if C is None else with_lack_of_fit(predicted_std(J, C), result.lack_of_fit_mm))
+
+
+def with_lack_of_fit(u, lack_of_fit_mm: float):
+    """u (any shape, mm) with the fit's model error (mm) added in quadrature: the u of a predicted point
+    coordinate or reading (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.lack_of_fit`)."""
+    return np.sqrt(np.square(u) + float(lack_of_fit_mm) ** 2)
 
 
 def predicted_point_std(result, commands, dirs):
     """(tool points (M, 3) mm, their u (M, 3) mm (k = 1) or None) by the result's model and stored covariance
-    (:func:`tool_point_uncertainty`); u None when the result stores no covariance."""
+    (:func:`tool_point_uncertainty`, each coordinate's u with the result's lack of fit added in quadrature); u None
+    when the result stores no covariance."""
     model = result.model
     C = result.covariance_of(model.names)
     if C is None:
         return model.positions(commands, dirs), None
-    return tool_point_uncertainty(model, commands, dirs, cov=C)
+    p, u = tool_point_uncertainty(model, commands, dirs, cov=C)
+    return p, with_lack_of_fit(u, result.lack_of_fit_mm)
 
 
 def workspace_uncertainty(model, n_poses: int = 400, seed: int = 0, cov=None, samples=None) -> dict:

@@ -84,10 +84,22 @@ def _generalized(A, B):
     return np.clip(mu, 0.0, 1.0), V
 
 
-def reml_scan(H_data, Q_other, P, g, x, A_eq, rss0: float, m: int, g_data=None, other0: float = 0.0):
+def _variance_term(F: float, dof: int, floor: float) -> float:
+    """−2 log L's σ² part at its best σ² ≥ ``floor``: dof log σ² + F/σ², σ² = max(F/dof, floor)."""
+    dof = max(dof, 1)
+    s2 = max(F / dof, floor)
+    return dof * np.log(s2) + F / s2
+
+
+def reml_scan(H_data, Q_other, P, g, x, A_eq, rss0: float, m: int, g_data=None, other0: float = 0.0,
+              floor: float = 0.0):
     """The :class:`SmoothingChoice` of greatest restricted likelihood on the linearization at x (module doc):
-    −2 log L(λ) = (m − p₀) log F(λ) + log det(K + λP) − log det₊(λP) + const, F(λ) the penalized cost (twice
-    the program's cost) at its minimum, p₀ the unknowns the prior leaves free.
+    −2 log L(λ) = (m − p₀) log σ²(λ) + F(λ)/σ²(λ) + log det(K + λP) − log det₊(λP) + const, F(λ) the penalized
+    cost (twice the program's cost) at its minimum, p₀ the unknowns the prior leaves free, σ²(λ) the reading
+    variance at its best: F/(m − p₀), but not below ``floor`` (mm², the readings' stated variance). Without the
+    floor the likelihood is flat wherever the maps can run through every reading (fewer readings than map
+    values: F → 0 as λ → 0, and with it σ²), and the scan would end at the interpolating weight -- a fit with
+    no residual and no u; the stated reading variance makes interpolation improbable there.
 
     ``H_data`` (n, n) = JᵀWJ; ``Q_other`` (n, n) or None: the Hessian of the program's other quadratic costs;
     ``P`` (n, n) = RᵀR; ``g`` (n,) the gradient of the data cost and the other costs at x (``g_data``: of the
@@ -113,7 +125,8 @@ def reml_scan(H_data, Q_other, P, g, x, A_eq, rss0: float, m: int, g_data=None, 
         F = rss0 + other0 + lam * xPx - float(np.sum((a + lam * b) ** 2 / d))
         if not F > 0:
             continue
-        score = (m - p0) * np.log(F) + float(np.sum(np.log(d))) - float(np.sum(np.log(t * (1.0 - mu[penalized]))))
+        score = (_variance_term(F, m - p0, floor) + float(np.sum(np.log(d)))
+                 - float(np.sum(np.log(t * (1.0 - mu[penalized])))))
         if best is None or score < best[0]:
             coef = -(a + lam * b) / d
             quad = float(md @ coef ** 2) if Md is None else float(coef @ (Md @ coef))

@@ -55,7 +55,8 @@ from olti_drake.model.measurements import StationDistanceMeasurement
 # IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD: the motion values no machine has (re-exported)
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD,  # noqa: F401
                                            MachineConfig, VolumetricModel, VolumetricPositionModel, motion_names,
-                                           motion_role, motion_unit, observability, check_table_sizes)
+                                           motion_role, motion_roughness, motion_unit, observability,
+                                           roughness_lever_mm, check_table_sizes)
 
 #: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns
 #: (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE_CONDITIONS`).
@@ -83,13 +84,18 @@ def volumetric_campaign(data, source: str = ""):
 class VolumetricOptions(SolverOptions):
     """Solver options plus the machine: ``tool_offsets_mm`` (one [x, y, z] per tool index, mm: tool 0's
     taken as given, the others' errors estimated; None: a 1-tool campaign at the spindle reference point),
-    ``knot_spacing_mm`` (None: :func:`default_knot_spacing`), ``topology`` (a key of :data:`TOPOLOGIES`),
+    ``knot_spacing_mm`` (None: :func:`default_knot_spacing`, or :func:`smooth_knot_spacing` with the smoothness
+    prior: ``smoothing`` 'auto' or a weight, the engine's :attr:`SolverOptions.smoothing`), ``topology`` (a key of :data:`TOPOLOGIES`),
     ``pitch_mm``: the stated positions of the motion values and their uncertainties."""
 
     tool_offsets_mm: Optional[Sequence[Sequence[float]]] = None
     knot_spacing_mm: Optional[float] = None
     topology: str = "serial"
     pitch_mm: float = 10.0
+    #: The motions' smoothness prior (issue 23): 'off' (default: the knots alone, the resolution check guarding u),
+    #: 'auto' (its weight by restricted maximum likelihood, on knots twice as fine as the commanded positions), or
+    #: a weight.
+    smoothing: object = "off"
     #: Run :meth:`VolumetricIdentification.resolution_check` after the solve (a second fit on finer knots; the
     #: stated u inflated when the two disagree beyond it).
     check_resolution: bool = True
@@ -110,6 +116,24 @@ def default_knot_spacing(commands_mm) -> float:
     for k in range(3):
         distinct = len(np.unique(np.round(c[:, k], 6)))
         n = int(np.clip(distinct - 5, 1, 8))
+        spacing = max(spacing, float(np.ptp(c[:, k])) / n)
+    return float(np.ceil(spacing * 10.0 - 1e-9) / 10.0)
+
+
+#: The most knot intervals per axis the smoothed default gives (18 motions x 35 coefficients per axis at most).
+SMOOTH_MAX_INTERVALS = 32
+
+
+def smooth_knot_spacing(commands_mm) -> float:
+    """Knot spacing (mm) with the smoothness prior: two intervals per step between distinct command positions
+    (the prior, not the positions, then decides what the motions hold between them; measured on simulated
+    campaigns, issue 23: finer knots change nothing more), at most :data:`SMOOTH_MAX_INTERVALS` per axis; the
+    largest such interval over the axes, rounded up to 0.1 mm."""
+    c = np.asarray(commands_mm, float)
+    spacing = 0.0
+    for k in range(3):
+        distinct = len(np.unique(np.round(c[:, k], 6)))
+        n = int(np.clip(2 * (distinct - 1), 1, SMOOTH_MAX_INTERVALS))
         spacing = max(spacing, float(np.ptp(c[:, k])) / n)
     return float(np.ceil(spacing * 10.0 - 1e-9) / 10.0)
 
@@ -143,7 +167,7 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
                          f"0..{data.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     if options.topology not in TOPOLOGIES:
         raise InputError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {options.topology!r}")
-    spacing = options.knot_spacing_mm or default_knot_spacing(c)
+    spacing = options.knot_spacing_mm or (smooth_knot_spacing(c) if smoothed(options) else default_knot_spacing(c))
     tool_chain, work_chain = TOPOLOGIES[options.topology]
     try:
         config = MachineConfig(tool_chain=tool_chain, work_chain=work_chain,
@@ -152,8 +176,15 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
     except ValueError as e:
         raise InputError(f"{data.source}: {e}") from None
     check_table_sizes(config, options.pitch_mm)  # the result's motion tables, before any work
-    _check_positions(data, config)
+    if not smoothed(options):  # (with the smoothness prior, the prior holds what no position determines)
+        _check_positions(data, config)
     return config
+
+
+def smoothed(options) -> bool:
+    """Whether ``options`` ask for the motions' smoothness prior (``smoothing`` 'auto' or a weight)."""
+    setting = getattr(options, "smoothing", "off")
+    return not (setting is None or (isinstance(setting, str) and setting == "off"))
 
 
 def _check_positions(data: MachineCampaign, config: MachineConfig) -> None:
@@ -204,7 +235,8 @@ def _priority(obs, name) -> tuple:
     return (obs.trades_with[name] != (), motion_role(name) != "roll", ALL_MOTIONS.index(name))
 
 
-def separable_motions(model: VolumetricModel, commands_mm, tool, stations_mm) -> Tuple[Dict[str, str], object]:
+def separable_motions(model: VolumetricModel, commands_mm, tool, stations_mm,
+                      prior=None) -> Tuple[Dict[str, str], object]:
     """The motions this campaign cannot separate, to hold at 0, with the note saying why; and the final
     :class:`~olti_drake.model.volumetric3d.MotionObservability` (all remaining separable).
 
@@ -212,11 +244,13 @@ def separable_motions(model: VolumetricModel, commands_mm, tool, stations_mm) ->
     *angular* motions are held at 0 one at a time (those no reading depends on all at once; then rolls
     first, then ISO order) until the rest separates -- the motions they traded with then carry their
     effect at the measured tool points. An inseparable linear motion, squareness or tool offset is not
-    a matter of choice: it is refused (:class:`UnidentifiableError` naming them).
+    a matter of choice: it is refused (:class:`UnidentifiableError` naming them). ``prior``: the smoothness
+    prior's rows over the model's parameters (:func:`~olti_drake.model.volumetric3d.motion_roughness`): what they
+    determine (a motion's shape between the commanded positions) is separable; what they leave (its trend) is not.
     """
     held: Dict[str, str] = {}
     for _ in range(len(ALL_MOTIONS)):
-        obs = observability(model, commands_mm, tool, stations_mm, held=tuple(held))
+        obs = observability(model, commands_mm, tool, stations_mm, held=tuple(held), prior=prior)
         angular = [n for n in obs.inseparable if n in ALL_MOTIONS and motion_unit(n) == "urad"]
         if not obs.inseparable:
             return held, obs
@@ -261,7 +295,9 @@ class VolumetricIdentification(Calibration):
         self.model = VolumetricModel(self.config, identify_tool_offsets=len(self.config.tools) > 1)
         self._check_counts()
         stations0, dead0 = self._station_start()
-        self.held, self.observability = separable_motions(self.model, data.commands_mm, data.tool, stations0)
+        prior = motion_roughness(self.model, roughness_lever_mm(data.commands_mm)) if smoothed(o) else None
+        self.held, self.observability = separable_motions(self.model, data.commands_mm, data.tool, stations0,
+                                                          prior=prior)
         self.position_model = VolumetricPositionModel(self.model, data.commands_mm, data.tool, held=tuple(self.held))
         self.free_cols = self.position_model.free_cols
         self.n_model = self.position_model.n_params
@@ -280,6 +316,12 @@ class VolumetricIdentification(Calibration):
             self.notes.append("tool offsets not given (--tool-offsets-mm): started from the 3D multilateration's "
                               "estimate relative to tool 0: " + "; ".join(
                                   ",".join(f"{v:.4f}" for v in t) for t in self.config.tools) + " mm")
+
+    @property
+    def smoothing_subject(self) -> str:
+        return (f"the error motions (the integral of each one's squared second derivative over its travel, an "
+                f"angular motion's at a lever of {self.position_model.roughness_lever_mm():.4g} mm; knots every "
+                f"{self.config.knot_spacing_mm:g} mm)")
 
     def implausible_cause(self, fit) -> str:
         """Given tool offsets that the readings' own estimate (the 3D multilateration's, as without
@@ -359,9 +401,14 @@ class VolumetricIdentification(Calibration):
         budget = budget or default_budget("machine")
         self._solve_budget = budget
         f = self.fit()
-        f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
-        f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
-        resolution = self.resolution_check(f, budget) if self.options.check_resolution else None
+        if f.smoothing is None:
+            f.covariance = linear_covariance(self, f.x, ReadingErrors(budget))
+            f.std = np.sqrt(np.maximum(np.diag(f.covariance), 0))
+        # (smoothed: the fit's own posterior covariance σ² (JᵀJ + λP)⁻¹, σ not below the budget's reading u --
+        # it holds the motions' error between their knots, which the sandwich of the budget alone does not; no
+        # resolution check: the prior, not the knots, sets what the motions can hold)
+        check = self.options.check_resolution and f.smoothing is None
+        resolution = self.resolution_check(f, budget) if check else None
         if resolution:
             f.resolution = resolution  # (the result's ``resolution_check``: io.documents.result_document)
         if resolution and resolution.get("inflation", 1.0) > 1.0:

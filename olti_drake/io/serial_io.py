@@ -435,7 +435,8 @@ def covariance_entry(fit) -> dict:
         return {}
     C = 0.5 * (C + C.T)
     return {"covariance": {"names": names, "lower": C[np.tril_indices(len(names))].tolist(), "k": 1,
-                           "packing": "lower triangle row by row: C[0,0], C[1,0], C[1,1], C[2,0], ..."}}
+                           "packing": "lower triangle row by row: C[0,0], C[1,0], C[1,1], C[2,0], ...",
+                           "lack_of_fit_mm": float(getattr(fit, "lack_of_fit_mm", 0.0) or 0.0)}}
 
 
 def program_priors(program) -> list:
@@ -538,6 +539,16 @@ class SerialResult:
                              f"of this model)")
         idx = np.array([index[n] for n in names], int)
         return self.covariance[np.ix_(idx, idx)]
+
+    @property
+    def lack_of_fit_mm(self) -> float:
+        """The fit's model error (mm, k = 1; ``covariance.lack_of_fit_mm``, 0 when absent) that every prediction
+        shares, added in quadrature to the u the covariance gives (:meth:`LeastSquaresProgram.lack_of_fit`)."""
+        entry = self.data.get("covariance")
+        value = entry.get("lack_of_fit_mm", 0.0) if isinstance(entry, dict) else 0.0
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+            raise InputError(f"key 'covariance.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
+        return float(value)
 
     @property
     def covariance_note(self) -> str:

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from typing import Dict, Sequence, Tuple
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.interpolate import BSpline
 
 from olti_drake.formats import VOLUMETRIC_RESULT, result_header
@@ -759,6 +760,23 @@ class VolumetricPositionModel:
         vals = vals[:, points]
         return p[:, points], self._cols[points], tuple(vals[:, :, c] for c in range(3))
 
+    def roughness(self):
+        """The smoothness prior's rows over :attr:`names` (issue 23; its weight the engine's,
+        :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_weight`):
+        :func:`motion_roughness` of the identified (not held) motions, at the lever
+        :meth:`roughness_lever_mm`."""
+        cols = np.full(self.model.n_params, -1)
+        cols[self.free_cols] = np.arange(self.n_params)
+        R = motion_roughness(self.model, self.roughness_lever_mm())
+        keep = cols >= 0
+        R = R[:, keep]
+        R = R[np.asarray(abs(R).sum(axis=1)).ravel() > 0]
+        return R.tocsr() if R.shape[0] else None
+
+    def roughness_lever_mm(self) -> float:
+        """:func:`roughness_lever_mm` of the commands (mm)."""
+        return roughness_lever_mm(self.commands_mm)
+
     def layout(self, v, uncertainty: bool = False) -> dict:
         """A parameter-shaped vector (values or uncertainties) as result.json's ``model``: the model's full vector
         (``VolumetricModel.parameter_names()``; held motions 0)."""
@@ -782,6 +800,35 @@ class VolumetricPositionModel:
                 if np.abs(v[:, r]).max() > limit:
                     out.append(f"{name} reaches {np.abs(v[:, r]).max():.6g} {motion_unit(name)} (over {limit:g})")
         return out
+
+
+def roughness_lever_mm(commands_mm) -> float:
+    """The lever (mm) at which an angular motion's roughness counts as the tool point's: half the commands'
+    travel diagonal (ε µrad turns a point that far away by ε·lever·10⁻⁶ mm)."""
+    return 0.5 * float(np.linalg.norm(np.ptp(np.asarray(commands_mm, float), axis=0))) or 1.0
+
+
+def motion_roughness(model: VolumetricModel, lever_mm: float) -> sp.csr_matrix:
+    """Rows R over the model's parameter vector with ‖R θ‖² = Σ_motions s² ∫ f''(q)² dq over each motion's
+    travel (f = Σ c_j B_j its B-spline): exact, f'' of a cubic B-spline being piecewise linear, by two
+    Gauss-Legendre points per knot interval. s = 1 for a linear motion (mm); lever_mm·10⁻⁶ for an angular one
+    (µrad): its roughness counted at the tool point it moves, so that one weight serves mm and µrad alike.
+    Squareness and tool offsets: no rows (constants). Units: mm/mm² · √mm."""
+    splines = model.motions(model.zeros())
+    nodes, weights = np.polynomial.legendre.leggauss(2)
+    blocks = []
+    for name in ALL_MOTIONS:
+        axis, sl = name[3], model.slices[name]
+        inner = np.unique(model.config.knots(axis))
+        h = np.diff(inner)
+        q = (inner[:-1, None] + 0.5 * h[:, None] * (1.0 + nodes[None, :])).ravel()
+        w = (0.5 * h[:, None] * weights[None, :]).ravel()
+        scale = lever_mm * URAD if motion_unit(name) == "urad" else 1.0
+        b2 = splines._splines[axis].derivative(2)(q)[:, model.free[name]] * (np.sqrt(w)[:, None] * scale)
+        block = np.zeros((len(q), model.n_params))
+        block[:, sl] = b2
+        blocks.append(sp.csr_matrix(block))
+    return sp.vstack(blocks, format="csr")
 
 
 # --------------------------------------------------------------------------- observability
@@ -827,7 +874,8 @@ def _rigid_columns(p) -> np.ndarray:
 
 
 def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, params=None,
-                  rtol: float = 1e-8, share: float = 1e-3, held: Sequence[str] = ()) -> MotionObservability:
+                  rtol: float = 1e-8, share: float = 1e-3, held: Sequence[str] = (),
+                  prior=None) -> MotionObservability:
     """Which of the 21 error motions a campaign layout separates (up to the representation's gauge).
 
     Measurement: 3D target positions in an unknown frame (``stations_mm`` None:
@@ -840,7 +888,9 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
     (2-norm of the block of the orthonormal null basis); an inseparable one is
     reported with the motions sharing its null directions ("gauge" when the
     nuisance columns take part). ``held``: motions (or ``tool<m>`` groups) taken out of the
-    unknowns, as held at 0: their columns are dropped and they are not reported.
+    unknowns, as held at 0: their columns are dropped and they are not reported. ``prior``: rows of a
+    prior over the model's parameters (the smoothness prior, :func:`motion_roughness`), stacked under the
+    projected readings: the directions it determines are no null directions (its weight changes no rank).
     """
     x = model.zeros() if params is None else np.asarray(params, float)
     p, J = model.jacobian(commands_mm, tool, x)
@@ -869,8 +919,11 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         Un, sn, _ = np.linalg.svd(N / np.linalg.norm(N, axis=0), full_matrices=False)
         Qn = Un[:, sn > 1e-10 * sn[0]]
         proj = unit - Qn @ (Qn.T @ unit)
-        _, s, Vt = np.linalg.svd(proj, full_matrices=False)
-    null = Vt[s <= rtol * s[0]].T
+        if prior is None:
+            _, s, Vt = np.linalg.svd(proj, full_matrices=False)
+            null = Vt[s <= rtol * s[0]].T
+        else:
+            null, s = _null_within_prior(proj, prior, norms, model, held, rtol)
     groups = [g for g in list(ALL_MOTIONS) + list(SQUARENESS) + list(model.tool_groups) if g not in held]
     block = {g: np.linalg.norm(null[model.slices[g]], 2) if null.size else 0.0 for g in groups}
     separable = {g: bool(block[g] <= share) for g in groups}
@@ -885,8 +938,36 @@ def observability(model: VolumetricModel, commands_mm, tool, stations_mm=None, p
         if np.linalg.norm(unit @ vecs) > 1e-6:
             partners.append("gauge")
         trades[g] = tuple(partners)
-    n_held = sum(model.slices[g].stop - model.slices[g].start for g in held)
+    n_held = 0 if prior is not None else sum(model.slices[g].stop - model.slices[g].start for g in held)
     return MotionObservability(separable, trades, null.shape[1] - n_held, s, rtol, what, tuple(held))
+
+
+def _null_within_prior(proj, prior, norms, model: VolumetricModel, held, rtol: float):
+    """(null basis (n, z), singular values) of the projected, column-scaled readings ``proj`` (rows, n) within the
+    null space of a prior (rows (r, n) over the model's parameters): the prior determines every direction it
+    penalizes (of a smoothness prior: a motion's shape, leaving its trend), so only the directions it leaves
+    can be unseen -- exactly, whatever its weight. The basis is orthonormal, in the scaled coordinates of
+    ``proj``, 0 on the ``held`` groups (no unknowns)."""
+    keep = np.ones(model.n_params, bool)
+    for g in held:
+        keep[model.slices[g]] = False
+    Rp = np.asarray(prior.todense() if hasattr(prior, "todense") else prior, float)
+    Rp = (Rp / np.where(norms > 1e-12 * norms.max(), norms, 1.0))[:, keep]  # in the scaled coordinates
+    _, sr, Vr = np.linalg.svd(Rp, full_matrices=True)
+    rank = int(np.sum(sr > 1e-10 * max(sr.max(initial=0.0), 1e-300)))
+    NR = Vr[rank:].T  # (k, f): the directions the prior leaves free
+    A = proj[:, keep] @ NR
+    scale = np.linalg.norm(A, axis=0)
+    unit = A / np.where(scale > 1e-12 * max(scale.max(initial=0.0), 1e-300), scale, np.inf)
+    _, s, Vt = np.linalg.svd(unit, full_matrices=False)
+    v = Vt[s <= rtol * s[0]].T if s.size else np.zeros((NR.shape[1], 0))
+    null = np.zeros((model.n_params, v.shape[1]))
+    if v.size:
+        d = np.where(np.isfinite(unit).all(axis=0) & (np.abs(unit).sum(axis=0) > 0), 1.0 / np.maximum(scale, 1e-300),
+                     1.0)  # unit v = 0 <=> A (D⁻¹ v) = 0; a column no reading sees is a null direction as it is
+        back = NR @ (v * d[:, None])
+        null[keep] = np.linalg.qr(back)[0]
+    return null, s
 
 
 # --------------------------------------------------------------------------- compensation

@@ -1,0 +1,715 @@
+"""The errors of a five-axis machine by their ISO 230-1 / ISO 230-7 names, as one more position model of the one
+calibration engine (issue 25, item 2; ``docs/five_axis.md`` states every convention).
+
+* Rotary axis L (A, B or C, turning about x, y or z at zero commands): the **location errors** of its axis
+  average line (ISO 230-7): its position in the two radial directions (``E_X0C_mm``, ``E_Y0C_mm`` for C;
+  ``E_Y0A_mm``, ``E_Z0A_mm`` for A), its orientation about the two radial directions (``E_A0C_urad``,
+  ``E_B0C_urad``; ``E_B0A_urad``, ``E_C0A_urad``), its zero angle (``E_C0C_urad``; ``E_A0A_urad``) and, when
+  asked, the axial position (``E_Z0C_mm``); and its six **error motions** as functions of its own commanded
+  angle (``E_XC``, ``E_YC`` radial, ``E_ZC`` axial, mm; ``E_AC``, ``E_BC`` tilt, ``E_CC`` angular positioning,
+  µrad), piecewise linear on a grid of the command (paper 000's bidirectional map, Eq. 6-9, values at nodes:
+  ``E_CC_forward_urad[3]``, ``E_CC_reverse_urad[3]``; one branch, ``forward``, without direction columns).
+* Linear axes: the 18 error motions and 3 squareness errors of :mod:`olti_drake.model.volumetric3d` (its
+  B-spline parameters ``E_XX[j]`` …, ``E_C0Y_urad`` …), identified (``linear="identify"``), taken from an earlier
+  volumetric result (``linear=`` its motions) or absent (``linear=None``).
+* Tool offsets: tool m's point in the tool frame (mm); the errors of tools 1, 2, … (``tool1_x_mm``, …) when
+  identified, as the 3D machine.
+
+Kinematics: each error is an exact small transform Trans(t)·Rx(a)Ry(b)Rz(c) inserted in the loop
+workpiece → tool of :class:`~olti_drake.model.five_axis.FiveAxisMachine`, its components along the machine axes
+(base frame at zero commands) of the body carrying it (they move with the axes between it and the base: C's errors
+tilt with A). A rotary axis' errors sit in
+its carrier (the non-rotating side, ISO 230-7): after the joint's motion in the loop for a table axis, before it
+for a head axis; a linear axis' errors follow its motion, Trans(q s + δ) R(ε), as in volumetric3d. Every error
+is in the tool-relative-to-workpiece sense. The Jacobian is analytic: ∂p/∂t_i = C e_i, ∂p/∂e_r = C dR_r v (C
+the rotation of the loop before the error, v the tool point after it) -- paper 001 Eq. (1)-(3) with the rotary
+axes.
+
+Gauge of the error motions (:meth:`FiveAxisPositionModel.gauge_constraints`): per motion, the mean over the grid of the
+two branches' average is 0 (the constant is the location error's), and the radial pair and the tilt pair
+carry no rotating first harmonic (a constant offset or tilt of the frame downstream). Smoothness:
+:meth:`FiveAxisPositionModel.roughness`, 000's map prior (:meth:`olti_drake.model.errormap.ErrorMap.roughness`).
+Units: mm, deg (commands), µrad.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from olti_drake.errors import InputError
+from olti_drake.model.five_axis import DEG, LINEAR, ROTARY, AxisLink, FiveAxisMachine, motion
+from olti_drake.model.serial import Gauge, GaugeConstraint, JointMap
+from olti_drake.model.volumetric3d import (IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD, SQUARENESS, MachineConfig, MotionJacobian,
+                                           VolumetricModel, _rotations, axis_directions, motion_names)
+
+COMPONENTS = ("X", "Y", "Z", "A", "B", "C")
+URAD = 1e-6
+BRANCHES = ("forward", "reverse")
+
+
+def unit(component: str) -> str:
+    """'mm' for a translation component (X, Y, Z), 'urad' for a rotation (A, B, C)."""
+    return "mm" if component in LINEAR else "urad"
+
+
+def radial(letter: str) -> Tuple[str, str]:
+    """The two linear letters across rotary axis ``letter`` (u, v with u × v along it): C → (X, Y), A → (Y, Z),
+    B → (Z, X)."""
+    i = ROTARY.index(letter)
+    return LINEAR[(i + 1) % 3], LINEAR[(i + 2) % 3]
+
+
+def location_components(letter: str, axial: bool = False) -> Tuple[str, ...]:
+    """The components of rotary axis ``letter``'s location errors (ISO 230-7): the radial positions, the tilts,
+    the zero angle (and the axial position when ``axial``)."""
+    u, v = radial(letter)
+    i = ROTARY.index(letter)
+    tilts = (ROTARY[(i + 1) % 3], ROTARY[(i + 2) % 3])
+    return (u, v) + ((LINEAR[i],) if axial else ()) + tilts + (letter,)
+
+
+def location_names(letter: str, axial: bool = False) -> Tuple[str, ...]:
+    """``E_X0C_mm``, ``E_Y0C_mm``, (``E_Z0C_mm``,) ``E_A0C_urad``, ``E_B0C_urad``, ``E_C0C_urad`` for C."""
+    return tuple(f"E_{c}0{letter}_{unit(c)}" for c in location_components(letter, axial))
+
+
+def node_grid(lo_deg: float, hi_deg: float, pitch_deg: float) -> np.ndarray:
+    """Nodes from ``lo_deg`` to ``hi_deg`` every ``pitch_deg`` (deg), the end included (±inf travel: ±180)."""
+    lo = lo_deg if np.isfinite(lo_deg) else -180.0
+    hi = hi_deg if np.isfinite(hi_deg) else 180.0
+    if not (np.isfinite(pitch_deg) and pitch_deg > 0):
+        raise InputError(f"pitch_deg: must be finite and > 0, got {pitch_deg!r}")
+    return np.append(np.arange(lo, hi - 1e-9 * pitch_deg, pitch_deg), hi)
+
+
+def linear_config(machine: FiveAxisMachine, knot_spacing_mm: float = 50.0) -> MachineConfig:
+    """The 3-axis :class:`~olti_drake.model.volumetric3d.MachineConfig` of the machine's linear axes: topology
+    (table-side and head-side axes, base outward) and travel from the file."""
+    sides = {s: [e.letter for e in machine.loop if isinstance(e, AxisLink) and e.kind == "prismatic" and e.side == s]
+             for s in ("table", "head")}
+    travel = {a: (float(machine.lower[machine.axes.index(a)]), float(machine.upper[machine.axes.index(a)]))
+              for a in LINEAR}
+    return MachineConfig(tool_chain=tuple(sides["head"]), work_chain=tuple(reversed(sides["table"])),
+                         travel_mm=travel, knot_spacing_mm=knot_spacing_mm, tool_offsets_mm=((0.0, 0.0, 0.0),))
+
+
+def gauge_patterns(machine: FiveAxisMachine, letter: str, q, constants: bool = True) -> np.ndarray:
+    """(len(q), 6, k) what the readings cannot tell from a frame downstream of rotary axis ``letter`` at commands
+    q (deg), on its six error components (X, Y, Z, A, B, C): the constants (``constants``; the location errors'),
+    then the rotating first harmonics of the radial pair and of the tilt pair (cos and sin part each) -- a constant
+    offset or tilt in the rotating frame, seen from the carrier: R(∓σq) d (table axis −, head axis +; σ the
+    sign of the axis in the loop)."""
+    k, link = machine.link(letter)
+    sigma = float(np.sign(machine.base_rotation(k) @ link.axis)[ROTARY.index(letter)])
+    psi = (-1.0 if link.side == "table" else 1.0) * sigma * np.asarray(q, float) * DEG
+    i = ROTARY.index(letter)
+    cols = [np.broadcast_to(np.eye(6)[r], (psi.size, 6)) for r in range(6)] if constants else []
+    for a, b in (radial(letter), (ROTARY[(i + 1) % 3], ROTARY[(i + 2) % 3])):
+        ia, ib = COMPONENTS.index(a), COMPONENTS.index(b)
+        for ca, cb in ((np.cos(psi), np.sin(psi)), (-np.sin(psi), np.cos(psi))):
+            col = np.zeros((psi.size, 6))
+            col[:, ia], col[:, ib] = ca, cb
+            cols.append(col)
+    return np.stack(cols, axis=-1)
+
+
+# --------------------------------------------------------------------------- the error model
+class FiveAxisErrors:
+    """The parameters of a five-axis machine's errors, by ISO name, and where each sits in x.
+
+    Args:
+        machine: the :class:`FiveAxisMachine`.
+        location: the location errors of every rotary axis (5 each, 6 with ``axial``).
+        motions: the six error motions of every rotary axis on a grid every ``pitch_deg`` of its travel.
+        bidirectional: a forward and a reverse branch per motion (False: one, ``forward``).
+        linear: ``"identify"`` (the 21 volumetric parameters of the linear axes on a B-spline every
+            ``knot_spacing_mm``), an object with ``evaluate(axis, q)`` and ``squareness_urad`` (known linear
+            motions, e.g. an earlier volumetric result's :class:`~olti_drake.model.volumetric3d.SplineMotions`),
+            or None (perfect linear axes).
+        tool_offsets_mm: tool m's point in the tool frame (mm); ``identify_tool_offsets``: the errors of tools
+            1, 2, … are parameters (tool 0 is the reference).
+    """
+
+    def __init__(self, machine: FiveAxisMachine, location: bool = True, axial: bool = False, motions: bool = True,
+                 pitch_deg: float = 15.0, bidirectional: bool = True, linear=None, knot_spacing_mm: float = 50.0,
+                 tool_offsets_mm=((0.0, 0.0, 0.0),), identify_tool_offsets: bool = False):
+        if tuple(machine.linear) != tuple(LINEAR) and linear is not None:
+            raise InputError(f"machine model {machine.path}: linear-axis errors need the axes X, Y and Z, it has "
+                             f"{', '.join(machine.linear) or 'none'}")
+        self.machine, self.location, self.axial, self.with_motions = machine, bool(location), bool(axial), bool(motions)
+        self.bidirectional = bool(bidirectional)
+        self.tools = np.asarray(tool_offsets_mm, float).reshape(-1, 3)
+        if not np.all(np.isfinite(self.tools)):
+            raise InputError(f"tool_offsets_mm: not finite: {self.tools.tolist()}")
+        names, self.slices = [], {}
+
+        def add(group, group_names):
+            self.slices[group] = slice(len(names), len(names) + len(group_names))
+            names.extend(group_names)
+
+        self.maps: Dict[Tuple[str, str], JointMap] = {}
+        for L in machine.rotary:
+            if self.location:
+                add(f"location_{L}", location_names(L, axial))
+        for L in machine.rotary if self.with_motions else ():
+            k = machine.axes.index(L)
+            grid = node_grid(machine.lower[k], machine.upper[k], pitch_deg)
+            for c in COMPONENTS:
+                jm = JointMap.zeros(f"E_{c}{L}", grid, self.bidirectional)
+                self.maps[(L, c)] = jm
+                add(jm.joint, [f"{jm.joint}_{b}_{unit(c)}[{i}]" for b in BRANCHES[:1 + self.bidirectional]
+                               for i in range(grid.size)])
+        self.linear_model = None
+        self.linear_motions = None if isinstance(linear, str) else linear
+        if isinstance(linear, str):
+            if linear != "identify":
+                raise InputError(f"linear: 'identify', known motions or None, got {linear!r}")
+            self.linear_model = VolumetricModel(self.linear_config(knot_spacing_mm))
+            add("linear", list(self.linear_model.parameter_names()))
+        self.tool_groups = tuple(f"tool{m}" for m in range(1, len(self.tools))) if identify_tool_offsets else ()
+        for g in self.tool_groups:
+            add(g, [f"{g}_{c}_mm" for c in "xyz"])
+        self.names: Tuple[str, ...] = tuple(names)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    def linear_config(self, knot_spacing_mm: float = 50.0) -> MachineConfig:
+        """:func:`linear_config` of the machine."""
+        return linear_config(self.machine, knot_spacing_mm)
+
+    def zeros(self) -> np.ndarray:
+        return np.zeros(self.n_params)
+
+    def location_values(self, x, letter: str) -> np.ndarray:
+        """(6,) the location errors of ``letter`` at x as a (t mm, e µrad) vector in X, Y, Z, A, B, C order."""
+        out = np.zeros(6)
+        if self.location:
+            where = [COMPONENTS.index(c) for c in location_components(letter, self.axial)]
+            out[where] = x[self.slices[f"location_{letter}"]]
+        return out
+
+    def linear_source(self, x):
+        """The linear axes' motions at x (identified, known, or None)."""
+        if self.linear_model is not None:
+            return self.linear_model.motions(x[self.slices["linear"]])
+        return self.linear_motions
+
+    def tool_offsets(self, x) -> np.ndarray:
+        """(n_tools, 3) mm: the configured offsets plus the identified errors at x."""
+        t = self.tools.copy()
+        for m, g in enumerate(self.tool_groups, start=1):
+            t[m] = t[m] + x[self.slices[g]]
+        return t
+
+
+# --------------------------------------------------------------------------- the loop with errors
+@dataclass
+class _Loop:
+    """One pass over the loop with its errors: per link, the rotation before it (C) and the tool point after it
+    (v), and where each axis' error and motion links are."""
+
+    p: np.ndarray
+    C: list
+    v: list
+    errors: Dict[str, Tuple[int, np.ndarray, tuple]] = field(default_factory=dict)  # letter -> (link, G, dR)
+    motions: Dict[str, Tuple[int, np.ndarray, float]] = field(default_factory=dict)  # letter -> (link, G, sign)
+
+
+def _error_link(G, values):
+    """(R, o, dR) of an error Trans(t) Rx(a)Ry(b)Rz(c) with base components ``values`` (M, 6) (mm, µrad) in a
+    frame whose base orientation is G: o = Gᵀ t, R = Gᵀ R(e) G."""
+    R, dR = _rotations(values[:, 3:] * URAD)
+    return (G.T @ R @ G, values[:, :3] @ G, dR)
+
+
+def evaluate_loop(machine: FiveAxisMachine, commands, rotary_errors, linear, tool_points, frame: str = "workpiece"):
+    """The tool points (M, 3) mm of commands (M, n_axes) with errors, and the pass (:class:`_Loop`).
+
+    ``rotary_errors(letter, q)`` -> (M, 6) the rotary axis' total error (location + motion; X, Y, Z mm, A, B, C
+    µrad, machine axes); ``linear``: motions with ``evaluate(axis, q)`` (M, 6) and ``squareness_urad``, or None;
+    ``tool_points`` (M, 3) the tool point in the tool frame, mm; ``frame``: 'workpiece' or 'base' (the loop from
+    the base: table-side errors do not move the tool in the base frame)."""
+    M = len(commands)
+    start = {"workpiece": 0, "base": machine.base_index}[frame]
+    zero = machine.zero_rotations()
+    dirs = axis_directions(linear.squareness_urad) if linear is not None else None
+    links, errors, motions = [], {}, {}
+    for k in range(start, len(machine.loop)):
+        e = machine.loop[k]
+        if isinstance(e, np.ndarray):
+            links.append((np.broadcast_to(e[:3, :3], (M, 3, 3)), np.broadcast_to(e[:3, 3], (M, 3))))
+            continue
+        G = zero[machine.base_index].T @ zero[k]  # base orientation of this point at zero commands
+        q = commands[:, e.column]
+        if e.kind == "prismatic":
+            sign = float(np.sign(G @ e.axis)[LINEAR.index(e.letter)])
+            if linear is None:
+                links.append(motion(e, q))
+                continue
+            s = sign * (G.T @ dirs[e.letter][0])  # the reference straight line, squareness included
+            motions[e.letter] = (len(links), G, sign)
+            links.append((np.broadcast_to(np.eye(3), (M, 3, 3)), q[:, None] * s))
+            R, o, dR = _error_link(G, linear.evaluate(e.letter, q))
+            errors[e.letter] = (len(links), G, dR)
+            links.append((R, o))
+            continue
+        R, o, dR = _error_link(G, rotary_errors(e.letter, q))
+        Rm, om = motion(e, q)
+        if e.side == "table":  # the carrier is after the motion (workpiece → base)
+            links.append((Rm, om))
+        errors[e.letter] = (len(links), G, dR)
+        links.append((R, o))
+        if e.side == "head":
+            links.append((Rm, om))
+    v = [None] * (len(links) + 1)
+    v[-1] = tool_points
+    for j in range(len(links) - 1, -1, -1):
+        R, o = links[j]
+        v[j] = o + np.einsum("mij,mj->mi", R, v[j + 1])
+    C, acc = [], np.broadcast_to(np.eye(3), (M, 3, 3))
+    for R, _ in links:
+        C.append(acc)
+        acc = acc @ R
+    C.append(acc)
+    return v[0], _Loop(v[0], C, v, errors, motions)
+
+
+def _sensitivities(state: _Loop, letter: str):
+    """∂p/∂(t_x, t_y, t_z, e_a, e_b, e_c) (M, 3, 6) of the error link of ``letter`` (mm/mm, mm/µrad), or None
+    when the loop does not pass it (a table axis seen from the base)."""
+    if letter not in state.errors:
+        return None
+    j, G, dR = state.errors[letter]
+    CG = state.C[j] @ G.T
+    out = np.empty(CG.shape[:2] + (6,))
+    out[:, :, :3] = CG
+    for r in range(3):
+        out[:, :, 3 + r] = np.einsum("mij,mj->mi", CG @ dR[r] @ G, state.v[j + 1]) * URAD
+    return out
+
+
+class FiveAxisPositionModel:
+    """The tool points of a five-axis campaign on :class:`FiveAxisErrors`, a position model of the one engine
+    (:mod:`olti_drake.model.position_model`; read by
+    :class:`~olti_drake.model.measurements.StationDistanceMeasurement`, 001 Eq. (3)).
+
+    Point i is the tool point of tool ``tool[i]`` at ``commands[i]`` (columns ``machine.axes``, mm / deg) with
+    the approach directions ``directions[i]`` (±1 per rotary axis, columns ``machine.rotary``; needed when the
+    error model is bidirectional), in the workpiece frame (``frame="workpiece"``: stations riding on the table,
+    R-test, CNC TCP) or the base frame (``"base"``: stations on the bed). x: ``error_model.names`` (mm, µrad) less
+    those ``held`` at 0 (a location error's name, an error motion ``E_XC`` with all its nodes, ``linear``,
+    ``tool<m>``: what the campaign does not separate, :func:`separable`); :meth:`theta` the full vector. Start 0
+    (the nominal machine of the file). The Jacobian is analytic (:class:`MotionJacobian`, row-compressed, its
+    columns fixed by the commands).
+    """
+
+    dim = 3
+
+    def __init__(self, machine: FiveAxisMachine, error_model: FiveAxisErrors, commands, directions=None, tool=None,
+                 frame: str = "workpiece", held=()):
+        if error_model.machine is not machine:
+            raise InputError("error_model: built for another machine")
+        if frame not in ("workpiece", "base"):
+            raise InputError(f"frame: 'workpiece' or 'base', got {frame!r}")
+        self.machine, self.errors, self.frame = machine, error_model, frame
+        self.commands = machine.check_commands(commands)
+        M = len(self.commands)
+        self.tool = np.zeros(M, int) if tool is None else np.broadcast_to(np.asarray(tool), (M,)).astype(int)
+        if np.any((self.tool < 0) | (self.tool >= len(error_model.tools))):
+            raise InputError(f"tool: indices must be in 0..{len(error_model.tools) - 1}, got "
+                             f"{np.unique(self.tool)[:5].tolist()}")
+        self.directions = _check_directions(directions, M, machine.rotary, error_model.bidirectional and
+                                            bool(error_model.maps))
+        self.held = tuple(held)
+        self.free_cols = _free_columns(error_model, self.held)
+        self.names = tuple(error_model.names[i] for i in self.free_cols)
+        self._interp = {L: error_model.maps[(L, "X")].interpolation(self.commands[:, machine.axes.index(L)],
+                                                                      self._dir(L))
+                        for L in machine.rotary if (L, "X") in error_model.maps}
+        remap = np.full(error_model.n_params + 1, -1)
+        remap[self.free_cols] = np.arange(self.free_cols.size)
+        cols = remap[self._pattern()]
+        self._held_mask = (cols < 0)[:, None, :]  # (a held column: its value 0 on the point's first free column)
+        first = np.where(cols >= 0, cols, np.iinfo(int).max).min(axis=1, keepdims=True)
+        self._cols = np.where(cols >= 0, cols, np.where(first == np.iinfo(int).max, 0, first))
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.commands)
+
+    def _dir(self, letter):
+        return None if self.directions is None else self.directions[:, self.machine.rotary.index(letter)]
+
+    def start_vector(self) -> np.ndarray:
+        return np.zeros(self.n_params)
+
+    def theta(self, x) -> np.ndarray:
+        """The error model's full vector (held parameters 0) from x (its first :attr:`n_params` values)."""
+        t = self.errors.zeros()
+        t[self.free_cols] = np.asarray(x, float)[:self.n_params]
+        return t
+
+    # ------------------------------------------------------------------ kinematics
+    def _rotary(self, x):
+        em = self.errors
+
+        def errors(letter, q):
+            out = np.broadcast_to(em.location_values(x, letter), (len(q), 6)).copy()
+            if letter in self._interp:
+                cols, w = self._interp[letter]
+                for r, c in enumerate(COMPONENTS):
+                    out[:, r] += np.sum(w * x[em.slices[f"E_{c}{letter}"]][cols], axis=1)
+            return out
+        return errors
+
+    def _state(self, x):
+        """The loop at the full vector x."""
+        t = self.errors.tool_offsets(x)[self.tool]
+        return evaluate_loop(self.machine, self.commands, self._rotary(x), self.errors.linear_source(x), t,
+                             self.frame)
+
+    def positions(self, x=None) -> np.ndarray:
+        """(N, 3) mm tool points at x (default the start)."""
+        return self._state(self.theta(self.start_vector() if x is None else x))[0]
+
+    def _pattern(self) -> np.ndarray:
+        """(N, m) the columns of every point: location errors, the two map nodes its commands reach per motion,
+        the linear parameters, its tool's offset errors (tool 0's rows: tool 1's columns, value 0)."""
+        em, N = self.errors, self.n_points
+        blocks = [np.broadcast_to(np.arange(em.slices[f"location_{L}"].start, em.slices[f"location_{L}"].stop),
+                                  (N, em.slices[f"location_{L}"].stop - em.slices[f"location_{L}"].start))
+                  for L in self.machine.rotary if em.location]
+        for L, (cols, _) in self._interp.items():
+            blocks += [em.slices[f"E_{c}{L}"].start + cols for c in COMPONENTS]
+        if em.linear_model is not None:
+            s = em.slices["linear"]
+            blocks.append(np.broadcast_to(np.arange(s.start, s.stop), (N, s.stop - s.start)))
+        if em.tool_groups:
+            first = np.maximum(self.tool, 1)
+            blocks.append(em.slices["tool1"].start + 3 * (first - 1)[:, None] + np.arange(3))
+        if not blocks:
+            return np.zeros((N, 1), int)
+        return np.hstack(blocks).astype(int)
+
+    def _compressed(self, x):
+        """Tool points (N, 3) and the Jacobian values (N, 3, m) on :attr:`_cols` at the full vector x."""
+        em = self.errors
+        p, state = self._state(x)
+        sens = {L: _sensitivities(state, L) for L in self.machine.rotary}
+        sens = {L: np.zeros((self.n_points, 3, 6)) if S is None else S for L, S in sens.items()}
+        vals = [sens[L][:, :, [COMPONENTS.index(c) for c in location_components(L, em.axial)]]
+                for L in self.machine.rotary if em.location]  # (the order of _pattern)
+        for L, (_, w) in self._interp.items():
+            vals += [sens[L][:, :, r, None] * w[:, None, :] for r in range(6)]
+        if em.linear_model is not None:
+            vals.append(self._linear_columns(state, x))
+        if em.tool_groups:
+            vals.append(state.C[-1] * (self.tool > 0)[:, None, None])
+        if not vals:
+            return p, np.zeros((self.n_points, 3, 1))
+        return p, np.where(self._held_mask, 0.0, np.concatenate(vals, axis=2))
+
+    def _linear_columns(self, state: _Loop, x) -> np.ndarray:
+        """(N, 3, n_linear): the B-spline coefficients (sensitivity × basis) and the squareness
+        (C q sign Gᵀ ds_k/dθ, mm/µrad) of the volumetric parameters."""
+        vm = self.errors.linear_model
+        motions = vm.motions(x[self.errors.slices["linear"]])
+        out = np.zeros((self.n_points, 3, vm.n_params))
+        for a in LINEAR:
+            S = _sensitivities(state, a)
+            if S is None:
+                continue
+            q = self.commands[:, self.machine.axes.index(a)]
+            basis = motions.basis(a, q)
+            for r, name in enumerate(motion_names(a)):
+                out[:, :, vm.slices[name]] = S[:, :, r, None] * basis[:, None, vm.free[name]]
+        dirs = axis_directions(motions.squareness_urad)
+        for r, (name, a) in enumerate(zip(SQUARENESS, ("Y", "Z", "Z"))):
+            if a not in state.motions:
+                continue
+            j, G, sign = state.motions[a]
+            q = self.commands[:, self.machine.axes.index(a)]
+            ds = sign * (G.T @ dirs[a][1][r]) * URAD
+            out[:, :, vm.slices[name].start] = np.einsum("mij,j->mi", state.C[j], ds) * q[:, None]
+        return out
+
+    def jacobian(self, x=None):
+        """(N, 3) tool points and their :class:`MotionJacobian` over :attr:`names` (analytic)."""
+        p, vals = self._compressed(self.theta(self.start_vector() if x is None else x))
+        return p, MotionJacobian(self._cols, vals, self.n_params)
+
+    def rows(self, X, points):
+        """Batched for T parameter vectors X (T, n ≥ n_params): p (T, K, 3) mm, cols (K, m), dp per coordinate
+        (T, K, m) at the points ``points`` (K,) (for :func:`~olti_drake.model.measurements.distance_rows_nd`)."""
+        X = np.atleast_2d(np.asarray(X, float))
+        out = [self._compressed(self.theta(x)) for x in X]
+        p = np.stack([o[0] for o in out])[:, points]
+        vals = np.stack([o[1] for o in out])[:, points]
+        return p, self._cols[points], tuple(vals[:, :, c] for c in range(3))
+
+    # ------------------------------------------------------------------ priors and gauge
+    def roughness(self) -> Optional[sp.csr_matrix]:
+        """000's map smoothness rows (:meth:`JointMap.roughness`: each branch and the backlash) of every error
+        motion over x; None without motions."""
+        em = self.errors
+        blocks = []
+        for (L, c), jm in em.maps.items():
+            R = jm.roughness()
+            if R.shape[0]:
+                s = em.slices[jm.joint]
+                blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
+                                         sp.csr_matrix((R.shape[0], em.n_params - s.stop))]))
+        if not blocks:
+            return None
+        R = sp.vstack(blocks, format="csr")[:, self.free_cols]
+        return R[np.flatnonzero(R.getnnz(axis=1))]  # (rows on held motions only: none)
+
+    def gauge_constraints(self) -> Tuple[GaugeConstraint, ...]:
+        """The error motions' gauge, A x = 0 (module docstring; :func:`gauge_patterns`): per motion the grid mean
+        of the branches' average (when the location errors are parameters: they hold the constant), and per
+        radial pair and tilt pair the two components of the rotating first harmonic (a constant offset or tilt of
+        the frame downstream: the workpiece frame, the next axis' location, tool 0's offset). Trapezoid weights
+        over the grid."""
+        em, out = self.errors, []
+        for L in self.machine.rotary:
+            if (L, "X") not in em.maps:
+                continue
+            g = em.maps[(L, "X")].emap.grid_deg
+            w = np.zeros(g.size)
+            w[:-1] += np.diff(g) / 2
+            w[1:] += np.diff(g) / 2
+            w /= w.sum()
+            branches = 2 if em.bidirectional else 1
+            patterns = gauge_patterns(self.machine, L, g, em.location)
+            what = ([f"E_{c}{L} has mean 0 over its grid (its constant is the location error)" for c in COMPONENTS]
+                    if em.location else []) + [f"{kind} motions of {L}: no rotating first harmonic ({part} part)"
+                                               for kind in ("radial", "tilt") for part in ("cos", "sin")]
+            for j, text in enumerate(what):
+                row = np.zeros(em.n_params)
+                for r, c in enumerate(COMPONENTS):
+                    row[em.slices[f"E_{c}{L}"]] += np.tile(w * patterns[:, r, j], branches) / branches
+                name = f"E_{COMPONENTS[int(np.argmax(np.abs(patterns[0, :, j])))]}{L}"
+                if np.any(row[self.free_cols]):  # (a held motion needs no gauge)
+                    out.append(GaugeConstraint(name, row[self.free_cols], 0.0, text))
+        return tuple(out)
+
+    def gauge(self, n_total: Optional[int] = None) -> Gauge:
+        """:meth:`gauge_constraints` as the engine's :class:`~olti_drake.model.serial.Gauge` over ``n_total``
+        parameters (a measurement's own ones after the model's, zero columns)."""
+        n = self.n_params if n_total is None else int(n_total)
+        cons = tuple(GaugeConstraint(c.name, np.concatenate([c.row, np.zeros(n - self.n_params)]), c.value, c.text)
+                     for c in self.gauge_constraints())
+        return Gauge(cons, 0, "error motions: mean 0 and no rotating first harmonic per rotary axis "
+                              "(docs/five_axis.md)", n)
+
+    # ------------------------------------------------------------------ results
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        """x-shaped ``v`` (values or uncertainties) in the ``olti-machine5/1`` keys: ``location_errors`` by name,
+        ``error_motions`` per ISO name (axis, unit, ``grid_deg``, ``forward``, ``reverse`` when bidirectional),
+        ``linear`` (the volumetric vector), ``tool_offset_errors_mm``."""
+        em, v = self.errors, self.theta(v)
+        out = {"location_errors": {}, "error_motions": {}}
+        for L in self.machine.rotary if em.location else ():
+            s = em.slices[f"location_{L}"]
+            out["location_errors"].update({n: float(x) for n, x in zip(em.names[s], v[s])})
+        for (L, c), jm in em.maps.items():
+            vals = v[em.slices[jm.joint]]
+            n = jm.emap.n_nodes
+            entry = {"axis": L, "unit": unit(c), "grid_deg": jm.emap.grid_deg.tolist(), "forward": vals[:n].tolist()}
+            if em.bidirectional:
+                entry["reverse"] = vals[n:].tolist()
+            out["error_motions"][jm.joint] = entry
+        if em.linear_model is not None:
+            out["linear"] = {"model": v[em.slices["linear"]].tolist()}
+        out["tool_offset_errors_mm"] = [v[em.slices[g]].tolist() for g in em.tool_groups]
+        return out
+
+    def station_reference(self):
+        """(centre, span, its name) for a station's plausibility: the nominal tool points' centroid and diagonal."""
+        p = self.positions()
+        return p.mean(axis=0), float(np.linalg.norm(np.ptp(p, axis=0))), "the tool points' diagonal"
+
+    #: A location error beyond this (mm, µrad) is a wrong model or a unit slip, not a machine's error.
+    LOCATION_BOUND_MM, LOCATION_BOUND_URAD = 10.0, 2e4
+
+    def implausible(self, x) -> list:
+        """Values no machine has, one phrase each: a location error over 10 mm / 20 000 µrad, an error-motion node
+        over 1 mm / 10 000 µrad, a linear axis' motion over those anywhere on its travel
+        (:data:`~olti_drake.model.volumetric3d.IMPLAUSIBLE_MM`, ``IMPLAUSIBLE_URAD``: a unit slip, a wrong model)."""
+        em, x = self.errors, self.theta(x)
+        out = []
+        for L in self.machine.rotary if em.location else ():
+            s = em.slices[f"location_{L}"]
+            for name, v in zip(em.names[s], x[s]):
+                limit = self.LOCATION_BOUND_MM if name.endswith("_mm") else self.LOCATION_BOUND_URAD
+                if abs(v) > limit:
+                    out.append(f"{name} = {v:.6g} (over {limit:g})")
+        for (L, c), jm in em.maps.items():
+            v = np.abs(x[em.slices[jm.joint]]).max()
+            limit = IMPLAUSIBLE_MM if unit(c) == "mm" else IMPLAUSIBLE_URAD
+            if v > limit:
+                out.append(f"{jm.joint} reaches {v:.6g} {unit(c)} at a node (over {limit:g})")
+        motions = em.linear_source(x) if em.linear_model is not None else None
+        for a in LINEAR if motions is not None else ():
+            k = self.machine.axes.index(a)
+            v = np.abs(motions.evaluate(a, np.linspace(self.machine.lower[k], self.machine.upper[k], 101))).max(axis=0)
+            for r, name in enumerate(motion_names(a)):
+                limit = IMPLAUSIBLE_MM if r < 3 else IMPLAUSIBLE_URAD
+                if v[r] > limit:
+                    out.append(f"{name} reaches {v[r]:.6g} {unit(COMPONENTS[r])} (over {limit:g})")
+        return out
+
+
+def _free_columns(em: FiveAxisErrors, held) -> np.ndarray:
+    """Indices of the error model's parameters not ``held`` (names or groups); unknown names refused."""
+    mask = np.ones(em.n_params, bool)
+    for h in held:
+        if h in em.names:
+            mask[em.names.index(h)] = False
+        elif h in em.slices and not h.startswith("location_"):
+            mask[em.slices[h]] = False
+        else:
+            raise InputError(f"held: {h!r} is no parameter or group of this model (a location error such as "
+                             f"E_X0C_mm, an error motion such as E_XC, linear, tool1)")
+    return np.flatnonzero(mask)
+
+
+def _check_directions(directions, M: int, rotary, needed: bool):
+    """(M, n_rotary) ±1 or None; one-line InputError otherwise."""
+    if directions is None:
+        if needed:
+            raise InputError("directions: the error model is bidirectional; give the approach directions "
+                             f"({', '.join('dir_' + a.lower() for a in rotary)}) or build it with bidirectional=False")
+        return None
+    d = np.asarray(directions, float).reshape(M, -1) if np.size(directions) == M * len(rotary) else None
+    if d is None or not np.all(np.isin(d, (-1.0, 1.0))):
+        raise InputError(f"directions: expected (M, {len(rotary)}) values ±1 for {', '.join(rotary)}")
+    return d
+
+
+# --------------------------------------------------------------------------- what a campaign separates
+@dataclass(frozen=True)
+class Separability:
+    """Per parameter group (a location error by name, an error motion ``E_XC`` (its nodes), ``linear``,
+    ``tool<m>``): separable or not, and why not; :attr:`dropped` in the order they were dropped (hold them:
+    ``FiveAxisPositionModel(..., held=dropped)``)."""
+
+    separable: Dict[str, bool]
+    reasons: Dict[str, str]
+    dropped: Tuple[str, ...]
+    measurement: str
+
+    def describe(self) -> str:
+        if not self.dropped:
+            return f"all {len(self.separable)} error groups separable ({self.measurement})"
+        return "\n".join(f"{g}: dropped, {self.reasons[g]}" for g in self.dropped)
+
+
+#: Dropped first when the null space holds them: a rotary axis' zero angle is where its reference mark is, the
+#: location error a measurement relative to the workpiece sees least directly (its tilt partners are kept).
+PREFER_DROPPING = ("E_A0A_urad", "E_B0B_urad", "E_C0C_urad")
+
+
+def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8, share: float = 1e-3,
+              prefer: Tuple[str, ...] = PREFER_DROPPING) -> Separability:
+    """Which location errors and error motions a campaign separates, and the fewest to drop so that the rest is.
+
+    The model's Jacobian at its commands with the measurement's own unknowns (``stations_mm`` (N, 3): distances
+    from every station, unknown stations and dead paths, 001 Eq. (3); None: 3D points in an unknown rigid frame),
+    the motions' gauge rows appended; columns scaled to unit norm and projected off the nuisance columns (as
+    :func:`olti_drake.model.volumetric3d.observability`). While the null space (singular values ≤ ``rtol`` × the
+    largest) is not empty, a group holding more than ``share`` of it is dropped -- the first of ``prefer`` among
+    them, else the one holding most --, the reason naming the groups its null directions share ("the measurement's
+    gauge" when the nuisance takes part)."""
+    from olti_drake.threads import single_thread_blas
+
+    A, N, what = _separability_rows(model, stations_mm)
+    norms = np.linalg.norm(A, axis=0)
+    unit_cols = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
+    groups = _groups(model)
+    keep = np.ones(model.n_params, bool)
+    dropped, reasons = [], {}
+    with single_thread_blas():  # (medium SVDs: BLAS threads spin on a shared machine)
+        Un, sn, _ = np.linalg.svd(N / np.maximum(np.linalg.norm(N, axis=0), 1e-300), full_matrices=False)
+        Q = Un[:, sn > 1e-10 * sn[0]]
+        proj = unit_cols - Q @ (Q.T @ unit_cols)
+        while keep.any():
+            _, sv, Vt = np.linalg.svd(proj[:, keep], full_matrices=False)
+            null = np.zeros((model.n_params, int(np.sum(sv <= rtol * sv[0])) + int(keep.sum()) - sv.size))
+            null[keep] = np.hstack([Vt[sv <= rtol * sv[0]].T, np.eye(int(keep.sum()))[:, sv.size:]])
+            if not null.shape[1]:
+                break
+            block = {g: float(np.linalg.norm(null[idx], 2)) for g, idx in groups.items() if g not in dropped}
+            inside = [g for g in block if block[g] > share]
+            if not inside:
+                break
+            g = next((h for h in prefer if h in inside), max(inside, key=block.get))
+            dropped.append(g)
+            reasons[g] = _reason(g, groups, null, unit_cols, norms, share, dropped)
+            keep[groups[g]] = False
+    ok = {g: g not in dropped for g in groups}
+    return Separability(ok, reasons, tuple(dropped), what)
+
+
+def _reason(g, groups, null, unit_cols, norms, share, dropped) -> str:
+    """Why group g is dropped: no reading depends on it, or what its null directions trade it with."""
+    idx = groups[g]
+    if not np.any(norms[idx] > 1e-12 * norms.max()):
+        return "no reading depends on it"
+    _, s, wt = np.linalg.svd(null[idx], full_matrices=False)
+    vecs = null @ wt[s > share].T
+    partners = [h for h, jdx in groups.items() if h != g and h not in dropped and np.linalg.norm(vecs[jdx]) > 0.05]
+    gauge = np.linalg.norm(np.nan_to_num(unit_cols) @ vecs) > 1e-6
+    return "trades with " + ", ".join(partners + (["the measurement's gauge"] if gauge or not partners else []))
+
+
+def _separability_rows(model: FiveAxisPositionModel, stations_mm):
+    """(model columns A, nuisance columns N, what was measured) of a campaign, the motions' gauge rows appended
+    to A (scaled to its largest column)."""
+    from olti_drake.model.measurements import distance_rows_nd
+    from olti_drake.model.volumetric3d import _rigid_columns
+
+    n = model.n_params
+    p, J = model.jacobian()
+    if stations_mm is None:
+        A, N, what = J.tocsr().toarray(), _rigid_columns(p), "3D points, rigid 6-dof gauge"
+    else:
+        P = np.asarray(stations_mm, float).reshape(-1, 3)
+        s = len(P)
+        pts, sta = np.repeat(np.arange(len(p)), s), np.tile(np.arange(s), len(p))
+        X = np.concatenate([model.start_vector(), P.ravel(), np.zeros(s)])[None]
+        pp, cols, dp = model.rows(X, pts)
+        _, rc, rv = distance_rows_nd(pp, cols, dp, P[None], np.zeros((1, s)), sta, np.zeros(len(pts)), n, n + 3 * s)
+        full = np.zeros((len(pts), n + 4 * s))
+        np.add.at(full, (np.repeat(np.arange(len(pts)), rc.shape[1]), rc.ravel()), rv[0].ravel())
+        A, N, what = full[:, :n], full[:, n:], f"distances from {s} stations, unknown stations and dead paths"
+    ties = np.array([c.row for c in model.gauge_constraints()]).reshape(-1, n)
+    A = np.vstack([A, ties * (np.linalg.norm(A, axis=0).max() if A.size else 1.0)])
+    return A, np.vstack([N, np.zeros((len(ties), N.shape[1]))]), what
+
+
+def _groups(model: FiveAxisPositionModel) -> Dict[str, np.ndarray]:
+    """Indices in x of each parameter group: each location error alone, each error motion's nodes, ``linear``,
+    ``tool<m>`` (held ones left out)."""
+    em, out = model.errors, {}
+    remap = np.full(em.n_params, -1)
+    remap[model.free_cols] = np.arange(model.free_cols.size)
+    for L in model.machine.rotary if em.location else ():
+        s = em.slices[f"location_{L}"]
+        out.update({em.names[i]: np.array([i]) for i in range(s.start, s.stop)})
+    for jm in em.maps.values():
+        out[jm.joint] = np.arange(em.slices[jm.joint].start, em.slices[jm.joint].stop)
+    for g in (["linear"] if em.linear_model is not None else []) + list(em.tool_groups):
+        out[g] = np.arange(em.slices[g].start, em.slices[g].stop)
+    out = {g: remap[idx][remap[idx] >= 0] for g, idx in out.items()}
+    return {g: idx for g, idx in out.items() if idx.size}
