@@ -17,22 +17,27 @@ ROBOT_RESULT = "olti-result/1"
 MULTILATERATION_RESULT = "olti-multilateration/1"
 #: The 21 ISO 230-1 error motions of a 3-axis machine.
 VOLUMETRIC_RESULT = "olti-volumetric/1"
+#: A five-axis machine tool's location errors and rotary-axis error motions (formats.md, "Five-axis machine tools").
+MACHINE5_RESULT = "olti-machine5/1"
 
 #: The format of each kind of result document.
 RESULT_FORMAT = {"scara": ROBOT_RESULT, "serial": ROBOT_RESULT, "multilateration": MULTILATERATION_RESULT,
-                 "volumetric": VOLUMETRIC_RESULT}
+                 "volumetric": VOLUMETRIC_RESULT, "machine5": MACHINE5_RESULT}
 #: The kinds of result, in the order they are named in messages.
 RESULT_KINDS = tuple(RESULT_FORMAT)
 #: The result formats (a file whose ``format`` is none of these is not a result).
-RESULT_FORMATS = (ROBOT_RESULT, MULTILATERATION_RESULT, VOLUMETRIC_RESULT)
+RESULT_FORMATS = (ROBOT_RESULT, MULTILATERATION_RESULT, VOLUMETRIC_RESULT, MACHINE5_RESULT)
 #: What each kind of result is, for messages.
 RESULT_WHAT = {"scara": "a SCARA result (olti identify)",
                "serial": "a serial robot's result (olti identify --robot)",
                "multilateration": "a machine-tool multilateration result (olti multilaterate)",
-               "volumetric": "a volumetric result (olti identify --model volumetric)"}
+               "volumetric": "a volumetric result (olti identify --model volumetric)",
+               "machine5": "a five-axis machine result (olti identify --machine)"}
 
 #: The other documents.
 UNCERTAINTY = "olti-uncertainty/1"
+#: A simulated five-axis machine's truth (olti simulate diagrams/machine_5axis.yaml: its errors by ISO name).
+MACHINE5_TRUTH = "olti-machine5-truth/1"
 DESIGN = "olti-design/1"
 ISO230 = "olti-iso230/1"
 RUN = "olti-run/1"

@@ -71,6 +71,12 @@ RUN = {
 #: Commands only parsed, and why they are not run (times measured on the 2-core machine).
 PLACEHOLDERS = "placeholder inputs (a synopsis, or files the reader brings)"
 PARSED_ONLY = {
+    "docs/five_axis.md": {
+        "olti identify campaign.csv --machine olti_drake/models/trunnion_ac.urdf --workpiece-frame workpiece "
+        "--tool-frame tool --model errormap [--grid-step-deg 15] [--smoothing auto|off|W] --out r.json":
+            PLACEHOLDERS + " (run by tests/test_five_axis_identify.py on simulated campaigns)",
+        "olti predict r.json points.csv --out p.csv": PLACEHOLDERS + " (run by tests/test_five_axis_identify.py)",
+    },
     "docs/six_axis_campaign.md": {
         "olti simulate diagrams/scenarios.yaml --scenario six_axis_mounted --out six_m":
             "too slow for the suite (25 s; 2800 IK aims); its diagram is tested in tests/test_six_axis.py",

@@ -159,7 +159,7 @@ def test_a_verb_refuses_a_kind_it_does_not_take_naming_file_kind_and_what_it_tak
     ml, vol = results["multilateration"][0], results["volumetric"][0]
     code, _, err = olti(capsys, "predict", ml, PAPER, "--out", tmp_path / "p.csv")
     one_line_error(code, err, ml, "multilateration result", "'format' 'olti-multilateration/1'",
-                   "olti predict takes SCARA, serial-robot and volumetric results")
+                   "olti predict takes SCARA, serial-robot, volumetric and five-axis machine results")
     code, _, err = olti(capsys, "compensate", ml, PAPER, "--out", tmp_path / "p.csv")
     one_line_error(code, err, ml, "olti compensate takes")
     code, _, err = olti(capsys, "uncertainty", vol, PAPER, "--method", "linear", "--out", tmp_path / "u.json")
@@ -327,7 +327,7 @@ def test_the_option_table_names_real_options_and_their_defaults_as_not_given():
         action = next((a for a in _subparser(o.verb)._actions if o.flag in a.option_strings), None)
         assert action is not None and action.dest == o.dest, (o.verb, o.flag)
         assert action.default == o.unset, (o.verb, o.flag, action.default, o.unset)
-        assert o.kinds and all(k in ("scara", "serial", "multilateration", "volumetric", "machine3d") for k in o.kinds)
+        assert o.kinds and all(k in ("scara", "serial", "multilateration", "volumetric", "machine3d", "machine5") for k in o.kinds)
     assert set(HANDLERS) == {"predict", "uncertainty", "design", "compensate"}
 
 

@@ -136,3 +136,18 @@ coverage_factor = real(0, 10, lo_open=True)       # k of an expanded uncertainty
 workers = integer(1, 256)                            # worker processes
 length_mm = real(0, MAX_MM, lo_open=True)            # a positive length or step, mm
 distance_mm = real(0, MAX_MM)                        # a clearance or separation, mm (0: off)
+
+
+def tolerances(text: str) -> dict:
+    """``--tolerance NAME=VALUE[,NAME=VALUE]``: ISO 9283 tolerances (mm for AP_P, RP_l; deg for AP_abc, RP_abc)."""
+    out = {}
+    for item in text.split(","):
+        name, sep, value = item.partition("=")
+        try:
+            v = float(value)
+        except ValueError:
+            v = float("nan")
+        if not sep or not name.strip() or not (v > 0 and v < float("inf")):
+            raise argparse.ArgumentTypeError(f"{item!r}: NAME=VALUE with a value > 0 (e.g. AP_P=0.1,RP_l=0.05)")
+        out[name.strip()] = v
+    return out

@@ -1,4 +1,5 @@
-"""``olti identify`` and ``olti multilaterate``: one route for the four kinds of calibration (issue 22).
+"""``olti identify`` and ``olti multilaterate``: one route for every kind of calibration (issue 22; the five-axis
+machine, issue 25).
 
 campaign CSV -> :func:`olti_drake.calibration_problem` (the options of the command line by their option names)
 -> ``problem.fit()`` (the default LM) -> the result document (``format`` and ``kind``, formats.md) -> written ->
@@ -147,6 +148,31 @@ def _volumetric_summary(res, doc, problem) -> str:
     return summary(res, doc, problem.program.data)
 
 
+# -- a five-axis machine from its model file ------------------------------------------------------------------------
+def _machine5_options(args) -> dict:
+    return dict(machine=args.machine, workpiece_frame=args.workpiece_frame, tool_frame=args.tool_frame,
+                pitch_deg=args.grid_step_deg or 15.0, tool_offsets_mm=args.tool_offsets_mm, budget=args.budget,
+                smoothing="auto" if args.smoothing is None else args.smoothing, **_solver_options(args))
+
+
+def _machine5_document(fit, problem, args) -> dict:
+    from olti_drake.io.five_axis_io import machine5_result_dict
+
+    out_dir = os.path.dirname(os.path.abspath(os.fspath(args.out)))
+    return machine5_result_dict(problem.program, fit, os.path.relpath(os.path.abspath(args.machine), out_dir))
+
+
+def _machine5_summary(fit, doc, problem) -> str:
+    from olti_drake.cli.five_axis_verbs import summary
+
+    return summary(problem.program, fit, doc)
+
+
+def _machine5_before(problem) -> None:
+    for g, why in problem.program.dropped.items():  # said before the work (and kept in the result's notes)
+        print(f"note: {g}: not separable by this campaign ({why}): held at 0", flush=True)
+
+
 # -- the route ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Route:
@@ -170,6 +196,8 @@ ROUTES = {
                     inputs=lambda args: [args.campaign, args.budget, _robot_input(args.robot)]),
     "multilateration": Route(_multilateration_options, _multilateration_document, _multilateration_summary),
     "volumetric": Route(_volumetric_options, _multilateration_document, _volumetric_summary),
+    "machine5": Route(_machine5_options, _machine5_document, _machine5_summary, before=_machine5_before,
+                      inputs=lambda args: [args.campaign, args.budget, args.machine]),
 }
 
 
@@ -177,18 +205,19 @@ def _problem(kind: str, args, model: str, options: dict):
     """``od.calibration_problem`` of the campaign (``olti multilaterate --budget residuals`` included)."""
     from olti_drake.estimation.problem import calibration_problem
 
-    return calibration_problem(args.campaign, model=model, robot=args.robot if kind == "serial" else None, **options)
+    return calibration_problem(args.campaign, model=model, robot=args.robot if kind == "serial" else None,
+                               **options)
 
 
 def identify(args, model: str) -> int:
     """The route (module doc) for ``model`` = dh | errormap (SCARA, or an N-joint robot with ``--robot``),
-    volumetric or multilateration."""
+    volumetric or multilateration; with ``--machine`` (a five-axis machine) geometric | errormap."""
     from olti_drake.cli.kinds import refuse_inapplicable
     from olti_drake.estimation.problem import kind_of
     from olti_drake.io.outputs import preflight, write_json
 
-    robot = getattr(args, "robot", None)
-    kind = kind_of(model, robot if model in ("dh", "errormap") else None).name
+    robot, machine = getattr(args, "robot", None), getattr(args, "machine", None)
+    kind = kind_of(model, robot if model in ("dh", "errormap") else None, machine).name
     refuse_inapplicable(args.verb, kind, args)
     route = ROUTES[kind]
     route.check(args)

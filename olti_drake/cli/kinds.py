@@ -17,7 +17,8 @@ from typing import Dict, Optional, Tuple
 HANDLERS = {
     "predict": {"scara": "olti_drake.cli.scara_verbs:predict",
                 "serial": "olti_drake.cli.serial_verbs:predict",
-                "volumetric": "olti_drake.cli.volumetric_verbs:predict"},
+                "volumetric": "olti_drake.cli.volumetric_verbs:predict",
+                "machine5": "olti_drake.cli.five_axis_verbs:predict"},
     "uncertainty": {"scara": "olti_drake.cli.scara_verbs:uncertainty",
                     "serial": "olti_drake.cli.serial_uncertainty:uncertainty",
                     "multilateration": "olti_drake.cli.machine_verbs:uncertainty"},
@@ -69,13 +70,15 @@ class Option:
 def _scara_only(flag: str, dest: str, instead: str, unset=None) -> Option:
     return Option("identify", flag, dest, ("scara",), {
         "serial": f"{{flag}} is a SCARA option; with --robot the model uses {instead}",
-        "volumetric": "{flag} applies to the SCARA models (dh, errormap), not to --model volumetric"}, unset)
+        "volumetric": "{flag} applies to the SCARA models (dh, errormap), not to --model volumetric",
+        None: "{flag} applies to the SCARA models (dh, errormap), not to a five-axis machine (--machine)"}, unset)
 
 
 def _robot_only(flag: str, dest: str, unset=None) -> Option:
     return Option("identify", flag, dest, ("serial",), {
         "scara": f"{{flag}} {_ROBOT}; {_SCARA_PATH}",
-        "volumetric": f"{{flag}} {_ROBOT}, not --model volumetric"}, unset)
+        "volumetric": f"{{flag}} {_ROBOT}, not --model volumetric",
+        None: f"{{flag}} {_ROBOT}, not a five-axis machine (--machine)"}, unset)
 
 
 def _volumetric_only(flag: str, dest: str, unset=None) -> Option:
@@ -86,25 +89,30 @@ def _volumetric_only(flag: str, dest: str, unset=None) -> Option:
 #: (``olti multilaterate`` has one kind; ``olti report`` checks its files itself: report.html.write_report.)
 OPTIONS = (
     # olti identify: the calibration kinds (estimation.problem.kind_of)
-    _volumetric_only("--tool-offsets-mm", "tool_offsets_mm"),
+    Option("identify", "--tool-offsets-mm", "tool_offsets_mm", ("volumetric", "machine5"),
+           {None: "{flag} applies to --model volumetric and to five-axis machines (--machine FILE)"}),
     _volumetric_only("--knot-spacing-mm", "knot_spacing_mm"),
     _volumetric_only("--topology", "topology", "serial"),
     _volumetric_only("--pitch-mm", "pitch_mm"),
     Option("identify", "--robot", "robot", ("serial",),
            {None: "{flag} applies to the robot models (dh, errormap), not to --model volumetric"}),
-    Option("identify", "--tool-frame", "tool_frame", ("serial",),
-           {None: "{flag} needs --robot FILE (an N-joint robot model)"}),
+    Option("identify", "--tool-frame", "tool_frame", ("serial", "machine5"),
+           {None: "{flag} needs --robot FILE (an N-joint robot model) or --machine FILE (a five-axis machine)"}),
+    Option("identify", "--workpiece-frame", "workpiece_frame", ("machine5",),
+           {None: "{flag} needs --machine FILE (a five-axis machine model)"}),
     _scara_only("--grid1-deg", "grid1_deg", "--grid-step-deg"),
     _scara_only("--grid2-deg", "grid2_deg", "--grid-step-deg"),
     _scara_only("--nominal-mm", "nominal_mm", "the robot file's geometry and --tool-offset-mm"),
     _scara_only("--reflectors-mm", "reflectors_mm", "the stations fitted to the nominal tool points"),
     _scara_only("--fix-reflectors", "fix_reflectors", "the stations fitted to the nominal tool points", False),
     _robot_only("--tool-offset-mm", "tool_offset_mm"),
-    _robot_only("--grid-step-deg", "grid_step_deg"),
+    Option("identify", "--grid-step-deg", "grid_step_deg", ("serial", "machine5"), {
+        "scara": f"{{flag}} {_ROBOT} or --machine FILE; {_SCARA_PATH}",
+        None: "{flag} needs --robot FILE --tool-frame NAME or --machine FILE (error-map nodes every S deg)"}),
     _robot_only("--compliance", "compliance", False),
     _robot_only("--drift", "drift", False),
     _robot_only("--cv", "cv"),
-    Option("identify", "--smoothing", "smoothing", ("serial", "scara", "volumetric"),
+    Option("identify", "--smoothing", "smoothing", ("serial", "scara", "volumetric", "machine5"),
            {None: "{flag} applies to error maps and error motions (--model errormap, volumetric), not to the "
                   "multilateration's free targets"}),
     # olti uncertainty: the result kinds (io.documents.read_result)
@@ -134,6 +142,9 @@ OPTIONS = (
     Option("compensate", "--cartesian-out", "cartesian_out", ("serial",),
            {None: "{flag} (pre-distorted Cartesian targets for the controller's IK) needs the result of a robot "
                   "model file (olti identify --robot)"}),
+    Option("compensate", "--ur-kinematics-out", "ur_kinematics_out", ("serial",),
+           {None: "{flag} (a UR-style default_kinematics.yaml) needs the result of a robot model file (olti "
+                  "identify --robot)"}),
     Option("compensate", "--ros2-control-out", "ros2_control_out", ("serial",),
            {None: "{flag} (joint offsets for ros2_control) needs the result of a robot model file (olti identify "
                   "--robot)"}),

@@ -141,7 +141,7 @@ EXIT_TARGETS_FAILED = 3
 
 def compensate(args) -> int:
     """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]
-    [--cartesian-out FILE] [--ros2-control-out FILE]`` for a serial robot: targets x_mm, y_mm, z_mm with their
+    [--cartesian-out FILE] [--ros2-control-out FILE] [--ur-kinematics-out FILE]`` for a serial robot: targets x_mm, y_mm, z_mm with their
     nominal pose theta1_deg .. thetaN_deg (and dirs). Every target is solved; one that cannot be is a row with
     ``status`` != 0 (its nominal command kept), one line on stderr naming its file line, and exit
     :data:`EXIT_TARGETS_FAILED`; a program none of whose targets can be compensated is refused (exit 2, nothing
@@ -159,12 +159,17 @@ def compensate(args) -> int:
     model = res.model
     cartesian_out = getattr(args, "cartesian_out", None)
     ros2_out = getattr(args, "ros2_control_out", None)
+    ur_out = getattr(args, "ur_kinematics_out", None)
     tables = [os.path.join(args.tables, f"{m.joint}_compensation.csv") for m in model.maps] if args.tables else []
-    _preflight(args, [args.out, args.urdf_out, cartesian_out, ros2_out] + tables,
+    _preflight(args, [args.out, args.urdf_out, cartesian_out, ros2_out, ur_out] + tables,
                [args.result, args.targets, res.robot_path], dirs=[args.tables] if args.tables else [])
     if args.tables and not model.maps:
         raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is "
                          f"'{model.kind}'")
+    if ur_out:  # (refused before any work: a file that cannot be written is said first)
+        from olti_drake.io.ur_kinematics import ur_segments
+
+        ur_segments(model, res.robot_path)
     jt = _commands(res, args.targets, ("x_mm", "y_mm", "z_mm"))
     targets = np.column_stack([jt.table[c] for c in ("x_mm", "y_mm", "z_mm")])
     comp = solve_program(model, targets, jt.commands, jt.dirs, jt.line, args.targets)
@@ -202,6 +207,13 @@ def compensate(args) -> int:
         offsets = write_ros2_control_offsets(model, ros2_out, res.data["robot"]["file"], args.result)
         print(f"wrote {ros2_out} (ros2_control joint offsets, radians: "
               f"{', '.join(f'{j} {v:.3g}' for j, v in offsets.items())})")
+    if ur_out:
+        from olti_drake.io.ur_kinematics import write_ur_kinematics
+
+        rep = write_ur_kinematics(model, res.robot_path, ur_out, res.data["robot"]["file"], args.result)
+        print(f"wrote {ur_out} (UR-style kinematics, hash {rep.hash}; tool point residual vs the model RMS "
+              f"{1e3 * rep.residual_rms_mm:.3g} um, max {1e3 * rep.residual_max_mm:.3g} um"
+              + (f"; not held: {'; '.join(rep.cannot_hold)}" if rep.cannot_hold else "") + ")")
     if tables:
         from olti_drake.io.outputs import make_dir
 

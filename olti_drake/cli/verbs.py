@@ -145,6 +145,11 @@ def cmd_simulate(args) -> int:
         if args.meshcat and sys.stdin.isatty():
             input("press Enter to close the Meshcat view: ")
         return 0
+    if kind == "machine5":  # a five-axis machine tool (it has `machine_model`)
+        from olti_drake.sim.five_axis_station import simulate_five_axis_command
+        print(simulate_five_axis_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
+                                         args.seed, args.meshcat))
+        return 0
     if kind == "machine3d":  # a 3D machine tool (it has `heads_mm`)
         from olti_drake.sim.machine3d_station import simulate_machine3d_command
         print(simulate_machine3d_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
@@ -329,7 +334,7 @@ def cmd_report(args) -> int:
 
     t0 = time.perf_counter()
     paths = write_report(args.result, args.out, args.uncertainty, args.campaign, args.truth, date=args.date,
-                         force=args.force)
+                         force=args.force, iso9283_path=args.iso9283, tolerances=args.tolerance)
     for path in paths:
         print(f"wrote {path}")
     html_path = paths[-1]
@@ -471,9 +476,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are shipped), from a distance or tracker-point campaign with theta1_deg .. "
                                    "thetaN_deg (docs/serial_robots.md).")
     p.add_argument("campaign", help="campaign CSV (formats.md)")
-    p.add_argument("--model", choices=("dh", "errormap", "volumetric"), required=True,
+    p.add_argument("--model", choices=("dh", "errormap", "volumetric", "geometric"), required=True,
                    help="volumetric: the 21 ISO 230-1 error motions of a 3-axis machine from a 3D machine campaign "
-                        "(docs/machine_3d.md)")
+                        "(docs/machine_3d.md); with --machine: geometric (the rotary axes' location errors and tool "
+                        "offsets) or errormap (plus their error motions, docs/five_axis.md)")
     p.add_argument("--out", required=True, help="result JSON to write")
     p.add_argument("--grid1-deg", help="J1 map nodes START:STOP:STEP or a comma list (default: commanded angles)")
     p.add_argument("--grid2-deg", help="J2 map nodes (default: the distinct commanded J2 angles)")
@@ -497,7 +503,12 @@ def build_parser() -> argparse.ArgumentParser:
                                     "against (warning above 3 x; default: 000 Table 2)")
     p.add_argument("--robot", help="any serial robot: a URDF/SDFormat model file, or a shipped model (ur5, scara); "
                                    "the campaign then has theta1_deg..thetaN_deg (docs/serial_robots.md)")
-    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0)")
+    p.add_argument("--tool-frame", help="with --robot: the frame carrying the tool point (e.g. tool0); with --machine: "
+                                        "the tool frame on the spindle (default tool)")
+    p.add_argument("--machine", help="a five-axis machine tool: its URDF/SDFormat model file (prismatic X, Y, Z and "
+                                     "revolute A, B, C joints named by their letters; formats.md, Five-axis machine "
+                                     "tools); the campaign then has x/y/z_cmd_mm and <letter>_cmd_deg")
+    p.add_argument("--workpiece-frame", help="with --machine: the workpiece frame on the table (default workpiece)")
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
     p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
@@ -679,6 +690,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--campaign", help="the campaign CSV of the result: covariance (linear), map, residuals")
     p.add_argument("--truth", help="truth.json of a simulated SCARA campaign (olti simulate): validation")
     p.add_argument("--date", help="date text for the header (the report never reads the clock)")
+    p.add_argument("--iso9283", metavar="VALIDATION.csv",
+                   help="robots from a model file: ISO 9283 pose accuracy (AP) and repeatability (RP) from a "
+                        "tracker-point campaign with repeated cycles (each distinct command row a pose)")
+    p.add_argument("--tolerance", type=cliargs.tolerances, default=None, metavar="AP_P=0.1,RP_l=0.05",
+                   help="with --iso9283: a verdict line per characteristic (AP_P, RP_l in mm; AP_abc, RP_abc in deg)")
     _add_force(p)
     p.set_defaults(func=cmd_report)
 
@@ -709,6 +725,9 @@ def build_parser() -> argparse.ArgumentParser:
                                            "to the controller's own IK")
     p.add_argument("--ros2-control-out", help="serial robots: also write the identified joint offsets as ros2_control "
                                               "joint 'offset' parameters (YAML, radians)")
+    p.add_argument("--ur-kinematics-out", help="six-joint robots from a URDF: also write the identified joint origins "
+                                               "as a UR-style default_kinematics.yaml (metres, radians), with what it "
+                                               "cannot hold and the residual that leaves")
     p.add_argument("--pitch-mm", type=cliargs.length_mm,
                    help="volumetric --tables: axis tables every S mm (default 10)")
     p.add_argument("--grid-pitch-mm", type=cliargs.length_mm,

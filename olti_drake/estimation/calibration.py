@@ -2216,6 +2216,23 @@ def station_fit(points_mm, readings_mm, start_mm=None):
     return P, L0
 
 
+def station_starts(points_mm, readings_mm, station, labels, source: str):
+    """(P (N, D), L0 (N,)) mm: :func:`station_fit` of every station ``labels[j]`` to the readings whose ``station``
+    is that label, at their (nominal) points; a station it cannot place is not identifiable, named (its P_j)."""
+    p, d, station = np.asarray(points_mm, float), np.asarray(readings_mm, float), np.asarray(station)
+    P, L0 = [], []
+    for j, label in enumerate(labels):
+        sel = station == label
+        try:
+            s, l0 = station_fit(p[sel], d[sel])
+        except ValueError as e:
+            raise UnidentifiableError(f"{source}: station {label}: not identifiable: P{j}_x_mm, P{j}_y_mm, "
+                                      f"P{j}_z_mm ({e})", [f"P{j}_x_mm"]) from None
+        P.append(s)
+        L0.append(l0)
+    return np.array(P), np.array(L0)
+
+
 class StationFitFailed(ValueError):
     """:func:`station_fit` found no station: the readings are no distances from one point to these points (the
     message says why it looks so), not a flat point set (that is a plain ValueError)."""

@@ -165,17 +165,43 @@ def _volumetric(campaign, o: dict):
     return vi, lambda pristine=False: vi.solve(budget), data
 
 
+def _machine5(campaign, o: dict):
+    from olti_drake.estimation.five_axis import FiveAxisIdentification, FiveAxisOptions
+    from olti_drake.io.five_axis_io import read_five_axis_campaign
+    from olti_drake.model.five_axis import FiveAxisMachine
+
+    machine = FiveAxisMachine.from_file(o.pop("machine"), o.pop("workpiece_frame", None) or "workpiece",
+                                        o.pop("tool_frame", None) or "tool")
+    o["budget"] = _budget(o)
+    options = _options(FiveAxisOptions, o, KINDS["machine5"].what)
+    data = read_five_axis_campaign(campaign, machine)
+    ident = FiveAxisIdentification(data, machine, options)
+    return ident, lambda pristine=False: ident.fit(), data
+
+
 #: The kinds of calibration, by name: the one place that tells them apart (:func:`kind_of`).
 KINDS = {
     "scara": Kind("scara", _scara, "the SCARA of paper 000 (model dh or errormap)"),
     "serial": Kind("serial", _serial, "an N-joint robot from its model file (robot=, tool_frame=)"),
     "multilateration": Kind("multilateration", _multilateration, "the machine-tool multilateration of 001"),
     "volumetric": Kind("volumetric", _volumetric, "the 21 ISO 230-1 motions of a 3-axis machine"),
+    "machine5": Kind("machine5", _machine5, "a five-axis machine from its model file (machine=, model geometric or "
+                                            "errormap)"),
 }
 
 
-def kind_of(model: str, robot: Optional[str] = None) -> Kind:
-    """The kind a model name (and a robot file, for the N-joint robot) asks for."""
+def kind_of(model: str, robot: Optional[str] = None, machine: Optional[str] = None) -> Kind:
+    """The kind a model name (and a robot file, for the N-joint robot; a machine file, for a five-axis machine)
+    asks for."""
+    if machine is not None:
+        if robot is not None:
+            raise InputError("a five-axis machine (--machine FILE) takes no robot (--robot)")
+        if model not in ("geometric", "errormap"):
+            raise InputError(f"model {model!r}: a five-axis machine (--machine FILE) takes --model geometric or errormap")
+        return KINDS["machine5"]
+    if model == "geometric":
+        raise InputError("model 'geometric' is a five-axis machine's model: give its model file (--machine FILE; "
+                         "machine=FILE in calibration_problem)")
     if model in ("multilateration", "volumetric"):
         if robot is not None:
             raise InputError(f"model={model!r} is a machine-tool model: it takes no robot")
@@ -190,14 +216,15 @@ def calibration_problem(campaign, model: str = "errormap", robot: Optional[str] 
 
     ``model``: ``dh`` | ``errormap`` (the SCARA of 000 without ``robot``; an N-joint robot with ``robot`` = a
     URDF/SDFormat file or a shipped name and ``tool_frame``), ``multilateration`` (001, 2D or 3D) or
-    ``volumetric``. ``options``: those of ``olti identify`` by their option names (mm, degrees), e.g.
+    ``volumetric``; with ``machine`` = a five-axis machine model file (and ``workpiece_frame``, ``tool_frame``)
+    ``geometric`` or ``errormap``. ``options``: those of ``olti identify`` by their option names (mm, degrees), e.g.
     ``grid_step_deg``, ``tool_offset_mm``, ``compliance``, ``drift`` (N-joint), ``grid1_deg`` (SCARA, a grid
     text or array), ``nominal_L1_mm``, ``reflectors_mm``, ``fix_reflectors``, ``stations_mm``, ``gauge``,
     ``tool_offsets_mm`` (machines), ``knot_spacing_mm``, ``topology``, ``pitch_mm`` (volumetric); solver
     options ``loss``, ``huber_k``, ``outlier_threshold``, ``regularize``, ``max_iterations``, ``budget`` (a
     budget file or object; for the multilateration also ``"residuals"``: u from the residual variance alone).
     An unknown option is refused by name."""
-    kind = kind_of(model, robot)
+    kind = kind_of(model, robot, options.get("machine"))
     o = dict(options, model=model)
     if robot is not None:
         o["robot"] = robot

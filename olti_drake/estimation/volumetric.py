@@ -46,7 +46,7 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.estimation.calibration import station_fit
+from olti_drake.estimation.calibration import station_starts
 from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError
 from olti_drake.estimation.multilateration import MachineCampaign
 from olti_drake.io.csvio import campaign_digest
@@ -360,17 +360,7 @@ class VolumetricIdentification(Calibration):
         """Per station, the 3D closed-form multilateration on the nominal tool points, refined (station_fit)."""
         d = self.data
         nominal = d.commands_mm + self.config.tools[d.tool]
-        P, L0 = [], []
-        for j in range(d.n_stations):
-            rows = d.station == j
-            try:
-                s, l0 = station_fit(nominal[d.target[rows]], d.displacement_mm[rows])
-            except ValueError as e:
-                raise UnidentifiableError(f"{d.source}: station {j}: not identifiable: P{j}_x_mm, P{j}_y_mm, "
-                                          f"P{j}_z_mm ({e})", [f"P{j}_x_mm"]) from None
-            P.append(s)
-            L0.append(l0)
-        return np.array(P), np.array(L0)
+        return station_starts(nominal[d.target], d.displacement_mm, d.station, range(d.n_stations), d.source)
 
     # -- the model ----------------------------------------------------------------------------------
     def theta(self, x) -> np.ndarray:

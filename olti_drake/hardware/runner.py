@@ -383,6 +383,9 @@ def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = No
     from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 
     kind = scenario_kind(path, name)
+    if kind == "machine5":  # no emulated or hardware five-axis station yet: simulate only
+        raise InputError(f"scenario {os.fspath(path)}: olti run does not take five-axis scenarios yet (no emulated or "
+                         f"hardware five-axis station); olti simulate runs its diagram")
     if kind == "machine3d":
         from olti_drake.sim.machine3d_station import load_machine3d_scenario
 

@@ -26,7 +26,8 @@ from olti_drake.formats import (MULTILATERATION_RESULT, RESULT_FORMAT, RESULT_FO
 #: :func:`result_kind`).
 _LEGACY_KIND = {ROBOT_RESULT: "scara", MULTILATERATION_RESULT: "multilateration", VOLUMETRIC_RESULT: "volumetric"}
 #: Kinds as a verb's message lists them.
-_NAMES = {"scara": "SCARA", "serial": "serial-robot", "multilateration": "multilateration", "volumetric": "volumetric"}
+_NAMES = {"scara": "SCARA", "serial": "serial-robot", "multilateration": "multilateration", "volumetric": "volumetric",
+          "machine5": "five-axis machine"}
 
 
 def _either(words) -> str:

@@ -49,32 +49,51 @@ def identified_pose(chain_params, i: int, offset_deg: float = 0.0):
     return RigidTransform(rot, g[:3] / 1000.0), np.radians(offset_deg)
 
 
-def write_identified_urdf(model, source_path, out_path, comment: str = "") -> str:
-    """Write ``out_path``: ``source_path`` (a URDF) with ``model``'s identified geometry (module docstring)."""
+def identified_origins(model, root, name: str, offsets_deg: dict) -> list:
+    """[(the URDF ``<joint>`` element, its identified origin)] of every chain joint, chain order: origin_i · Δ_i ·
+    Rot(axis_i, offset_i) (metres; module docstring), ``offsets_deg`` {chain index: deg} the angle offsets to
+    fold in. ``root``: the URDF's ``<robot>`` element; ``name``: the file, for messages."""
     from pydrake.common.eigen_geometry import AngleAxis
     from pydrake.math import RigidTransform, RotationMatrix
 
-    from olti_drake.io.outputs import writing
-
-    name = os.fspath(source_path)
-    try:
-        tree = ET.parse(name, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
-    except (ET.ParseError, OSError) as e:
-        raise InputError(f"{name}: cannot read it as URDF for --urdf-out ({e})") from None
-    root = tree.getroot()
-    if root.tag != "robot":
-        raise InputError(f"--urdf-out writes URDF; the robot model {name} is not a URDF (root element "
-                         f"<{root.tag}>): convert it, or leave --urdf-out out")
     chain = model.chain
     params = model.chain_parameters(model.start_vector())
-    offsets = dict(zip(model.offset_joints, model.offset_values))
+    out = []
     for i, joint_name in enumerate(chain.joint_names):
         joint = root.find(f"joint[@name='{joint_name}']")
         if joint is None:
             raise InputError(f"{name}: joint '{joint_name}' of the chain is not a <joint> of the URDF")
-        delta, angle = identified_pose(params, i, offsets.get(i, 0.0))
+        delta, angle = identified_pose(params, i, offsets_deg.get(i, 0.0))
         turn = RigidTransform(RotationMatrix(AngleAxis(angle, np.asarray(chain.axes[i], float))), np.zeros(3))
-        _set_origin(joint, _pose(joint.find("origin")) @ delta @ turn)
+        out.append((joint, _pose(joint.find("origin")) @ delta @ turn))
+    return out
+
+
+def read_urdf(source_path, what: str):
+    """(tree, ``<robot>`` root) of a URDF file, refused in one line naming ``what`` needs it."""
+    name = os.fspath(source_path)
+    try:
+        tree = ET.parse(name, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
+    except (ET.ParseError, OSError) as e:
+        raise InputError(f"{name}: cannot read it as URDF for {what} ({e})") from None
+    root = tree.getroot()
+    if root.tag != "robot":
+        raise InputError(f"{what} writes from a URDF; the robot model {name} is not a URDF (root element "
+                         f"<{root.tag}>): convert it, or leave {what} out")
+    return tree, root
+
+
+def write_identified_urdf(model, source_path, out_path, comment: str = "") -> str:
+    """Write ``out_path``: ``source_path`` (a URDF) with ``model``'s identified geometry (module docstring)."""
+    from olti_drake.io.outputs import writing
+
+    name = os.fspath(source_path)
+    tree, root = read_urdf(name, "--urdf-out")
+    chain = model.chain
+    params = model.chain_parameters(model.start_vector())
+    offsets = dict(zip(model.offset_joints, model.offset_values))
+    for joint, origin in identified_origins(model, root, name, offsets):
+        _set_origin(joint, origin)
     tool_link = chain.tool_frame
     if root.find(f"link[@name='{tool_link}']") is None:
         raise InputError(f"{name}: the tool frame '{tool_link}' is not a <link> of the URDF: --urdf-out needs a "

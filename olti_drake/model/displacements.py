@@ -193,7 +193,74 @@ def rigid_fit(p_mm, q_mm):
 
 
 # ------------------------------------------------------------------------------------ R-test / 3D probe
-class NestDisplacementMeasurement:
+class _GroupedPoints:
+    """What the nest and tracker measurements share: readings of 3 coordinates (mm) of the model's points
+    ``points``, each reading in a set-up (a nest, a tracker frame: ``labels``, the index ``index``) with
+    :attr:`width` unknowns of its own after the model's."""
+
+    width = 3
+
+    def _setup(self, model, points, groups, values, value_name: str, group_name: str, what: str, sigma_mm,
+               sigma_name: str) -> None:
+        self.model = model
+        self.dim = _model_3d(model, what)
+        self.points = _indices(points, "points", int(model.n_points))
+        self.values = _xyz(values, value_name, len(self.points))
+        labels = _indices(groups, group_name)
+        if len(labels) != len(self.points):
+            raise InputError(f"{group_name}: {len(labels)} values for {len(self.points)} readings (one per reading)")
+        if not len(labels):
+            raise InputError(f"{what}: no readings")
+        self.labels, index = np.unique(labels, return_inverse=True)
+        self.index = index.ravel()
+        self.sigma_mm = _sigma(sigma_mm, sigma_name)
+        self.n_model = int(model.n_params)
+        self.own_col = self.n_model
+
+    @property
+    def names(self):
+        return tuple(self.model.names) + self.own_names
+
+    @property
+    def n_rows(self) -> int:
+        return 3 * len(self.points)
+
+    @property
+    def readings(self) -> np.ndarray:
+        """The readings per residual row (3K,) mm: x, y, z (or dx, dy, dz) of reading 0, then reading 1, ..."""
+        return self.values.ravel()
+
+    def start_vector(self) -> np.ndarray:
+        return np.concatenate([self.model.start_vector(), self._own_start])
+
+    def split(self, x):
+        """(model part, the set-ups' own unknowns (N, :attr:`width`)) of a parameter vector (views)."""
+        x = _vector(x, len(self.names))
+        return x[:self.n_model], x[self.own_col:].reshape(-1, self.width)
+
+    def residuals(self, x):
+        """r (3K,) mm and the sparse dr/dx (3K, n) as CSR (:meth:`residual_rows` of one vector)."""
+        r, cols, vals = self.residual_rows(np.asarray(x, float)[None])
+        jac = rows_to_csr(cols, vals[0], len(self.names))
+        jac.sum_duplicates()
+        return r[0], jac
+
+    def roughness(self):
+        return _own_roughness(self.model, len(self.own_names))
+
+    def reading_spans(self):
+        """(the widest spread of one set-up's readings, the widest spread of the start points it sees), mm:
+        readings spread far less than the points they are read at are in another unit (the engine's checks)."""
+        p = np.asarray(self.model.positions(self.model.start_vector()), float)[self.points]
+        spread = motion = 0.0
+        for j in range(len(self.labels)):
+            sel = self.index == j
+            spread = max(spread, float(np.ptp(self.values[sel], axis=0).max()))
+            motion = max(motion, float(np.ptp(p[sel], axis=0).max()))
+        return spread, motion
+
+
+class NestDisplacementMeasurement(_GroupedPoints):
     """R-test / 3D-probe readings of a position model's points from nests (ISO 10791-6, ISO 230-7 R-test;
     formats.md "Five-axis machine tools"): reading k is the displacement d_k (dx, dy, dz mm, workpiece frame) of
     point i = ``points[k]`` (the spindle ball's centre) from the zero c_n of nest n = ``nest[k]``:
@@ -214,22 +281,11 @@ class NestDisplacementMeasurement:
     NEST_SPANS = 100.0
 
     def __init__(self, model, points, nest, displacement_mm, nests_start_mm=None, sigma_mm=None):
-        self.model = model
-        self.dim = _model_3d(model, "nest displacement measurement")
-        self.points = _indices(points, "points", int(model.n_points))
-        self.displacement = _xyz(displacement_mm, "displacement_mm (dx_mm, dy_mm, dz_mm)", len(self.points))
-        labels = _indices(nest, "nest")
-        if len(labels) != len(self.points):
-            raise InputError(f"nest: {len(labels)} values for {len(self.points)} readings (one per reading)")
-        if not len(labels):
-            raise InputError("nest displacement measurement: no readings")
-        self.labels, self.nest = np.unique(labels, return_inverse=True)
-        self.nest = self.nest.ravel()
-        self.sigma_mm = _sigma(sigma_mm, "sigma_mm of the nest readings")
+        self._setup(model, points, nest, displacement_mm, "displacement_mm (dx_mm, dy_mm, dz_mm)", "nest",
+                    "nest displacement measurement", sigma_mm, "sigma_mm of the nest readings")
+        self.displacement, self.nest, self.nest_col = self.values, self.index, self.own_col
         self.n_nests = len(self.labels)
         self.own_names = tuple(f"nest{j}_{c}_mm" for j in self.labels for c in "xyz")
-        self.n_model = int(model.n_params)
-        self.nest_col = self.n_model
         self._own_start = (self._start_nests() if nests_start_mm is None else
                            _xyz(nests_start_mm, "nests_start_mm", self.n_nests)).ravel()
 
@@ -239,27 +295,6 @@ class NestDisplacementMeasurement:
         sums = np.zeros((self.n_nests, 3))
         np.add.at(sums, self.nest, p)
         return sums / np.bincount(self.nest, minlength=self.n_nests)[:, None]
-
-    @property
-    def names(self):
-        return tuple(self.model.names) + self.own_names
-
-    @property
-    def n_rows(self) -> int:
-        return 3 * len(self.points)
-
-    @property
-    def readings(self) -> np.ndarray:
-        """The readings per residual row (3K,) mm: dx, dy, dz of reading 0, then reading 1, ..."""
-        return self.displacement.ravel()
-
-    def start_vector(self) -> np.ndarray:
-        return np.concatenate([self.model.start_vector(), self._own_start])
-
-    def split(self, x):
-        """(model part, nest zeros (N_n, 3) mm) of a parameter vector (views)."""
-        x = _vector(x, len(self.names))
-        return x[:self.n_model], x[self.nest_col:].reshape(-1, 3)
 
     def residual_rows(self, X, displacement_mm=None):
         """r = p_i − c_n − d for T parameter vectors at once, the Jacobian row-compressed (the Monte Carlo's).
@@ -284,13 +319,6 @@ class NestDisplacementMeasurement:
         vals = np.concatenate([_broadcast_dp(dp, (T, K, m)), -np.ones((T, K, 3, 1))], axis=3)
         return r, cols.reshape(3 * K, m + 1), vals.reshape(T, 3 * K, m + 1)
 
-    def residuals(self, x):
-        """r (3K,) = p_i − c_n − d (mm) and the sparse dr/dx (3K, n) as CSR."""
-        r, cols, vals = self.residual_rows(np.asarray(x, float)[None])
-        jac = rows_to_csr(cols, vals[0], len(self.names))
-        jac.sum_duplicates()
-        return r[0], jac
-
     def beam_lengths(self, x, residuals=None) -> np.ndarray:
         """An R-test or probe has no beam: 0 mm per row (a budget's cosine term vanishes; its constant parts
         stay)."""
@@ -301,20 +329,6 @@ class NestDisplacementMeasurement:
         vm, nests = self.split(np.asarray(v, float))
         return {**self.model.layout(vm, uncertainty), "nests_mm": nests.tolist(),
                 "nest_labels": [int(j) for j in self.labels]}
-
-    def roughness(self):
-        return _own_roughness(self.model, len(self.own_names))
-
-    def reading_spans(self):
-        """(the widest spread of one nest's readings, the widest spread of the start points one nest sees), mm:
-        readings spread far less than the points they are read at are in another unit (the engine's checks)."""
-        p = np.asarray(self.model.positions(self.model.start_vector()), float)[self.points]
-        spread = motion = 0.0
-        for j in range(self.n_nests):
-            sel = self.nest == j
-            spread = max(spread, float(np.ptp(self.displacement[sel], axis=0).max()))
-            motion = max(motion, float(np.ptp(p[sel], axis=0).max()))
-        return spread, motion
 
     def implausible(self, x) -> list:
         """Nest zeros beyond :attr:`NEST_SPANS` x (the span of the points they see, their largest reading,
@@ -333,7 +347,7 @@ class NestDisplacementMeasurement:
 
 
 # ----------------------------------------------------------------------------------------------- tracker
-class PointMeasurement:
+class PointMeasurement(_GroupedPoints):
     """Tracker points of a position model's points in the tracker's own frame (formats.md "Five-axis machine
     tools": ``x_mm, y_mm, z_mm``): reading k of point i = ``points[k]`` by tracker set-up g = ``frame_group[k]``
     is m_k = R(w_g) p_i + t_g, so r_k = R(w_g) p_i(x) + t_g − m_k (3 rows per reading, mm).
@@ -353,24 +367,15 @@ class PointMeasurement:
     #: A tracker farther than this many spans of the model's points from their centre is absurd.
     STATION_SPANS = 100.0
 
+    width = 6
+
     def __init__(self, model, points, frame_group, xyz_mm, frames_start=None, sigma_mm=None):
-        self.model = model
-        self.dim = _model_3d(model, "tracker point measurement")
-        self.points = _indices(points, "points", int(model.n_points))
-        self.xyz = _xyz(xyz_mm, "xyz_mm (x_mm, y_mm, z_mm)", len(self.points))
-        labels = _indices(frame_group, "frame_group")
-        if len(labels) != len(self.points):
-            raise InputError(f"frame_group: {len(labels)} values for {len(self.points)} readings (one per reading)")
-        if not len(labels):
-            raise InputError("tracker point measurement: no readings")
-        self.labels, self.group = np.unique(labels, return_inverse=True)
-        self.group = self.group.ravel()
-        self.sigma_mm = _sigma(sigma_mm, "sigma_mm of the tracker points")
+        self._setup(model, points, frame_group, xyz_mm, "xyz_mm (x_mm, y_mm, z_mm)", "frame_group",
+                    "tracker point measurement", sigma_mm, "sigma_mm of the tracker points")
+        self.xyz, self.group, self.frame_col = self.values, self.index, self.own_col
         self.n_frames = len(self.labels)
         self.own_names = tuple(f"frame{g}_{c}" for g in self.labels
                                for c in ("x_mm", "y_mm", "z_mm", "rx_urad", "ry_urad", "rz_urad"))
-        self.n_model = int(model.n_params)
-        self.frame_col = self.n_model
         if frames_start is None:
             self._own_start = self._start_frames().ravel()
         else:
@@ -392,27 +397,6 @@ class PointMeasurement:
                 raise InputError(f"tracker set-up {label}: {e}") from None
             out[j] = np.concatenate([t, rotation_vector(R) / URAD])
         return out
-
-    @property
-    def names(self):
-        return tuple(self.model.names) + self.own_names
-
-    @property
-    def n_rows(self) -> int:
-        return 3 * len(self.points)
-
-    @property
-    def readings(self) -> np.ndarray:
-        """The readings per residual row (3K,) mm: x, y, z of reading 0, then reading 1, ..."""
-        return self.xyz.ravel()
-
-    def start_vector(self) -> np.ndarray:
-        return np.concatenate([self.model.start_vector(), self._own_start])
-
-    def split(self, x):
-        """(model part, frames (G, 6): t mm, w µrad) of a parameter vector (views)."""
-        x = _vector(x, len(self.names))
-        return x[:self.n_model], x[self.frame_col:].reshape(-1, 6)
 
     def residual_rows(self, X, xyz_mm=None):
         """r = R(w_g) p_i + t_g − m for T parameter vectors at once, the Jacobian row-compressed.
@@ -445,13 +429,6 @@ class PointMeasurement:
         vals = np.concatenate([d_model, np.ones((T, K, 3, 1)), d_rot], axis=3)
         return r, cols.reshape(3 * K, m + 4), vals.reshape(T, 3 * K, m + 4)
 
-    def residuals(self, x):
-        """r (3K,) = R p + t − m (mm) and the sparse dr/dx (3K, n) as CSR."""
-        r, cols, vals = self.residual_rows(np.asarray(x, float)[None])
-        jac = rows_to_csr(cols, vals[0], len(self.names))
-        jac.sum_duplicates()
-        return r[0], jac
-
     def predict(self, x) -> np.ndarray:
         """The points in their set-up's tracker frame (K, 3) mm: the residual of zero readings."""
         return self.residual_rows(np.asarray(x, float)[None], np.zeros(self.n_rows))[0][0].reshape(-1, 3)
@@ -469,19 +446,6 @@ class PointMeasurement:
             {"set_up": int(g), "translation_mm": f[:3].tolist(), "rotation_vector_urad": f[3:].tolist(),
              "convention": "tracker point = R(w) p + t, R(w) = exp([w]x), w in urad"}
             for g, f in zip(self.labels, frames)]}
-
-    def roughness(self):
-        return _own_roughness(self.model, len(self.own_names))
-
-    def reading_spans(self):
-        """(the widest spread of one set-up's readings, the widest spread of the start points it sees), mm."""
-        p = np.asarray(self.model.positions(self.model.start_vector()), float)[self.points]
-        spread = motion = 0.0
-        for j in range(self.n_frames):
-            sel = self.group == j
-            spread = max(spread, float(np.ptp(self.xyz[sel], axis=0).max()))
-            motion = max(motion, float(np.ptp(p[sel], axis=0).max()))
-        return spread, motion
 
     def implausible(self, x) -> list:
         """A tracker (its origin in the model's frame, −Rᵀt) beyond :attr:`STATION_SPANS` x the model's span from

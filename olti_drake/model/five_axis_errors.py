@@ -460,11 +460,16 @@ class FiveAxisPositionModel:
     # ------------------------------------------------------------------ priors and gauge
     def roughness(self) -> Optional[sp.csr_matrix]:
         """000's map smoothness rows (:meth:`JointMap.roughness`: each branch and the backlash) of every error
-        motion over x; None without motions."""
+        motion over x; None without motions. An angular motion (µrad) counts at the tool point it moves: times
+        :meth:`roughness_lever_mm` · 10⁻⁶ (mm per µrad), so that one weight serves mm and µrad alike (as the 3-axis
+        machine's prior, :func:`olti_drake.model.volumetric3d.motion_roughness`)."""
         em = self.errors
         blocks = []
+        lever = self.roughness_lever_mm() * 1e-6
         for (L, c), jm in em.maps.items():
             R = jm.roughness()
+            if unit(c) == "urad":
+                R = R * lever
             if R.shape[0]:
                 s = em.slices[jm.joint]
                 blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
@@ -473,6 +478,13 @@ class FiveAxisPositionModel:
             return None
         R = sp.vstack(blocks, format="csr")[:, self.free_cols]
         return R[np.flatnonzero(R.getnnz(axis=1))]  # (rows on held motions only: none)
+
+    def roughness_lever_mm(self) -> float:
+        """The lever (mm) at which an angular error motion's roughness counts as the tool point's: half the
+        diagonal of the span of the nominal tool points (an angle of ε µrad moves a point that far by
+        ε·lever·10⁻⁶ mm)."""
+        p = self.positions(self.start_vector())
+        return 0.5 * float(np.linalg.norm(np.ptp(p, axis=0))) or 1.0
 
     def gauge_constraints(self) -> Tuple[GaugeConstraint, ...]:
         """The error motions' gauge, A x = 0 (module docstring; :func:`gauge_patterns`): per motion the grid mean
@@ -621,7 +633,7 @@ PREFER_DROPPING = ("E_A0A_urad", "E_B0B_urad", "E_C0C_urad")
 
 
 def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8, share: float = 1e-3,
-              prefer: Tuple[str, ...] = PREFER_DROPPING) -> Separability:
+              prefer: Tuple[str, ...] = PREFER_DROPPING, jacobian=None) -> Separability:
     """Which location errors and error motions a campaign separates, and the fewest to drop so that the rest is.
 
     The model's Jacobian at its commands with the measurement's own unknowns (``stations_mm`` (N, 3): distances
@@ -630,10 +642,14 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
     :func:`olti_drake.model.volumetric3d.observability`). While the null space (singular values ≤ ``rtol`` × the
     largest) is not empty, a group holding more than ``share`` of it is dropped -- the first of ``prefer`` among
     them, else the one holding most --, the reason naming the groups its null directions share ("the measurement's
-    gauge" when the nuisance takes part)."""
+    gauge" when the nuisance takes part). ``jacobian``: instead, (J, what) of any measurement of the model -- its
+    residuals' Jacobian (rows, n_params + its own unknowns: nests, tracker frames, stations), the model's columns
+    first -- e.g. a mixed campaign's (:class:`~olti_drake.model.displacements.CombinedMeasurement`)."""
     from olti_drake.threads import single_thread_blas
 
-    A, N, what = _separability_rows(model, stations_mm)
+    A, N, what = (_separability_rows(model, stations_mm) if jacobian is None else
+                  _with_ties(model, np.asarray(jacobian[0].todense() if hasattr(jacobian[0], "todense") else
+                                               jacobian[0], float), jacobian[1]))
     norms = np.linalg.norm(A, axis=0)
     unit_cols = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
     groups = _groups(model)
@@ -693,6 +709,14 @@ def _separability_rows(model: FiveAxisPositionModel, stations_mm):
         full = np.zeros((len(pts), n + 4 * s))
         np.add.at(full, (np.repeat(np.arange(len(pts)), rc.shape[1]), rc.ravel()), rv[0].ravel())
         A, N, what = full[:, :n], full[:, n:], f"distances from {s} stations, unknown stations and dead paths"
+    return _with_ties(model, np.hstack([A, N]), what)
+
+
+def _with_ties(model: FiveAxisPositionModel, J, what: str):
+    """(model columns A, nuisance columns N, what) of a Jacobian J (rows, n_params + own), the motions' gauge rows
+    appended to A (scaled to its largest column)."""
+    n = model.n_params
+    A, N = J[:, :n], J[:, n:]
     ties = np.array([c.row for c in model.gauge_constraints()]).reshape(-1, n)
     A = np.vstack([A, ties * (np.linalg.norm(A, axis=0).max() if A.size else 1.0)])
     return A, np.vstack([N, np.zeros((len(ties), N.shape[1]))]), what

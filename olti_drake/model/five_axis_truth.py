@@ -53,9 +53,11 @@ class FiveAxisTruth:
         k = self.machine.axes.index(L)
         lo, hi = (v if np.isfinite(v) else s for v, s in zip((self.machine.lower[k], self.machine.upper[k]),
                                                               (-180.0, 180.0)))  # (a continuous joint: one turn)
-        dense = np.linspace(lo, hi, 721)
-        B = self._gauge_basis(L, dense)
-        coef = np.linalg.lstsq(B, self._raw(L, dense).ravel(), rcond=None)[0]
+        cache = self.__dict__.setdefault("_gauge_coef", {})  # the fit over the travel depends on L only: once
+        if L not in cache:
+            dense = np.linspace(lo, hi, 721)
+            cache[L] = np.linalg.lstsq(self._gauge_basis(L, dense), self._raw(L, dense).ravel(), rcond=None)[0]
+        coef = cache[L]
         q = np.asarray(q, float)
         out = self._raw(L, q) - (self._gauge_basis(L, q) @ coef).reshape(len(q), 6)
         d = np.broadcast_to(np.asarray(direction, float), q.shape)

@@ -25,7 +25,7 @@ from typing import Union
 
 import numpy as np
 
-from olti_drake.formats import MULTILATERATION_RESULT
+from olti_drake.formats import result_header
 from olti_drake.limits import check_allocation
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.errormap import Harmonic, HarmonicDeviation, NoDeviation, approach_directions
@@ -197,7 +197,7 @@ def simulate_machine_campaign(scenario: MachineScenario, budget=None):
                                           budget or paper001_budget(), rng)
     cols = {"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
             "displacement_mm": np.where(valid, reading, np.nan), "valid": valid.astype(int)}
-    truth = {"format": MULTILATERATION_RESULT, "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
+    truth = {**result_header("multilateration"), "targets_mm": run.targets_mm.tolist(), "stations_mm": P.tolist(),
              "dead_paths_mm": run.dead_paths_mm.tolist(), "commands_mm": cmd.tolist(),
              "gauge": "simulation truth: the machine's command frame", "residual_rms_mm": 0.0,
              "n_readings": int(valid.sum()), "stations_estimate_mm": Pe.tolist(), "seed": scenario.seed}
@@ -311,7 +311,7 @@ def machine_run_3d(scenario: Machine3DScenario) -> Machine3DRun:
 
 def machine3d_truth(scenario: Machine3DScenario, run: Machine3DRun, n_readings: int) -> dict:
     """The simulated truth of a 3D campaign (multilateration result layout, formats.md)."""
-    return {"format": MULTILATERATION_RESULT, "targets_mm": run.actual_mm.tolist(),
+    return {**result_header("multilateration"), "targets_mm": run.actual_mm.tolist(),
             "stations_mm": run.heads_true.centres_mm.tolist(), "dead_paths_mm": run.dead_paths_mm.tolist(),
             "commands_mm": run.commands_mm.tolist(), "tools": run.tool.tolist(),
             "tool_offsets_mm": run.config.tools.tolist(),

@@ -995,6 +995,14 @@ def _frame_rotation(angles_deg):
     return rx @ ry @ rz, (np.array([1.0, 0.0, 0.0]), rx[:, 1], (rx @ ry)[:, 2])
 
 
+def tracker_to_base(points_mm, frame) -> np.ndarray:
+    """Points measured in a tracker's frame (M, 3) mm into the robot's base frame, by a tracker frame of
+    :class:`PointMeasurement` (6: translation t mm, rotation angles deg, m = R·p + t): p = Rᵀ (m − t)."""
+    frame = np.asarray(frame, float).reshape(6)
+    rot, _ = _frame_rotation(frame[3:])
+    return (np.asarray(points_mm, float) - frame[:3]) @ rot
+
+
 # --------------------------------------------------------------------- gauge
 @dataclass(frozen=True)
 class GaugeConstraint:

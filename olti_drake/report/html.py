@@ -504,7 +504,7 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
 
 # -- the page ---------------------------------------------------------------------------------------------
 def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None, truth_path=None,
-                 date: Optional[str] = None, force: bool = False) -> list:
+                 date: Optional[str] = None, force: bool = False, iso9283_path=None, tolerances=None) -> list:
     """Write ``out_dir/report.html`` (self-contained) and its PNG figures; returns the written paths.
 
     Args:
@@ -521,18 +521,26 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
         date: a date string to print in the header (default: the result's ``date`` key, if any; the
             report never reads the clock, so its bytes depend only on the inputs).
         force: replace report files already in ``out_dir`` (else refused; :mod:`olti_drake.io.outputs`).
+        iso9283_path: a validation campaign of tracker points at repeated poses (N-joint robots): the ISO 9283
+            pose accuracy and repeatability (:func:`olti_drake.report.serial_report.iso9283_section`);
+            ``tolerances`` {characteristic: mm or deg} adds a verdict line per characteristic.
 
     Raises InputError / ValueError (one-line messages) for bad input, before writing anything
     when an output would overwrite an input or an existing file (without ``force``).
     """
     out_dir = os.fspath(out_dir)
-    inputs = [os.fspath(p) for p in (result_path, uncertainty_path, campaign_path, truth_path) if p]
+    inputs = [os.fspath(p) for p in (result_path, uncertainty_path, campaign_path, truth_path, iso9283_path) if p]
     preflight([os.path.join(out_dir, name) for name in OUTPUT_NAMES], inputs, force=force, dirs=[out_dir],
               create_dirs=True)
     for p in inputs:
         if not os.path.isfile(p):
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     kind, raw = read_result(result_path)  # (io.documents: the kind of any result file, old ones included)
+    if (iso9283_path or tolerances) and kind != "serial":
+        raise InputError(f"{os.fspath(result_path)}: --iso9283 and --tolerance apply to robots from a model file "
+                         f"(olti identify --robot), not to a {kind} result")
+    if tolerances and not iso9283_path:
+        raise InputError("--tolerance needs --iso9283 VALIDATION.csv (the campaign its characteristics come from)")
     if kind == "volumetric":  # the machine's 21 error motions: report/volumetric_report.py
         return _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, date)
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
@@ -554,7 +562,8 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
     if kind == "serial":
         from olti_drake.report.serial_report import serial_report
 
-        serial_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth_path, k)
+        serial_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth_path, k, iso9283_path,
+                      tolerances)
     elif kind == "scara":
         _scara_report(page, raw, result_path, unc, uncertainty_path, campaign_path, truth, truth_path, k)
     else:

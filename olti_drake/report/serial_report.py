@@ -197,7 +197,8 @@ def _residuals(result, campaign_path, camp=None):
     return np.linalg.norm(camp.points_mm - pred, axis=1), np.zeros(len(pred), dtype=int), "tracker (distance)"
 
 
-def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_path, k):
+def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_path, k, iso9283_path=None,
+                  tolerances=None):
     """Fill ``page`` with the N-joint robot report (module docstring); sets ``page.iso`` per joint."""
     result = load_serial_result(result_path, outside="clamp", identified=True)
     # The inputs the report validates against are checked first (nothing is drawn from the wrong data).
@@ -280,6 +281,64 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
                       f"(a point campaign: the distance between the measured and the predicted point), RMS {1e3 * np.sqrt(np.mean(r ** 2)):.2f} µm."))
         page.figure(lambda path: ui.plot_residuals(np.arange(len(r)), r, group, label, path), "fig_residuals.png",
                     f"Residuals per {label}")
+    if iso9283_path is not None:
+        iso9283_section(page, result, iso9283_path, tolerances)
+
+
+def iso9283_section(page, result, validation_path, tolerances=None) -> list:
+    """ISO 9283 pose accuracy and repeatability (:mod:`olti_drake.report.iso9283`) from a validation campaign of
+    tracker points with repeated cycles (formats.md's point campaign: the joint commands, optional directions,
+    x_mm, y_mm, z_mm): each distinct command row is a pose (P1, P2, ... in order of appearance), its rows the
+    cycles. The attained points go into the base frame by the result's tracker frame (a result identified from
+    tracker points; otherwise they are taken as given in the base frame, and the page says so). Two commanded
+    poses: the **nominal** kinematics (the robot file, with the identified tool point: what an uncalibrated
+    controller commands) and the **identified** model's prediction (what a compensation by this result would
+    leave). RP is the same for both. Returns the verdict lines (``tolerances``: {characteristic: mm/deg})."""
+    import hashlib
+
+    from olti_drake.io.serial_io import read_serial_campaign
+    from olti_drake.model.serial import tracker_to_base
+    from olti_drake.report.iso9283 import STANDARD_CYCLES, pose_characteristics, verdicts
+
+    model = result.model
+    camp = read_serial_campaign(validation_path, model.chain.n_joints)
+    if camp.kind != "point":
+        raise InputError(f"{os.fspath(validation_path)}: --iso9283 needs a point campaign (x_mm, y_mm, z_mm measured "
+                         f"by a tracker at repeated poses), not a {camp.kind} campaign")
+    key = np.round(camp.commands, 6) if camp.dirs is None else np.round(np.hstack([camp.commands, camp.dirs]), 6)
+    _, first, pose = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # pose labels 1, 2, ... by first appearance
+    pose = order[pose.ravel()] + 1
+    frame = result.tracker_frame
+    attained = camp.points_mm if frame is None else tracker_to_base(camp.points_mm, frame)
+    x = result.x
+    nominal = np.zeros_like(x)
+    tool = [i for i, n in enumerate(model.names) if n in ("tool_x_mm", "tool_y_mm", "tool_z_mm")]
+    nominal[tool] = x[tool]
+    where = os.fspath(validation_path)
+    by_nominal = pose_characteristics(pose, model.positions(camp.commands, camp.dirs, nominal), attained,
+                                      camp.line, where)
+    by_model = pose_characteristics(pose, model.positions(camp.commands, camp.dirs, x), attained, camp.line, where)
+    digest = hashlib.sha256(open(validation_path, "rb").read()).hexdigest()
+    page.add("<h2>ISO 9283 pose accuracy and repeatability</h2>")
+    n = min(c.cycles for c in by_model)
+    page.add(ui.p(f"From {ui.e(where)} (sha256 {digest[:16]}…): {len(by_model)} poses, {n}–"
+                  f"{max(c.cycles for c in by_model)} cycles each"
+                  + (f" (fewer than the standard's {STANDARD_CYCLES})" if n < STANDARD_CYCLES else "")
+                  + ("; attained points taken into the base frame by the result's tracker frame" if frame is not None
+                     else "; the result holds no tracker frame: the attained points are taken as given, in the "
+                          "base frame") + ". AP_P = ‖mean attained − commanded‖ (7.2.1), RP_l = l̄ + 3 S_l "
+                  "(7.2.2); commanded by the nominal kinematics (robot file, identified tool point) and by the "
+                  "identified model. µm."))
+    rows = [(f"P{a.pose}", a.cycles, f"{1e3 * a.AP_P:.1f}", f"{1e3 * b.AP_P:.1f}", f"{1e3 * b.RP_l:.1f}")
+            for a, b in zip(by_nominal, by_model)]
+    page.add(ui.table(["pose", "cycles", "AP_P nominal (µm)", "AP_P identified (µm)", "RP_l (µm)"], rows))
+    lines = []
+    if tolerances:
+        lines = [f"nominal: {t}" for t in verdicts(by_nominal, tolerances)] + \
+                [f"identified: {t}" for t in verdicts(by_model, tolerances)]
+        page.add(ui.table(["verdict (ISO 9283)"], [(t,) for t in lines], left=(0,)))
+    return lines
 
 
 def plot_workspace_uncertainty(points_mm, expanded_um, path, k: float = 2.0, method: str = "", most: int = 4):

@@ -17,7 +17,7 @@ from typing import Optional
 
 import numpy as np
 
-from olti_drake.formats import ROBOT_RESULT
+from olti_drake.formats import result_header
 from olti_drake.io.csvio import write_table
 from olti_drake.model.errormap import approach_directions, sample_map
 from olti_drake.model.instrument import beam_geometry, simulate_readings
@@ -311,7 +311,7 @@ def truth_result(setup: Setup, columns: dict) -> dict:
     at = float(np.clip(0.0, grids["J1"][0], grids["J1"][-1]))
     g = float(0.5 * (r.J1(np.array([at]), 1.0)[0] + r.J1(np.array([at]), -1.0)[0]))
     return {
-        "format": ROBOT_RESULT,
+        **result_header("scara"),
         "model": "errormap",
         "L1_mm": r.L1_mm,
         "L2_mm": r.L2_mm,

@@ -53,7 +53,7 @@ from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.model.machine import Machine3DRun, Machine3DScenario, _default_heads, machine3d_truth, machine_run_3d
-from olti_drake.sim.scenario import Emulated, Hardware, Simulated, stream_seed
+from olti_drake.sim.scenario import Emulated, Hardware, ScenarioPaths, Simulated, stream_seed
 
 M_TO_MM = 1e3
 #: Working float64 values a reading carries through the simulation (its columns, truth, aiming, sequence): an
@@ -77,7 +77,7 @@ class MachineSpec:
 
 
 @dataclass
-class Machine3DScenarioFile:
+class Machine3DScenarioFile(ScenarioPaths):
     """A 3D machine campaign as YAML (``diagrams/machine_3d.yaml``): the fields of
     :class:`~olti_drake.model.machine.Machine3DScenario` with the machine spelled out, plus the
     budget file (relative to the YAML; "" = 001 Table 4 built in), the sequencer period (s) and the
@@ -105,16 +105,6 @@ class Machine3DScenarioFile:
     station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
 
     base: str = ""
-
-    def at(self, base_dir) -> "Machine3DScenarioFile":
-        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
-        self.base_dir = os.path.abspath(os.fspath(base_dir))
-        return self
-
-    def resolve(self, path: str) -> str:
-        """A path from the scenario, relative to the YAML file's folder (else the current directory)."""
-        path = os.fspath(path)
-        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
 
     def load_budget(self):
         """The budget file's :class:`~olti_drake.io.budget.Budget`, or 001 Table 4 when ``budget`` is empty."""

@@ -47,7 +47,7 @@ from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, MatrixGain, Multiplexer
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from olti_drake.formats import MULTILATERATION_RESULT
+from olti_drake.formats import result_header
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.machine import MachineScenario, VolumetricError, machine_run
 from olti_drake.sim.campaign import stream_seed
@@ -475,7 +475,7 @@ def machine_columns(recorder: MachineRecorder, root_context) -> dict:
 
 def machine_truth(setup: MachineSetup, columns: dict) -> dict:
     """The simulated truth, laid out as :func:`~olti_drake.model.machine.simulate_machine_campaign`'s."""
-    return {"format": MULTILATERATION_RESULT, "targets_mm": setup.targets_mm.tolist(),
+    return {**result_header("multilateration"), "targets_mm": setup.targets_mm.tolist(),
             "stations_mm": setup.stations_mm.tolist(), "dead_paths_mm": setup.dead_paths_mm.tolist(),
             "commands_mm": setup.commands_mm.tolist(), "gauge": "simulation truth: the machine's command frame",
             "residual_rms_mm": 0.0, "n_readings": int(np.sum(columns["valid"])),

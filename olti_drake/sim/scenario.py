@@ -43,7 +43,8 @@ from olti_drake.units import UNIT_BOUNDS
 #: six-axis scenarios, :mod:`olti_drake.sim.serial_scenario`); ``emulator_truth`` -- the N-joint emulator's own
 #: synthetic robot and heads (``hardware.serial_emulator``, when no scenario gives them).
 SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
-                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12, "head_error": 20}
+                "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12, "head_error": 20,
+                "rtest": 30}  # rtest: the five-axis R-test device's noise (sim/five_axis_station.py)
 
 
 def stream_key(name) -> int:
@@ -279,8 +280,23 @@ def _paper_reflectors() -> list[list[float]]:
     return [[650.0, -450.0], [700.0, -50.0], [650.0, 350.0]]
 
 
+class ScenarioPaths:
+    """What every scenario file does with its paths (a mixin of the scenario dataclasses: no fields)."""
+
+    def at(self, base_dir):
+        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
+        self.base_dir = os.path.abspath(os.fspath(base_dir))
+        return self
+
+    def resolve(self, path: str) -> str:
+        """A path from the scenario: relative to ``base_dir`` (the YAML file's folder when loaded from a
+        file; the current directory for a scenario built in Python unless :meth:`at` set it)."""
+        path = os.fspath(path)
+        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
+
+
 @dataclass
-class Scenario:
+class Scenario(ScenarioPaths):
     """A simulated open-loop tracking interferometer campaign (000 §2, §4.1).
 
     ``budget`` is a budget YAML path, or (from Python) a :class:`~olti_drake.io.budget.Budget`;
@@ -312,16 +328,6 @@ class Scenario:
     station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
     base: str = ""
 
-    def at(self, base_dir) -> "Scenario":
-        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
-        self.base_dir = os.path.abspath(os.fspath(base_dir))
-        return self
-
-    def resolve(self, path: str) -> str:
-        """A path from the scenario: relative to ``base_dir`` (the YAML file's folder when loaded from a
-        file; the current directory for a scenario built in Python unless :meth:`at` set it)."""
-        path = os.fspath(path)
-        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
 
     def load_plan(self) -> Plan:
         if isinstance(self.plan, Plan):

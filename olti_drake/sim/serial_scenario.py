@@ -31,7 +31,7 @@ from olti_drake.errors import InputError
 from olti_drake.io.csvio import read_yaml
 from olti_drake.limits import check_allocation
 from olti_drake.model.instrument import InterferometerOptions
-from olti_drake.sim.scenario import Emulated, Hardware, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
+from olti_drake.sim.scenario import Emulated, Hardware, ScenarioPaths, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
 
 #: Working float64 values a plan pose or raster point carries (commands, FK, IK, readings): an estimate for the
 #: allocation guards of ``plan.step_deg`` and ``points_per_axis`` (:func:`olti_drake.limits.check_allocation`).
@@ -147,7 +147,7 @@ class SerialPlanRules:
 
 
 @dataclass
-class SerialScenario:
+class SerialScenario(ScenarioPaths):
     """A simulated six-axis campaign (module doc). ``budget``: a budget YAML path (empty: 000
     Table 2); ``period_s``: simulated time per sequencer row (move, settle, read); ``seed``: the
     readings' noise, the estimates and the heads' errors (``sim.scenario.SEED_STREAMS``); the truth
@@ -167,16 +167,6 @@ class SerialScenario:
     #: (the N-joint device emulator, docs/emulator.md; floor tracers only).
     station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
     base: str = ""
-
-    def at(self, base_dir) -> "SerialScenario":
-        """This scenario, its relative paths resolved against ``base_dir`` (returns self)."""
-        self.base_dir = os.path.abspath(os.fspath(base_dir))
-        return self
-
-    def resolve(self, path: str) -> str:
-        """A path from the scenario, relative to the YAML file's folder (else the current directory)."""
-        path = os.fspath(path)
-        return path if os.path.isabs(path) else os.path.join(getattr(self, "base_dir", os.getcwd()), path)
 
     def robot_path(self) -> str:
         """The model file: a shipped name (``ur5``) or a path relative to the scenario file."""
@@ -276,20 +266,21 @@ def _vector(name, v, size, nonzero=False):
 
 
 #: The kinds of scenario (:func:`scenario_kind`).
-SCENARIO_KINDS = ("scara", "serial", "machine3d")
+SCENARIO_KINDS = ("scara", "serial", "machine3d", "machine5")
 
 
 def scenario_kind(scenario, name: Optional[str] = None) -> str:
-    """The kind of a scenario -- ``"scara"``, ``"serial"`` (an N-joint robot) or ``"machine3d"`` (a 3D machine
-    tool) -- the one place that tells them apart: ``olti simulate``, ``plan``, ``run``, ``diagrams``, the emulator
-    and the stations dispatch on it.
+    """The kind of a scenario -- ``"scara"``, ``"serial"`` (an N-joint robot), ``"machine3d"`` (a 3D machine
+    tool) or ``"machine5"`` (a five-axis machine tool) -- the one place that tells them apart: ``olti simulate``,
+    ``plan``, ``run``, ``diagrams``, the emulator and the stations dispatch on it.
 
     ``scenario``: a YAML file -- ``"serial"`` when it (its named scenario ``name``, or a base it names) has the
     top-level key ``scheme``, ``"machine3d"`` when it has ``heads_mm`` (:mod:`olti_drake.sim.machine3d_station`),
-    else ``"scara"``; a file or name that cannot be read is left to the loader, which names the problem --;
+    ``"machine5"`` when it has ``machine_model`` (:mod:`olti_drake.sim.five_axis_station`), else ``"scara"``; a
+    file or name that cannot be read is left to the loader, which names the problem --;
     None (the default scenario, the SCARA's); or a loaded scenario or campaign setup (the ``KIND`` its class
     declares: ``Scenario``, ``campaign.Setup``; ``SerialScenario``, ``SerialSetup``; ``Machine3DScenarioFile``,
-    ``Machine3DSetup``, ``Machine3DCampaignSetup``)."""
+    ``Machine3DSetup``, ``Machine3DCampaignSetup``; ``FiveAxisScenarioFile``, ``FiveAxisRun``)."""
     if scenario is None:
         return "scara"
     if not isinstance(scenario, (str, os.PathLike)):
@@ -297,7 +288,7 @@ def scenario_kind(scenario, name: Optional[str] = None) -> str:
         if kind not in SCENARIO_KINDS:
             raise TypeError(f"{type(scenario).__name__} is not a scenario or a campaign setup (no KIND)")
         return kind
-    for kind, key in (("serial", "scheme"), ("machine3d", "heads_mm")):
+    for kind, key in (("serial", "scheme"), ("machine3d", "heads_mm"), ("machine5", "machine_model")):
         if _has_key(os.fspath(scenario), name, key, set()):
             return kind
     return "scara"

@@ -1,0 +1,308 @@
+"""Identification of a five-axis machine's location errors and rotary-axis error motions (issue 25, items 2, 3, 5).
+
+The machine is read from its model file (:class:`~olti_drake.model.five_axis.FiveAxisMachine`), its errors by
+ISO 230-1 / ISO 230-7 name (:class:`~olti_drake.model.five_axis_errors.FiveAxisErrors`): the location errors of
+every rotary axis (mm, µrad) and, with ``model="errormap"``, its six error motions on a grid of the commanded
+angle (paper 000's bidirectional map, Eq. 6-9, when the campaign has directions), plus the offset errors of tools
+1, 2, … The campaign's readings (formats.md, "Five-axis machine tools") are what
+:class:`~olti_drake.estimation.calibration.Calibration`, the one engine, solves:
+
+* distances from stations (paper 001 Eq. (3): r = ‖p_i − P_j‖ − L0_j − ΔL), a station on the bed seeing the tool
+  point in the base frame, one riding on the table in the workpiece frame;
+* R-test / 3D-probe displacements from nests (ISO 10791-6 K4; r = p_i − c_n − d, each nest its own zero);
+* tracker points (r = R p_i + t − m, one rigid frame per set-up, on the bed or on the table).
+
+Each reading's tool point is in its own frame: :class:`FramedPositionModel` is one position model over the
+error model whose point i is seen in the base or the workpiece frame, so that one
+:class:`~olti_drake.model.displacements.CombinedMeasurement` holds a mixed campaign. Before solving, what the
+campaign cannot separate (:func:`~olti_drake.model.five_axis_errors.separable`, on the measurement's own
+Jacobian: stations, nests and frames as nuisance) is held at 0 and named with the reason; the error motions'
+gauge (grid mean 0, no rotating first harmonic) is the model's. The maps' smoothness prior ('auto': its weight
+by restricted maximum likelihood) as the robots'. Uncertainties: the engine's linear covariance (JCGM 100).
+Units: mm, deg (commands), µrad.
+"""
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from olti_drake.errors import InputError
+from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError, station_starts
+from olti_drake.model.five_axis_errors import FiveAxisErrors, FiveAxisPositionModel, separable
+from olti_drake.model.volumetric3d import MotionJacobian
+
+MODELS = ("geometric", "errormap")
+#: The reading uncertainty (mm, k = 1) each reading kind is weighed with in a mixed campaign (001 Table 4's
+#: interferometer order; a tracker's 10 µm).
+MIXED_SIGMAS_MM = {"distance": 0.001, "nest": 0.001, "tracker": 0.010}
+
+
+@dataclass
+class FiveAxisOptions(SolverOptions):
+    """Solver options plus the error model: ``model`` geometric (location errors and tool offsets) | errormap (plus
+    the error motions every ``pitch_deg`` of each rotary axis' travel); ``tool_offsets_mm`` one [x, y, z] per
+    tool index in the tool frame (mm; default 0 for every tool: tool 0 is the reference, the others' errors are
+    identified); ``smoothing`` the maps' prior ('auto' by default for errormap; geometric has no maps)."""
+
+    model: str = "errormap"
+    pitch_deg: float = 15.0
+    tool_offsets_mm: Optional[Sequence[Sequence[float]]] = None
+    smoothing: object = "auto"
+
+
+# ----------------------------------------------------------------------------------------------- the model
+class FramedPositionModel:
+    """The tool points of a five-axis campaign, point i in the frame ``frame[i]`` ('base': a station or tracker
+    on the bed; 'workpiece': on the table, R-test): one position model over one error model (the
+    :class:`FiveAxisPositionModel` of each frame, same parameters), for the engine's measurements. Everything
+    but the points (names, gauge, roughness, layout, implausible values) is the error model's."""
+
+    dim = 3
+
+    def __init__(self, machine, error_model: FiveAxisErrors, commands, directions, tool, frame, held=()):
+        frame = np.asarray(frame)
+        self.frame = frame
+        self.parts, self.index = {}, {}
+        self.local = np.zeros(len(frame), int)
+        for f in ("workpiece", "base"):
+            idx = np.flatnonzero(frame == f)
+            if not idx.size:
+                continue
+            d = None if directions is None else np.asarray(directions)[idx]
+            self.parts[f] = FiveAxisPositionModel(machine, error_model, np.asarray(commands)[idx], d,
+                                                  np.asarray(tool)[idx], frame=f, held=held)
+            self.index[f] = idx
+            self.local[idx] = np.arange(idx.size)
+        self.first = next(iter(self.parts.values()))
+        self.machine, self.errors, self.held = machine, error_model, tuple(held)
+        self.free_cols, self.names = self.first.free_cols, self.first.names
+        self.n_points = len(frame)
+
+    @property
+    def n_params(self) -> int:
+        return self.first.n_params
+
+    def start_vector(self) -> np.ndarray:
+        return self.first.start_vector()
+
+    def theta(self, x) -> np.ndarray:
+        return self.first.theta(x)
+
+    def positions(self, x=None) -> np.ndarray:
+        out = np.zeros((self.n_points, 3))
+        for f, pm in self.parts.items():
+            out[self.index[f]] = pm.positions(x)
+        return out
+
+    def jacobian(self, x=None):
+        """(N, 3) tool points and their :class:`MotionJacobian` (analytic, each frame's)."""
+        p, cols, vals = np.zeros((self.n_points, 3)), None, None
+        for f, pm in self.parts.items():
+            pf, Jf = pm.jacobian(x)
+            if cols is None:
+                cols = np.zeros((self.n_points, Jf.cols.shape[1]), int)
+                vals = np.zeros((self.n_points, 3, Jf.cols.shape[1]))
+            p[self.index[f]], cols[self.index[f]], vals[self.index[f]] = pf, Jf.cols, Jf.vals
+        return p, MotionJacobian(cols, vals, self.n_params)
+
+    def rows(self, X, points):
+        """Batched rows (:meth:`FiveAxisPositionModel.rows`) at ``points`` (K,), each from its frame's model."""
+        points = np.asarray(points, int)
+        X = np.atleast_2d(np.asarray(X, float))
+        T, K = X.shape[0], points.size
+        p = cols = dp = None
+        for f, pm in self.parts.items():
+            sel = np.flatnonzero(self.frame[points] == f)
+            if not sel.size:
+                continue
+            pf, cf, df = pm.rows(X, self.local[points[sel]])
+            if p is None:
+                p, cols = np.zeros((T, K, 3)), np.zeros((K, cf.shape[1]), int)
+                dp = [np.zeros((T, K, cf.shape[1])) for _ in range(3)]
+            p[:, sel], cols[sel] = pf, cf
+            for c in range(3):
+                dp[c][:, sel] = np.broadcast_to(df[c], (T, sel.size, cf.shape[1]))
+        return p, cols, tuple(dp)
+
+    def roughness(self):
+        return self.first.roughness()
+
+    def gauge_constraints(self):
+        return self.first.gauge_constraints()
+
+    def gauge(self, n_total=None):
+        return self.first.gauge(n_total)
+
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        return self.first.layout(v, uncertainty)
+
+    def implausible(self, x) -> list:
+        return self.first.implausible(x)
+
+    def station_reference(self):
+        p = self.positions()
+        return p.mean(axis=0), float(np.linalg.norm(np.ptp(p, axis=0))), "the tool points' diagonal"
+
+
+# ----------------------------------------------------------------------------------------------- the program
+def error_model(machine, campaign, options: FiveAxisOptions) -> FiveAxisErrors:
+    """The error model the options ask for on ``machine``: location errors always; the error motions every
+    ``pitch_deg`` with ``errormap`` (bidirectional when the campaign has directions); tool offsets."""
+    if options.model not in MODELS:
+        raise InputError(f"--model {options.model}: a five-axis machine takes {' or '.join(MODELS)}")
+    tools = options.tool_offsets_mm
+    tools = np.zeros((campaign.n_tools, 3)) if tools is None else np.asarray(tools, float).reshape(-1, 3)
+    if len(tools) < campaign.n_tools:
+        raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but {campaign.source} uses tool indices "
+                         f"0..{campaign.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
+    return FiveAxisErrors(machine, location=True, motions=options.model == "errormap", pitch_deg=options.pitch_deg,
+                          bidirectional=campaign.directions is not None, linear=None, tool_offsets_mm=tools,
+                          identify_tool_offsets=len(tools) > 1)
+
+
+def _stations(campaign, pm, rows, labels):
+    """Per station (file labels ``labels``), its start position and dead path: the 3D multilateration of the
+    nominal tool points it reads (:func:`~olti_drake.estimation.calibration.station_fit`)."""
+    return station_starts(pm.positions()[rows], campaign.reading[rows, 0], campaign.group[rows], labels,
+                          campaign.source)
+
+
+def measurement(campaign, pm):
+    """The campaign's readings on position model ``pm`` (point k = row k): one
+    :class:`~olti_drake.model.displacements.CombinedMeasurement` of its distance, nest and tracker readings
+    (weighed by :data:`MIXED_SIGMAS_MM` when it mixes kinds)."""
+    from olti_drake.model.displacements import CombinedMeasurement, NestDisplacementMeasurement, PointMeasurement
+    from olti_drake.model.measurements import StationDistanceMeasurement
+
+    parts, kinds = [], []
+    rows = np.flatnonzero(campaign.kind == "distance")
+    if rows.size:
+        labels = np.unique(campaign.group[rows])
+        if labels.size < 4:
+            raise UnidentifiableError(f"{campaign.source}: {labels.size} station(s); 3D self-calibrating "
+                                      f"multilateration needs at least 4 (001 Eq. (4): N_j > 3)",
+                                      [f"P{j}_x_mm" for j in range(labels.size)])
+        P, L0 = _stations(campaign, pm, rows, labels)
+        parts.append(StationDistanceMeasurement(pm, rows, np.searchsorted(labels, campaign.group[rows]),
+                                                campaign.reading[rows, 0], P, L0, labels.size, dead_path="L0"))
+        kinds.append("distance")
+    rows = np.flatnonzero(campaign.kind == "nest")
+    if rows.size:
+        parts.append(NestDisplacementMeasurement(pm, rows, campaign.group[rows], campaign.reading[rows]))
+        kinds.append("nest")
+    rows = np.flatnonzero(campaign.kind == "tracker")
+    if rows.size:
+        parts.append(PointMeasurement(pm, rows, campaign.group[rows], campaign.reading[rows]))
+        kinds.append("tracker")
+    sigmas = [MIXED_SIGMAS_MM[k] for k in kinds] if len(kinds) > 1 else None
+    return CombinedMeasurement(pm, parts, sigmas), kinds
+
+
+def _smoothed(options) -> bool:
+    """Whether ``options`` ask for the maps' smoothness prior ('auto' or a weight)."""
+    s = options.smoothing
+    return not (s is None or (isinstance(s, str) and s == "off"))
+
+
+class FiveAxisIdentification(Calibration):
+    """A five-axis campaign (:class:`~olti_drake.io.five_axis_io.FiveAxisCampaign`) on ``machine``: the engine's
+    :class:`~olti_drake.estimation.calibration.Calibration` of :func:`measurement` over
+    :class:`FramedPositionModel`, with the groups the campaign cannot separate held at 0 (:attr:`dropped`: group
+    -> reason, said in the notes before solving) and the error motions' gauge.
+
+    Variables: the free location errors (``E_X0C_mm``, … mm, µrad), error-motion nodes (``E_XC_forward_mm[i]``,
+    …), ``tool<m>_{x,y,z}_mm``, then the stations' ``P<j>_{x,y,z}_mm`` and ``L0_<j>_mm``, the nests'
+    ``nest<n>_{x,y,z}_mm``, the tracker frames' ``frame<g>_…``."""
+
+    rank_hint = "add stations, nests or commands spread over the rotary axes' travel"
+    untouched_hint = "every station and nest needs readings of commands spread over the travel"
+
+    def __init__(self, campaign, machine, options: FiveAxisOptions = None):
+        o = options or FiveAxisOptions()
+        if o.model == "geometric":
+            import dataclasses
+
+            o = dataclasses.replace(o, smoothing="off")  # (no maps: nothing to smooth)
+        self.campaign, self.machine, self.model_name, self._options = campaign, machine, o.model, o
+        self.errors = error_model(machine, campaign, o)
+        self._settings = dict(location=True, motions=o.model == "errormap", pitch_deg=float(o.pitch_deg),
+                              bidirectional=campaign.directions is not None,
+                              tool_offsets_mm=self.errors.tools.tolist(),
+                              identify_tool_offsets=len(self.errors.tools) > 1)
+        self.separability = self._separable()
+        self.dropped = {g: self.separability.reasons[g] for g in self.separability.dropped}
+        self.position_model = self._framed(self.separability.dropped)
+        meas, self.kinds = measurement(campaign, self.position_model)
+        gauge = self.position_model.gauge(len(meas.names))
+        super().__init__(meas, o, gauge if len(gauge.constraints) else None, campaign.source)
+        self.gauge = self._gauge_sentence(gauge)
+        self.notes.extend(f"{g}: not separable by this campaign ({why}): held at 0" for g, why in self.dropped.items())
+        if len(self.kinds) > 1:
+            self.notes.append("mixed campaign: each reading kind weighed by its u (mm): " + ", ".join(
+                f"{k} {MIXED_SIGMAS_MM[k]:g}" for k in self.kinds))
+
+    def _framed(self, held=()):
+        c = self.campaign
+        return FramedPositionModel(self.machine, self.errors, c.commands, c.directions, c.tool, c.frame, held)
+
+    def _separable(self):
+        """:func:`separable` on the Jacobian of the campaign's own measurement at the start (its stations, nests and
+        tracker frames the nuisance)."""
+        pm = self._framed()
+        meas, kinds = measurement(self.campaign, pm)
+        _, J = meas.residuals(meas.start_vector())
+        J, what = J.toarray(), " + ".join(kinds) + " readings, their own unknowns free"
+        R = meas.roughness() if _smoothed(self._options) else None
+        if R is not None and R.shape[0]:  # what the smoothness prior determines (a map's shape between and beyond
+            R = R.toarray()               # the commanded angles) is separable, its trend is not
+            scale = 1e-3 * np.linalg.norm(J, axis=0).max() / max(np.linalg.norm(R, axis=0).max(), 1e-300)
+            J, what = np.vstack([J, scale * R]), what + ", the maps' smoothness prior"
+        return separable(pm, jacobian=(J, what))
+
+    def _gauge_sentence(self, gauge) -> str:
+        frames = sorted(set(self.campaign.frame))
+        what = {"distance": "distances see the tool points up to the stations' positions and dead paths",
+                "nest": "each nest zero absorbs a translation of the points it sees",
+                "tracker": "each tracker frame absorbs a rigid motion of the points it sees"}
+        return ("the machine model's own frames (" + ", ".join(frames) + "): " + "; ".join(what[k] for k in self.kinds)
+                + "; what the campaign cannot separate is held at 0 (notes)"
+                + (f"; {gauge.sentence}" if len(gauge.constraints) else ""))
+
+    def error_model_settings(self) -> dict:
+        """The :class:`FiveAxisErrors` keyword arguments of this identification (the result's ``error_model``)."""
+        return dict(self._settings)
+
+    def layout(self, v) -> dict:
+        """Values or uncertainties over :attr:`names` in the ``olti-machine5/1`` keys: the model's
+        (``location_errors``, ``error_motions``, ``tool_offset_errors_mm``), then the stations (with their file
+        labels and frames), nests and tracker frames."""
+        out = self.measurement.layout(np.asarray(v, float))
+        c = self.campaign
+        rows = c.kind == "distance"
+        if rows.any():
+            labels = np.unique(c.group[rows])
+            out["station_labels"] = labels.tolist()
+            out["station_frames"] = [str(c.frame[rows][c.group[rows] == lab][0]) for lab in labels]
+        rows = c.kind == "tracker"
+        if rows.any():
+            labels = np.unique(c.group[rows])
+            out["tracker_frame_stands_on"] = [str(c.frame[rows][c.group[rows] == lab][0]) for lab in labels]
+        out["held"] = list(self.position_model.held)
+        return out
+
+    def solve(self):
+        """The fit (:meth:`Calibration.fit`: LM, the covariance and std of every parameter, k = 1)."""
+        return self.fit()
+
+
+def identify_five_axis(campaign_path, machine_path, workpiece_frame: str, tool_frame: str,
+                       options: FiveAxisOptions = None):
+    """Read the machine and the campaign, identify: (identification, fit)."""
+    from olti_drake.io.five_axis_io import read_five_axis_campaign
+    from olti_drake.model.five_axis import FiveAxisMachine
+
+    machine = FiveAxisMachine.from_file(machine_path, workpiece_frame, tool_frame)
+    campaign = read_five_axis_campaign(campaign_path, machine)
+    ident = FiveAxisIdentification(campaign, machine, options)
+    return ident, ident.solve()
