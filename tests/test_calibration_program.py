@@ -54,7 +54,11 @@ def test_solve_prog_by_solver_name_equals_lm(data, name):
         pytest.skip(f"{name} is not available in this pydrake wheel")
     lm = _ident(data, "dh").solve()
     ident = _ident(data, "dh")
-    result = solver.Solve(ident.prog)
+    options = ps.SolverOptions()
+    # IPOPT is within TOL after ~200 iterations and then runs on to its cap of 3000 without meeting its own
+    # dual-infeasibility tolerance (measured: 2.7e-7 at 200, 500 and 1000 iterations): 200 keeps the suite short.
+    options.SetOption(ps.IpoptSolver.id(), "max_iter", 200)
+    result = solver.Solve(ident.prog, None, options)
     x = result.GetSolution(ident.variables)
     assert np.abs(x - lm.x).max() < TOL, (name, result.get_solution_result(), np.abs(x - lm.x).max())
     if name == "SnoptSolver":

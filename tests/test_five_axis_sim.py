@@ -200,3 +200,17 @@ def test_bad_fields_are_refused_in_one_line(text, field):
 def test_olti_run_refuses_a_five_axis_scenario(tmp_path):
     r = _olti("run", YAML, "--out", tmp_path / "r")
     assert r.returncode != 0 and "five-axis" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_systems_are_importable_and_subclassable():
+    """Drake users import and subclass the diagram's systems (issue 22): module-level classes, not factory locals."""
+    from olti_drake.sim import five_axis_station as station
+    from olti_drake.sim import five_axis_systems as systems
+
+    for name in ("FiveAxisNominal", "FiveAxisSteering", "FiveAxisTruthTool", "FiveAxisInterferometer", "RTestDevice",
+                 "FiveAxisRecorder"):
+        cls = getattr(systems, name)
+        assert getattr(station, name) is cls and "<locals>" not in cls.__qualname__, name
+
+    class MyDevice(systems.RTestDevice):  # noqa: F841 (a subclass of one's own)
+        pass
