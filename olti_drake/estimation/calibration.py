@@ -204,6 +204,12 @@ class SolverOptions:
     smoothing: object = "off"
 
 
+def smoothing_on(options) -> bool:
+    """Whether ``options`` ask for the smoothness prior (:attr:`SolverOptions.smoothing` 'auto' or a weight)."""
+    setting = getattr(options, "smoothing", "off")
+    return not (setting is None or (isinstance(setting, str) and setting == "off"))
+
+
 @dataclass
 class Fit:
     """A solved problem: x, standard uncertainties (k = 1), covariance, residuals, diagnostics."""
@@ -700,7 +706,7 @@ class LeastSquaresProgram:
     def smoothing_rows(self):
         """The roughness rows when :attr:`SolverOptions.smoothing` asks for the prior and the model has maps."""
         setting = getattr(self.options, "smoothing", "off")
-        if setting is None or (isinstance(setting, str) and setting == "off"):
+        if not smoothing_on(self.options):
             return None
         if not (setting == "auto" or (isinstance(setting, (int, float)) and np.isfinite(setting) and setting >= 0)):
             raise InputError(f"smoothing: 'auto', 'off' or a weight >= 0, got {setting!r}")

@@ -28,7 +28,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError, station_starts
+from olti_drake.estimation.calibration import (Calibration, SolverOptions, UnidentifiableError, smoothing_on,
+                                               station_starts)
 from olti_drake.model.five_axis_errors import FiveAxisErrors, FiveAxisPositionModel, separable
 from olti_drake.model.volumetric3d import MotionJacobian
 
@@ -199,11 +200,6 @@ def measurement(campaign, pm):
     return CombinedMeasurement(pm, parts, sigmas), kinds
 
 
-def _smoothed(options) -> bool:
-    """Whether ``options`` ask for the maps' smoothness prior ('auto' or a weight)."""
-    s = options.smoothing
-    return not (s is None or (isinstance(s, str) and s == "off"))
-
 
 class FiveAxisIdentification(Calibration):
     """A five-axis campaign (:class:`~olti_drake.io.five_axis_io.FiveAxisCampaign`) on ``machine``: the engine's
@@ -253,7 +249,7 @@ class FiveAxisIdentification(Calibration):
         meas, kinds = measurement(self.campaign, pm)
         _, J = meas.residuals(meas.start_vector())
         J, what = J.toarray(), " + ".join(kinds) + " readings, their own unknowns free"
-        R = meas.roughness() if _smoothed(self._options) else None
+        R = meas.roughness() if smoothing_on(self._options) else None
         if R is not None and R.shape[0]:  # what the smoothness prior determines (a map's shape between and beyond
             R = R.toarray()               # the commanded angles) is separable, its trend is not
             scale = 1e-3 * np.linalg.norm(J, axis=0).max() / max(np.linalg.norm(R, axis=0).max(), 1e-300)

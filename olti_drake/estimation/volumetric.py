@@ -47,7 +47,7 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import station_starts
-from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError, smoothing_on
 from olti_drake.estimation.multilateration import MachineCampaign
 from olti_drake.io.csvio import campaign_digest
 from olti_drake.model.gauges import VOLUMETRIC_GAUGE, VOLUMETRIC_GAUGE_CONDITIONS, volumetric_gauge
@@ -167,7 +167,8 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
                          f"0..{data.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     if options.topology not in TOPOLOGIES:
         raise InputError(f"topology must be one of {', '.join(TOPOLOGIES)}, got {options.topology!r}")
-    spacing = options.knot_spacing_mm or (smooth_knot_spacing(c) if smoothed(options) else default_knot_spacing(c))
+    spacing = options.knot_spacing_mm or (smooth_knot_spacing(c) if smoothing_on(options)
+                                          else default_knot_spacing(c))
     tool_chain, work_chain = TOPOLOGIES[options.topology]
     try:
         config = MachineConfig(tool_chain=tool_chain, work_chain=work_chain,
@@ -176,15 +177,10 @@ def machine_config(data: MachineCampaign, options: VolumetricOptions) -> Machine
     except ValueError as e:
         raise InputError(f"{data.source}: {e}") from None
     check_table_sizes(config, options.pitch_mm)  # the result's motion tables, before any work
-    if not smoothed(options):  # (with the smoothness prior, the prior holds what no position determines)
+    if not smoothing_on(options):  # (with the smoothness prior, the prior holds what no position determines)
         _check_positions(data, config)
     return config
 
-
-def smoothed(options) -> bool:
-    """Whether ``options`` ask for the motions' smoothness prior (``smoothing`` 'auto' or a weight)."""
-    setting = getattr(options, "smoothing", "off")
-    return not (setting is None or (isinstance(setting, str) and setting == "off"))
 
 
 def _check_positions(data: MachineCampaign, config: MachineConfig) -> None:
@@ -295,7 +291,7 @@ class VolumetricIdentification(Calibration):
         self.model = VolumetricModel(self.config, identify_tool_offsets=len(self.config.tools) > 1)
         self._check_counts()
         stations0, dead0 = self._station_start()
-        prior = motion_roughness(self.model, roughness_lever_mm(data.commands_mm)) if smoothed(o) else None
+        prior = motion_roughness(self.model, roughness_lever_mm(data.commands_mm)) if smoothing_on(o) else None
         self.held, self.observability = separable_motions(self.model, data.commands_mm, data.tool, stations0,
                                                           prior=prior)
         self.position_model = VolumetricPositionModel(self.model, data.commands_mm, data.tool, held=tuple(self.held))

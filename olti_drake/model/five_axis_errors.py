@@ -44,7 +44,8 @@ from olti_drake.errors import InputError
 from olti_drake.model.five_axis import DEG, LINEAR, ROTARY, AxisLink, FiveAxisMachine, motion
 from olti_drake.model.serial import Gauge, GaugeConstraint, JointMap
 from olti_drake.model.volumetric3d import (IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD, SQUARENESS, MachineConfig, MotionJacobian,
-                                           VolumetricModel, _rotations, axis_directions, motion_names)
+                                           VolumetricModel, _rotations, axis_directions, motion_names,
+                                           roughness_lever_mm)
 
 COMPONENTS = ("X", "Y", "Z", "A", "B", "C")
 URAD = 1e-6
@@ -483,8 +484,7 @@ class FiveAxisPositionModel:
         """The lever (mm) at which an angular error motion's roughness counts as the tool point's: half the
         diagonal of the span of the nominal tool points (an angle of ε µrad moves a point that far by
         ε·lever·10⁻⁶ mm)."""
-        p = self.positions(self.start_vector())
-        return 0.5 * float(np.linalg.norm(np.ptp(p, axis=0))) or 1.0
+        return roughness_lever_mm(self.positions(self.start_vector()))
 
     def gauge_constraints(self) -> Tuple[GaugeConstraint, ...]:
         """The error motions' gauge, A x = 0 (module docstring; :func:`gauge_patterns`): per motion the grid mean

@@ -109,9 +109,8 @@ def pose_characteristics(pose, commanded, attained, line=None, source: str = "va
                              f"least 2 (the standard: {STANDARD_CYCLES})")
         c = cmd[sel]
         spread = np.ptp(c, axis=0)
-        tol = np.r_[np.full(3, 1e-3), np.full(c.shape[1] - 3, 1e-3)]
-        if np.any(spread > tol):
-            k = int(np.argmax(spread > tol))
+        if np.any(spread > 1e-3):  # (mm and deg alike: 1 µm, 1 mdeg)
+            k = int(np.argmax(spread > 1e-3))
             raise InputError(f"{source}: pose {label}: its commanded {'xyzabc'[k]} differs between cycles by "
                              f"{spread[k]:.6g} (one pose, one command)")
         out.append(_characteristics(int(label), c[0], att[sel]))
