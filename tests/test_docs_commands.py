@@ -48,6 +48,13 @@ RUN = {
     "README.md": {
         "olti demo": "tests/test_cli.py::test_demo_writes_campaign_and_figures",
     },
+    "docs/trials.md": {
+        "olti identify data/paper000/campaign.csv --model dh --out dh.json": "test_trials.py::test_trials_doc_block",
+        "olti uncertainty dh.json data/paper000/campaign.csv --method mc --trials 1000 --workers 1 --out u1.json":
+            "test_trials.py::test_trials_doc_block",
+        "olti uncertainty dh.json data/paper000/campaign.csv --method mc --trials 1000 --workers 2 --out u2.json":
+            "test_trials.py::test_trials_doc_block",
+    },
     "docs/six_axis_campaign.md": {
         "olti simulate diagrams/six_axis.yaml --out six": "test_six_axis_doc_block",
         "olti identify six/campaign.csv --robot ur5 --tool-frame tool0 --tool-offset-mm 40,-25,60 --model errormap "
@@ -71,11 +78,27 @@ RUN = {
 #: Commands only parsed, and why they are not run (times measured on the 2-core machine).
 PLACEHOLDERS = "placeholder inputs (a synopsis, or files the reader brings)"
 PARSED_ONLY = {
+    "docs/trials.md": {
+        "olti uncertainty RESULT.json CAMPAIGN.csv --method mc --trials 1000 --backend dask --workers 2 --out U.json":
+            PLACEHOLDERS + " (the Dask backend's local cluster is run by tests/test_trials.py on the library)",
+        "olti uncertainty RESULT.json CAMPAIGN.csv --method mc --adaptive --backend dask --scheduler tcp://HOST:8786 "
+        "--out U.json": "needs a running Dask cluster",
+        "olti uncertainty RESULT.json CAMPAIGN.csv --method mc --trials 20000 --backend ray --out U.json":
+            "needs a Ray cluster (the ray extra is not in the suite's install)",
+    },
     "docs/five_axis.md": {
         "olti identify campaign.csv --machine olti_drake/models/trunnion_ac.urdf --workpiece-frame workpiece "
         "--tool-frame tool --model errormap [--grid-step-deg 15] [--smoothing auto|off|W] --out r.json":
             PLACEHOLDERS + " (run by tests/test_five_axis_identify.py on simulated campaigns)",
         "olti predict r.json points.csv --out p.csv": PLACEHOLDERS + " (run by tests/test_five_axis_identify.py)",
+        "olti compensate r.json targets.csv --out commands.csv [--cnc siemens|fanuc|heidenhain|linuxcnc|csv --tables "
+        "DIR]": PLACEHOLDERS + " (run by tests/test_five_axis_compensation.py on a simulated result)",
+        "olti uncertainty r.json campaign.csv --method mc [--budget B.yaml] [--trials 200] [--seed 0] --out u.json":
+            PLACEHOLDERS + " (run by tests/test_five_axis_uncertainty.py on simulated campaigns)",
+        "olti uncertainty r.json campaign.csv --method linear --out u_linear.json":
+            PLACEHOLDERS + " (run by tests/test_five_axis_uncertainty.py)",
+        "olti report r.json [u.json] [--campaign campaign.csv] [--tolerance dispersion=0.005,modification_mm=0.02,"
+        "modification_urad=50] --out page": PLACEHOLDERS + " (run by tests/test_five_axis_report.py)",
     },
     "docs/six_axis_campaign.md": {
         "olti simulate diagrams/scenarios.yaml --scenario six_axis_mounted --out six_m":
@@ -112,6 +135,15 @@ PARSED_ONLY = {
             "needs run3 above (the same as machine_3d.md's, run)",
         'olti identify run3/campaign.csv --model volumetric --tool-offsets-mm "0,0,100;80,0,100;0,80,140" '
         "--out run3/vol.json": "needs run3 above (the same as machine_3d.md's, run)",
+    },
+    "docs/tracker.md": {
+        "olti tracker-emulator --port 7000 --reflector-mm 1800,-400,250":
+            "a device that runs until stopped, on a fixed port; tests/test_tracker_emscon.py drives it (port 0)",
+        "olti tracker-emulator --port 7000 --scenario six_tracker.yaml": "as above, six_tracker.yaml the reader's",
+        "olti run six_tracker.yaml --out run_t": "six_tracker.yaml is the reader's (base: six_axis.yaml); "
+                                                "tests/test_tracker_emscon.py runs it, SIGKILLed and resumed",
+        "olti run six_tracker.yaml --out run_t --resume": "as above",
+        "olti run bench_tracker.yaml --out run_b": "needs the emulator above; tests/test_tracker_emscon.py",
     },
     "docs/emulator.md": {
         "python -m olti_drake.cli.emulator [SCENARIO.yaml] [--speed fast|realistic] [--seed N] [--link PREFIX] "
@@ -451,7 +483,7 @@ def test_the_readme_command_table_and_force_list_are_the_parsers():
     that take --force is the parser's."""
     verbs = _olti_subparsers()
     text = (ROOT / "README.md").read_text(encoding="utf-8")
-    rows = set(re.findall(r"^\| `olti (\w+)", text, re.M))
+    rows = set(re.findall(r"^\| `olti ([\w-]+)", text, re.M))   # verbs may have hyphens (tracker-emulator)
     assert rows == set(verbs), f"README's command table: rows {sorted(rows)}, the parser's verbs {sorted(verbs)}"
     m = re.search(r"the verbs\s+that write results take it: (.*?)\);", text, re.S)
     assert m, "README.md: the list of the verbs that take --force is gone"

@@ -432,43 +432,6 @@ def test_monte_carlo_refuses_trials_that_do_not_converge(small):
         monte_carlo(ident, x, ReadingErrors(wrong), trials=50, seed=1, workers=1)
 
 
-def test_monte_carlo_workers_die_with_their_parent():
-    """Hang class of issue 24: ``kill -9`` of the process running the Monte Carlo left its workers on both cores.
-    The pool's workers now ask the kernel to end them with their parent (PR_SET_PDEATHSIG)."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    script = ("import sys, time\n"
-              "from olti_drake.estimation.uncertainty import _pool\n"
-              "pool = _pool(2).__enter__()\n"
-              "futures = [pool.submit(time.sleep, 120) for _ in range(2)]\n"
-              "time.sleep(0.5)\n"
-              "print(' '.join(str(p) for p in pool._processes), flush=True)\n"
-              "time.sleep(120)\n")
-    p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
-    try:
-        workers = [int(v) for v in p.stdout.readline().split()]
-        assert len(workers) == 2 and all(_running(w) for w in workers)
-    finally:
-        p.send_signal(signal.SIGKILL)
-        p.wait(timeout=30)
-    deadline = time.monotonic() + 20
-    while any(_running(w) for w in workers) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not any(_running(w) for w in workers), "a Monte Carlo worker outlived its parent"
-
-
-def _running(pid: int) -> bool:
-    """Alive and not a zombie (an orphan's exit may wait for a reaper)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except FileNotFoundError:
-        return False
-
-
 def test_a_trial_count_beyond_reason_is_refused_before_any_work(tmp_path):
     """Hang and memory class of issue 24: ``--trials 10000000000`` ran silently for ever. The option has an upper
     bound, and below it the library refuses samples that would not fit in memory, naming the count and the size."""

@@ -42,3 +42,118 @@ def predict(args) -> int:
     print(f"predicted {len(c)} tool points (five-axis machine, workpiece frame); max u (k=1) {1e3 * u.max():.2f} um; "
           f"wrote {args.out}")
     return 0
+
+
+#: ``--cnc`` names (cli.md) of the exporters of :mod:`olti_drake.io.cnc` where they differ: the one place.
+CNC_FORMATS = {"siemens": "sinumerik"}
+#: The tool direction columns of a five-axis targets file (a unit vector is not required: normalized).
+DIRECTION_COLUMNS = ("i", "j", "k")
+
+
+def read_targets(path, machine):
+    """(points (M, 3) mm, tool directions (M, 3) or None, nominal rotary commands (M, n_rotary) deg or None,
+    approach directions (M, n_rotary) or None, tool (M,), file lines) of a five-axis TARGETS.csv: ``x_mm, y_mm,
+    z_mm`` (workpiece frame), the tool direction ``i, j, k`` (workpiece frame, from the tool point into the
+    spindle) and/or the nominal pose ``<letter>_cmd_deg`` of every rotary axis (one of the two), optional
+    ``dir_<letter>`` and ``tool``. One-line InputError naming the file and line otherwise."""
+    import os
+
+    from olti_drake.errors import InputError
+    from olti_drake.io.csvio import check_finite, read_table
+    from olti_drake.io.serial_io import header
+
+    name = os.fspath(path)
+    hline, cols = header(path)
+    rot_cmd = [f"{a.lower()}_cmd_deg" for a in machine.rotary]
+    dirs = [f"dir_{a.lower()}" for a in machine.rotary]
+    for group in (DIRECTION_COLUMNS, rot_cmd, dirs):
+        some = [c for c in group if c in cols]
+        if some and len(some) != len(group):
+            raise InputError(f"{name}:{hline}: missing column '{next(c for c in group if c not in cols)}' (with "
+                             f"'{some[0]}': give all of {', '.join(group)} or none)")
+    for a in set("ABC") - set(machine.rotary):
+        for c in (f"{a.lower()}_cmd_deg", f"dir_{a.lower()}"):
+            if c in cols:
+                raise InputError(f"{name}:{hline}: column '{c}' is for axis {a}, which machine model {machine.path} "
+                                 f"does not have (its axes: {', '.join(machine.axes)})")
+    if not any(c in cols for c in DIRECTION_COLUMNS + tuple(rot_cmd)):
+        raise InputError(f"{name}:{hline}: no tool direction: give the columns i, j, k (the tool axis in the "
+                         f"workpiece frame) or the nominal pose {', '.join(rot_cmd)} (its orientation kept)")
+    t = read_table(path, ("x_mm", "y_mm", "z_mm"), DIRECTION_COLUMNS + tuple(rot_cmd) + tuple(dirs) + ("tool",),
+                   integer=tuple(dirs) + ("tool",))
+    check_finite(t, path, [c for c in ("x_mm", "y_mm", "z_mm", *DIRECTION_COLUMNS, *rot_cmd) if c in t])
+    for c in dirs if dirs[0] in t else ():
+        bad = np.flatnonzero(~np.isin(t[c], (-1.0, 1.0)))
+        if bad.size:
+            raise InputError(f"{name}:{t['_line'][bad[0]]}: column '{c}': {t[c][bad[0]]:g} is not +1 or -1")
+    tool = t["tool"].astype(int) if "tool" in t else np.zeros(len(t["_line"]), int)
+
+    def stack(names):
+        return np.column_stack([t[c] for c in names]) if names[0] in t else None
+    return (stack(("x_mm", "y_mm", "z_mm")), stack(DIRECTION_COLUMNS), stack(rot_cmd), stack(dirs), tool,
+            t["_line"])
+
+
+def compensate(args) -> int:
+    """``olti compensate R.json TARGETS.csv --out COMMANDS.csv [--cnc FORMAT --tables DIR]`` on a five-axis result:
+    the X, Y, Z and rotary commands that put the tool point on every target with its tool direction by the
+    identified model (:func:`olti_drake.model.five_axis_compensation.compensate`); ``--cnc``: the controller's
+    files of the identified model (:func:`olti_drake.io.cnc.export`) with what they cannot hold and their residual."""
+    from olti_drake.cli.volumetric_verbs import _preflight
+    from olti_drake.io.five_axis_io import load_machine5_result
+    from olti_drake.model.five_axis_compensation import compensate as invert
+
+    if args.outside == "clamp":
+        raise ValueError("--outside clamp: a five-axis compensation refuses targets outside the travel (the error "
+                         "motions are identified within it)")
+    if args.tables and not args.cnc:
+        raise ValueError("--tables DIR on a five-axis result goes with --cnc siemens|fanuc|heidenhain|linuxcnc|csv "
+                         "(the controller whose files it receives)")
+    if args.cnc and not args.tables:
+        raise ValueError(f"--cnc {args.cnc} needs --tables DIR (the directory its files are written to)")
+    _preflight(args, [args.out], [args.result, args.targets], dirs=[args.tables] if args.tables else [])
+    res = load_machine5_result(args.result)
+    m = res.machine
+    pts, dirs, rot, approach, tool, lines = read_targets(args.targets, m)
+    comp = invert(res.position_model, res.x, m, pts, dirs, rot, tool, approach, lines, str(args.targets))
+    _write_commands(args, m, comp, tool)
+    k = [m.axes.index(a) for a in m.rotary]
+    step = np.abs(comp.commands - comp.nominal)
+    print(f"compensated {len(pts)} targets (five-axis TCP, workpiece frame): max correction "
+          f"{1e3 * step[:, [m.axes.index(a) for a in m.linear]].max():.2f} um, "
+          f"{1e3 * step[:, k].max():.3f} mdeg; max residual {comp.position_residual_mm.max():.2g} mm, tool direction "
+          f"{1e6 * comp.direction_residual_rad.max():.3g} urad; wrote {args.out}")
+    far = np.flatnonzero(comp.direction_residual_rad > 1e-6)
+    if far.size:
+        print(f"note: {far.size} target(s) near the singular tool direction (along a rotary axis line), e.g. line "
+              f"{lines[far[0]]}: the exact direction would need a large rotary move; the tool point is exact, the "
+              f"direction within {1e6 * comp.direction_residual_rad.max():.3g} urad")
+    if args.cnc:
+        from olti_drake.io.cnc import export
+
+        report = export(CNC_FORMATS.get(args.cnc, args.cnc), m, res.errors,
+                        res.position_model(comp.commands[:1], None if comp.directions is None else
+                                           comp.directions[:1], tool[:1]).theta(res.x), args.tables)
+        print(report.describe())
+    return 0
+
+
+def _write_commands(args, machine, comp, tool) -> None:
+    """COMMANDS.csv: the command columns of formats.md's five-axis campaign, the approach directions used, ``tool``,
+    then the wanted point and tool direction repeated."""
+    from olti_drake.io.csvio import write_table
+    from olti_drake.io.five_axis_io import command_columns
+
+    cols = {c: comp.commands[:, k] for k, c in enumerate(command_columns(machine.axes))}
+    fmt = {c: "%.6f" for c in cols}
+    for k, a in enumerate(machine.rotary if comp.directions is not None else ()):
+        cols[f"dir_{a.lower()}"], fmt[f"dir_{a.lower()}"] = comp.directions[:, k], "%d"
+    cols["tool"], fmt["tool"] = tool, "%d"
+    for k, c in enumerate(("x_mm", "y_mm", "z_mm") + DIRECTION_COLUMNS):
+        cols[c] = (comp.points_mm if k < 3 else comp.tool_dirs)[:, k % 3]
+        fmt[c] = "%.6f" if k < 3 else "%.9f"
+    write_table(args.out, cols, fmt, comments=[
+        f"olti compensate: {args.result} inverted for the targets of {args.targets}; mm, deg",
+        "x_cmd_mm .. <letter>_cmd_deg put tool 'tool' on x_mm, y_mm, z_mm with the tool direction i, j, k (unit, "
+        "workpiece frame, from the tool point into the spindle) by the identified five-axis model; dir_<letter>: "
+        "the approach directions the compensation used (formats.md)"])

@@ -152,14 +152,18 @@ def _volumetric_summary(res, doc, problem) -> str:
 def _machine5_options(args) -> dict:
     return dict(machine=args.machine, workpiece_frame=args.workpiece_frame, tool_frame=args.tool_frame,
                 pitch_deg=args.grid_step_deg or 15.0, tool_offsets_mm=args.tool_offsets_mm, budget=args.budget,
-                smoothing="auto" if args.smoothing is None else args.smoothing, **_solver_options(args))
+                smoothing="auto" if args.smoothing is None else args.smoothing, linear=getattr(args, "linear", None),
+                **_solver_options(args))
 
 
 def _machine5_document(fit, problem, args) -> dict:
     from olti_drake.io.five_axis_io import machine5_result_dict
 
     out_dir = os.path.dirname(os.path.abspath(os.fspath(args.out)))
-    return machine5_result_dict(problem.program, fit, os.path.relpath(os.path.abspath(args.machine), out_dir))
+    linear = getattr(args, "linear", None)
+    linear = os.path.relpath(os.path.abspath(linear), out_dir) if linear else None
+    return machine5_result_dict(problem.program, fit, os.path.relpath(os.path.abspath(args.machine), out_dir),
+                                linear_reference=linear)
 
 
 def _machine5_summary(fit, doc, problem) -> str:
@@ -197,7 +201,7 @@ ROUTES = {
     "multilateration": Route(_multilateration_options, _multilateration_document, _multilateration_summary),
     "volumetric": Route(_volumetric_options, _multilateration_document, _volumetric_summary),
     "machine5": Route(_machine5_options, _machine5_document, _machine5_summary, before=_machine5_before,
-                      inputs=lambda args: [args.campaign, args.budget, args.machine]),
+                      inputs=lambda args: [args.campaign, args.budget, args.machine, getattr(args, "linear", None)]),
 }
 
 

@@ -21,15 +21,22 @@ HANDLERS = {
                 "machine5": "olti_drake.cli.five_axis_verbs:predict"},
     "uncertainty": {"scara": "olti_drake.cli.scara_verbs:uncertainty",
                     "serial": "olti_drake.cli.serial_uncertainty:uncertainty",
-                    "multilateration": "olti_drake.cli.machine_verbs:uncertainty"},
+                    "multilateration": "olti_drake.cli.machine_verbs:uncertainty",
+                    "machine5": "olti_drake.cli.five_axis_uncertainty:uncertainty"},
     "design": {"scara": "olti_drake.cli.scara_verbs:design",
                "serial": "olti_drake.cli.serial_design:design",
                "multilateration": "olti_drake.cli.machine_design:design",
-               "volumetric": "olti_drake.cli.machine_design:design"},
+               "volumetric": "olti_drake.cli.machine_design:design",
+               "machine5": "olti_drake.cli.five_axis_design:design"},
     "compensate": {"scara": "olti_drake.cli.scara_verbs:compensate",
                    "serial": "olti_drake.cli.serial_verbs:compensate",
-                   "volumetric": "olti_drake.cli.volumetric_verbs:compensate"},
+                   "volumetric": "olti_drake.cli.volumetric_verbs:compensate",
+                   "machine5": "olti_drake.cli.five_axis_verbs:compensate"},
 }
+
+#: ``olti uncertainty --trials`` when not given, by result kind (else 1000): a five-axis trial re-solves hundreds of
+#: map values (~20 ms each on a small campaign), 200 trials give u to ~5 %.
+MC_TRIALS = {"machine5": 200}
 
 #: The body of each verb that takes a campaign (not a result), by calibration kind
 #: (:data:`olti_drake.estimation.problem.KINDS`' names); another kind is refused in one line (:data:`CAMPAIGN_REFUSED`).
@@ -46,8 +53,8 @@ CAMPAIGN_REFUSED = {
 #: A verb's own sentence for a result kind it does not take ({path}: the file), instead of read_result's.
 REFUSED = {
     ("uncertainty", "volumetric"): "{path}: a volumetric result carries its linear uncertainties (key "
-                                   "'uncertainty', k = 1); olti uncertainty takes SCARA, serial-robot and "
-                                   "multilateration results",
+                                   "'uncertainty', k = 1); olti uncertainty takes SCARA, serial-robot, "
+                                   "multilateration and five-axis results",
 }
 
 _SCARA_PATH = "the SCARA path uses --nominal-mm and --grid1-deg/--grid2-deg"
@@ -100,6 +107,9 @@ OPTIONS = (
            {None: "{flag} needs --robot FILE (an N-joint robot model) or --machine FILE (a five-axis machine)"}),
     Option("identify", "--workpiece-frame", "workpiece_frame", ("machine5",),
            {None: "{flag} needs --machine FILE (a five-axis machine model)"}),
+    Option("identify", "--linear", "linear", ("machine5",),
+           {None: "{flag} (the linear axes from a volumetric result) needs --machine FILE (a five-axis machine "
+                  "model)"}),
     _scara_only("--grid1-deg", "grid1_deg", "--grid-step-deg"),
     _scara_only("--grid2-deg", "grid2_deg", "--grid-step-deg"),
     _scara_only("--nominal-mm", "nominal_mm", "the robot file's geometry and --tool-offset-mm"),
@@ -119,7 +129,12 @@ OPTIONS = (
     Option("uncertainty", "--maps", "maps", ("scara",), {
         "serial": "{flag} is the SCARA figure; for a robot from a model file the maps with these error bars are in "
                   "olti report RESULT.json UNC.json",
-        "multilateration": "{flag} (error maps with error bars) applies to SCARA error-map results only"}),
+        "multilateration": "{flag} (error maps with error bars) applies to SCARA error-map results only",
+        "machine5": "{flag} is the SCARA figure; a five-axis result's error motions with U bands are in olti report "
+                    "RESULT.json UNC.json"}),
+    Option("uncertainty", "--map", "map", ("scara", "serial", "multilateration"),
+           {None: "{flag} (U over the workspace) applies to robots and machine-tool targets; a five-axis result's "
+                  "error motions with U bands are in olti report RESULT.json UNC.json"}),
     Option("uncertainty", "--workspace-poses", "workspace_poses", ("serial",),
            {None: "{flag} applies to robots from a model file (olti identify --robot); the SCARA's map and the "
                   "machine's targets are where they are"}, 400),
@@ -130,12 +145,17 @@ OPTIONS = (
     Option("design", "--workspace-step-mm", "workspace_step_mm", ("scara",),
            {None: "{flag} applies to SCARA results (its XY grid); robots from a model file use --workspace-poses"},
            50.0),
-    Option("design", "--workspace-poses", "workspace_poses", ("serial",),
-           {None: "{flag} applies to robots from a model file (olti identify --robot)"}, 300),
+    Option("design", "--workspace-poses", "workspace_poses", ("serial", "machine5"),
+           {None: "{flag} applies to robots from a model file (olti identify --robot) and five-axis machines"}, 300),
     Option("design", "--clearance-mm", "clearance_mm", ("scara", "serial"),
            {None: "{flag} applies to robots (the arm's clearance); a machine tool's design takes none"}, 50.0),
     Option("design", "--base-radius-mm", "base_radius_mm", ("scara", "serial"),
            {None: "{flag} applies to robots (beams past the base); a machine tool's design takes none"}, 40.0),
+    *(Option("design", flag, dest, ("serial", "multilateration", "volumetric"),
+             {None: "{flag}: a SCARA design searches its starts in this process (one memo of layouts); the designs "
+                    "of robots from a model file and of machine tools take it"}, unset)
+      for flag, dest, unset in (("--workers", "workers", None), ("--backend", "backend", "loky"),
+                                ("--scheduler", "scheduler", None))),
     # olti compensate
     Option("compensate", "--urdf-out", "urdf_out", ("serial",),
            {None: "{flag} needs the result of a robot model file (olti identify --robot)"}),
@@ -145,6 +165,8 @@ OPTIONS = (
     Option("compensate", "--ur-kinematics-out", "ur_kinematics_out", ("serial",),
            {None: "{flag} (a UR-style default_kinematics.yaml) needs the result of a robot model file (olti "
                   "identify --robot)"}),
+    Option("compensate", "--dh-out", "dh_out", ("serial",),
+           {None: "{flag} (a D-H table) needs the result of a robot model file (olti identify --robot)"}),
     Option("compensate", "--ros2-control-out", "ros2_control_out", ("serial",),
            {None: "{flag} (joint offsets for ros2_control) needs the result of a robot model file (olti identify "
                   "--robot)"}),
@@ -154,6 +176,9 @@ OPTIONS = (
            {None: "{flag} applies to volumetric results (--tables: the axis tables)"}),
     Option("compensate", "--grid-pitch-mm", "grid_pitch_mm", ("volumetric",),
            {None: "{flag} applies to volumetric results (--tables: the 3D grid)"}),
+    Option("compensate", "--cnc", "cnc", ("machine5",),
+           {None: "{flag} (the files a five-axis controller loads) needs the result of a five-axis machine (olti "
+                  "identify --machine FILE)"}),
     # olti run: the scenario kinds (sim.serial_scenario.scenario_kind)
     Option("run", "--meshcat", "meshcat", ("scara",),
            {None: "{flag}: olti run shows the live view of SCARA campaigns only; the six-axis and 3D machine "

@@ -38,7 +38,8 @@ def design(args) -> int:
 
     d = design_machine_stations(info, cand, n, criterion=args.criterion, seed=args.seed, starts=args.starts,
                                 max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
-                                regions=args.regions, progress=report if tty else None)
+                                regions=args.regions, progress=report if tty else None, workers=args.workers or 1,
+                                backend=args.backend, scheduler=args.scheduler)
     if tty:
         sys.stderr.write("\n")
     current = None

@@ -25,7 +25,8 @@ def propagate(ident, x, errors, args):
 
     mc = monte_carlo(ident, x, errors, trials=args.trials, seed=args.seed, workers=args.workers,
                      adaptive=args.adaptive, max_trials=args.max_trials, coverage=args.coverage,
-                     progress=report if tty else None)
+                     progress=report if tty else None, backend=getattr(args, "backend", "loky"),
+                     scheduler=getattr(args, "scheduler", None))
     if tty:
         sys.stderr.write("\n")
     notes = list(mc.notes)

@@ -56,7 +56,8 @@ def design(args) -> int:
                               clearance_mm=args.clearance_mm)
     current = evaluate_layout(info, res.stations_mm, args.criterion) if res.stations_mm is not None else None
     d = design_stations(info, cand, n, criterion=args.criterion, seed=args.seed, starts=args.starts,
-                        max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm)
+                        max_sweeps=args.max_sweeps, min_separation_mm=args.min_separation_mm,
+                        workers=args.workers or 1, backend=args.backend, scheduler=args.scheduler)
     doc = design_document(d, current, budget_name=budget.name, u_reading_mm=u, result=args.result, plan=plan_name,
                           regions=args.regions, step_mm=args.step_mm, seed=args.seed, max_sweeps=args.max_sweeps,
                           min_separation_mm=args.min_separation_mm, workspace_poses=args.workspace_poses,

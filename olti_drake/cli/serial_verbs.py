@@ -141,7 +141,7 @@ EXIT_TARGETS_FAILED = 3
 
 def compensate(args) -> int:
     """``olti compensate RESULT.json TARGETS.csv --out COMMANDS.csv [--tables DIR] [--urdf-out FILE]
-    [--cartesian-out FILE] [--ros2-control-out FILE] [--ur-kinematics-out FILE]`` for a serial robot: targets x_mm, y_mm, z_mm with their
+    [--cartesian-out FILE] [--ros2-control-out FILE] [--ur-kinematics-out FILE] [--dh-out FILE]`` for a serial robot: targets x_mm, y_mm, z_mm with their
     nominal pose theta1_deg .. thetaN_deg (and dirs). Every target is solved; one that cannot be is a row with
     ``status`` != 0 (its nominal command kept), one line on stderr naming its file line, and exit
     :data:`EXIT_TARGETS_FAILED`; a program none of whose targets can be compensated is refused (exit 2, nothing
@@ -160,8 +160,9 @@ def compensate(args) -> int:
     cartesian_out = getattr(args, "cartesian_out", None)
     ros2_out = getattr(args, "ros2_control_out", None)
     ur_out = getattr(args, "ur_kinematics_out", None)
+    dh_out = getattr(args, "dh_out", None)
     tables = [os.path.join(args.tables, f"{m.joint}_compensation.csv") for m in model.maps] if args.tables else []
-    _preflight(args, [args.out, args.urdf_out, cartesian_out, ros2_out, ur_out] + tables,
+    _preflight(args, [args.out, args.urdf_out, cartesian_out, ros2_out, ur_out, dh_out] + tables,
                [args.result, args.targets, res.robot_path], dirs=[args.tables] if args.tables else [])
     if args.tables and not model.maps:
         raise ValueError(f"{args.result}: --tables needs an error-map result (model 'errormap'), this one is "
@@ -214,6 +215,14 @@ def compensate(args) -> int:
         print(f"wrote {ur_out} (UR-style kinematics, hash {rep.hash}; tool point residual vs the model RMS "
               f"{1e3 * rep.residual_rms_mm:.3g} um, max {1e3 * rep.residual_max_mm:.3g} um"
               + (f"; not held: {'; '.join(rep.cannot_hold)}" if rep.cannot_hold else "") + ")")
+    if dh_out:
+        from olti_drake.io.dh_table import write_dh_table
+
+        rep = write_dh_table(model, dh_out, res.data["robot"]["file"], args.result)
+        print(f"wrote {dh_out} (D-H table" + (f", Hayati's beta for {', '.join(rep['hayati'])}" if rep["hayati"]
+                                              else "") +
+              f"; tool point residual vs the model RMS {1e3 * rep['residual_rms_mm']:.3g} um, max "
+              f"{1e3 * rep['residual_max_mm']:.3g} um; not held: {'; '.join(rep['cannot_hold'])})")
     if tables:
         from olti_drake.io.outputs import make_dir
 

@@ -231,6 +231,13 @@ def cmd_validate(args) -> int:
     return campaign_handler("validate", args)(args)
 
 
+def cmd_import_points(args) -> int:
+    """A tracker export and a joint log as a point campaign (olti_drake.cli.import_points)."""
+    from olti_drake.cli.import_points import import_points
+
+    return import_points(args)
+
+
 def cmd_multilaterate(args) -> int:
     """001 Eq. 2-6 on a 2D or 3D machine-tool campaign: the identify route with model multilateration."""
     from olti_drake.cli.identify import identify
@@ -285,11 +292,14 @@ def cmd_uncertainty(args) -> int:
     Carlo (sample std, ddof = 1). Writes the formats.md ``uncertainty`` object
     (k = 1, plus ``expanded`` with --k); mm and degrees.
     """
-    from olti_drake.cli.kinds import handler, result_kind_of
+    from olti_drake.cli.kinds import MC_TRIALS, handler, result_kind_of
+    from olti_drake.estimation.trials import check_backend
     from olti_drake.estimation.uncertainty import round_trials
 
     kind = result_kind_of(args, "uncertainty")
+    args.trials = MC_TRIALS.get(kind, 1000) if args.trials is None else args.trials
     _check_outputs(args, [args.out, args.map, args.maps], [args.result, args.campaign, args.budget])
+    check_backend(args.backend, args.scheduler, args.workers)  # before any work: a missing package, one line
     if args.max_trials < 2 * round_trials(args.coverage):  # a bound between two options: not argparse's
         raise ValueError(f"--max-trials must be >= {2 * round_trials(args.coverage)} (two adaptive rounds of "
                          f"--coverage {args.coverage:g}), got {args.max_trials}")
@@ -305,6 +315,9 @@ def cmd_design(args) -> int:
     (k = 1) over the workspace. Prints both costs and the improvement; writes
     DESIGN.json (mm).
     """
+    from olti_drake.estimation.trials import check_backend
+
+    check_backend(args.backend, args.scheduler, args.workers)  # before any work: a missing package, one line
     # --step-mm not given: 50 mm for the robots; a machine tool in 3D derives its own from the regions' size.
     args.step_mm_default = args.step_mm is None
     if args.step_mm is None:
@@ -363,6 +376,13 @@ def _stop_on_signals():
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     return (lambda: stop["signal"]), (lambda: [signal.signal(s, h) for s, h in old.items()])
+
+
+def cmd_tracker_emulator(args) -> int:
+    """The emScon tracker emulator until Ctrl-C (olti_drake.cli.tracker_emulator)."""
+    from olti_drake.cli.tracker_emulator import tracker_emulator
+
+    return tracker_emulator(args)
 
 
 def cmd_run(args) -> int:
@@ -427,6 +447,19 @@ class _Parser(argparse.ArgumentParser):
 #: Most Monte Carlo trials an option takes: 10^8 trials of the paper problem would run for days (the library
 #: refuses below that when the samples would not fit in memory: estimation.uncertainty.MAX_SAMPLE_BYTES).
 MAX_TRIALS_OPTION = 100_000_000
+
+
+def _add_where_options(p, what: str, default: str) -> None:
+    """--workers, --backend, --scheduler: where ``what`` run (estimation.trials.run_trials; docs/trials.md)."""
+    p.add_argument("--workers", type=cliargs.workers, default=None,
+                   help=f"worker processes for {what} (default: {default}; with --backend dask the local cluster's; "
+                        f"results do not depend on it)")
+    p.add_argument("--backend", choices=("loky", "dask", "ray"), default="loky",
+                   help=f"where {what} run (joblib): loky, worker processes here (default); dask, a Dask cluster "
+                        f"(local, or --scheduler); ray, the Ray cluster of RAY_ADDRESS (docs/trials.md)")
+    p.add_argument("--scheduler", metavar="ADDR",
+                   help="with --backend dask: the scheduler of a running cluster, e.g. tcp://10.0.0.5:8786 (default: "
+                        "a local cluster of --workers processes)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -509,6 +542,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "revolute A, B, C joints named by their letters; formats.md, Five-axis machine "
                                      "tools); the campaign then has x/y/z_cmd_mm and <letter>_cmd_deg")
     p.add_argument("--workpiece-frame", help="with --machine: the workpiece frame on the table (default workpiece)")
+    p.add_argument("--linear", metavar="RESULT.json",
+                   help="with --machine: the linear axes' 18 error motions and 3 squareness errors from an earlier "
+                        "volumetric result (olti identify --model volumetric), held fixed, not estimated "
+                        "(docs/five_axis.md)")
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
     p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,
@@ -603,14 +640,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("mc", "linear"), required=True,
                    help="mc: Monte Carlo (JCGM 101); linear: Jacobian propagation (JCGM 100)")
     p.add_argument("--budget", help="budget YAML (e.g. data/budget_paper001.yaml; default: 000 Table 2)")
-    p.add_argument("--trials", type=cliargs.integer(2, MAX_TRIALS_OPTION), default=1000,
-                   help="Monte Carlo trials (default 1000; ignored with --adaptive; the samples must fit in 4 GiB)")
+    p.add_argument("--trials", type=cliargs.integer(2, MAX_TRIALS_OPTION), default=None,
+                   help="Monte Carlo trials (default 1000, five-axis results 200; ignored with --adaptive; the "
+                        "samples must fit in 4 GiB)")
     p.add_argument("--k", type=cliargs.coverage_factor, default=2.0, help="coverage factor of 'expanded' (default 2)")
     p.add_argument("--coverage", type=cliargs.probability, default=0.95,
                    help="probability of the Monte Carlo coverage intervals (default 0.95)")
     p.add_argument("--seed", type=cliargs.seed, default=0, help="Monte Carlo seed (default 0)")
-    p.add_argument("--workers", type=cliargs.workers, default=None,
-                   help="Monte Carlo worker processes (default: up to 2 cores; results do not depend on it)")
+    _add_where_options(p, "the Monte Carlo trials", "up to 2 cores from 1000 trials on, or --adaptive")
     p.add_argument("--adaptive", action="store_true",
                    help="Monte Carlo until every estimate, standard uncertainty and coverage-interval endpoint "
                         "is stable to 2 significant digits of u (JCGM 101 §7.9), at most --max-trials")
@@ -639,7 +676,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plan", help="plan CSV or YAML (default: the paper 000 plan, Eq. 11-12)")
     p.add_argument("--regions", required=True, help="regions YAML: rectangles {x_mm: [lo, hi], y_mm: [lo, hi]} "
                                                     "(e.g. data/regions_paper000.yaml); 3D boxes with z_mm for "
-                                                    "robots from a model file and machine tools in 3D")
+                                                    "robots from a model file and machine tools in 3D; five-axis "
+                                                    "results: each box with frame: base (stations on the bed), "
+                                                    "workpiece (stations riding on the table) or nest (R-test "
+                                                    "nests; docs/five_axis.md)")
     p.add_argument("--reflectors", "--stations", type=cliargs.integer(3, 1000), default=None,
                    help="number of reflectors (robots) or stations (machine tool in 3D) to place (default: as many "
                         "as the result has)")
@@ -662,6 +702,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="minimum distance of a reflector from every end-effector position (default 50)")
     p.add_argument("--base-radius-mm", type=cliargs.distance_mm, default=40.0,
                    help="beams must pass at least this far from the J1 axis (robot base; default 40, 0: off)")
+    _add_where_options(p, "the random starts (robots from a model file, machine tools)", "this process")
     p.add_argument("--out", required=True, help="design JSON to write")
     _add_force(p)
     p.set_defaults(func=cmd_design)
@@ -683,7 +724,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "uncertainty map (001 Fig. 14 style, needs --campaign), residuals and, with "
                                    "--truth, validation (000 Figs. 9-11). Figures are embedded as data URIs and "
                                    "written as PNG files in DIR. mm and degrees.")
-    p.add_argument("result", help="result JSON (olti identify, olti identify --model volumetric or olti multilaterate)")
+    p.add_argument("result", help="result JSON (olti identify, olti identify --model volumetric or --machine, or olti "
+                                  "multilaterate)")
     p.add_argument("uncertainty", nargs="?", default=None,
                    help="uncertainty JSON of this result (olti uncertainty; default: the result's own)")
     p.add_argument("--out", required=True, help="output directory")
@@ -694,9 +736,35 @@ def build_parser() -> argparse.ArgumentParser:
                    help="robots from a model file: ISO 9283 pose accuracy (AP) and repeatability (RP) from a "
                         "tracker-point campaign with repeated cycles (each distinct command row a pose)")
     p.add_argument("--tolerance", type=cliargs.tolerances, default=None, metavar="AP_P=0.1,RP_l=0.05",
-                   help="with --iso9283: a verdict line per characteristic (AP_P, RP_l in mm; AP_abc, RP_abc in deg)")
+                   help="with --iso9283: a verdict line per characteristic (AP_P, RP_l in mm; AP_abc, RP_abc in deg); "
+                        "five-axis results: the acceptance summary's (dispersion, modification_mm in mm; "
+                        "modification_urad in urad)")
     _add_force(p)
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("import-points", help="a laser tracker's point export and the robot's joint log as a point "
+                                             "campaign",
+                       description="Read a tracker's point export (a column-mapped CSV, or a SpatialAnalyzer-style "
+                                   "ASCII point list 'Collection Group Target X Y Z') and match its points to the "
+                                   "rows of the robot's joint log (theta1_deg .. thetaN_deg, optional dir1 .. dirN, "
+                                   "and a name/point or time_s/timestamp column) by name (exact) or by time (nearest "
+                                   "within --max-dt-s, each row used once); write the point campaign (formats.md) in "
+                                   "the log's row order, mm. Unmatched points and rows are skipped and counted; "
+                                   "nothing matched is refused.")
+    p.add_argument("export", help="the tracker software's point export (CSV or SA-style ASCII)")
+    p.add_argument("--joints", required=True, help="the robot's joint log CSV (theta1_deg .. thetaN_deg, name or "
+                                                   "time_s)")
+    p.add_argument("--out", required=True, help="point campaign CSV to write (never replaces a file)")
+    p.add_argument("--format", choices=("auto", "csv", "sa"), default="auto",
+                   help="the export's layout (default auto: SA-style when the first data line ends in three numbers)")
+    p.add_argument("--columns", help="CSV column map, e.g. name=Point,x=X,y=Y,z=Z,time=Timestamp (default: name, x, "
+                                     "y, z, time)")
+    p.add_argument("--units", help="the export's length unit: mm, m or in (default: the SA header's, else mm)")
+    p.add_argument("--match", choices=("name", "time"), default=None,
+                   help="match by name (default when both files have names) or by time")
+    p.add_argument("--max-dt-s", type=cliargs.positive, default=0.5,
+                   help="--match time: the largest time difference of a match, s (default 0.5)")
+    p.set_defaults(func=cmd_import_points)
 
     p = sub.add_parser("compensate", help="joint commands that put the end effector on targets by the model",
                        description="Invert the identified model (000 Eq. 3 with Eq. 7): for every target of "
@@ -728,10 +796,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ur-kinematics-out", help="six-joint robots from a URDF: also write the identified joint origins "
                                                "as a UR-style default_kinematics.yaml (metres, radians), with what it "
                                                "cannot hold and the residual that leaves")
+    p.add_argument("--dh-out", help="serial robots: also write the identified geometry as a D-H table (CSV: "
+                                    "standard D-H, Hayati's beta where consecutive axes are parallel; mm and "
+                                    "degrees), with what it cannot hold and the residual that leaves")
     p.add_argument("--pitch-mm", type=cliargs.length_mm,
                    help="volumetric --tables: axis tables every S mm (default 10)")
     p.add_argument("--grid-pitch-mm", type=cliargs.length_mm,
                    help="volumetric --tables: the 3D grid of positioning-error vectors every S mm (default 50)")
+    p.add_argument("--cnc", choices=("siemens", "fanuc", "heidenhain", "linuxcnc", "csv"),
+                   help="five-axis results (olti identify --machine): also write what this controller loads into "
+                        "--tables DIR (docs/cnc_exports.md), with what the format cannot hold and its residual. "
+                        "TARGETS.csv then has x_mm, y_mm, z_mm and the tool direction i, j, k or the nominal pose "
+                        "<letter>_cmd_deg (docs/five_axis.md)")
     p.add_argument("--outside", choices=("error", "clamp"), default="error",
                    help="commands outside the map grid: refuse the target (default) or hold the end values")
     _add_force(p)
@@ -754,12 +830,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="flush each reading to the OS but skip fsync (faster; a power cut may lose the last ones)")
     _add_meshcat_options(p)
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser("tracker-emulator", help="emulate a Leica laser tracker (emScon/CESAPI over TCP) on "
+                                                "127.0.0.1 until Ctrl-C",
+                       description="Serve the emScon protocol of a Leica laser tracker on 127.0.0.1:PORT "
+                                   "(docs/tracker.md): a reflector at rest in the tracker's frame (--reflector-mm), "
+                                   "or carried by the simulated robot of a six-axis scenario with station: "
+                                   "!Tracker (--scenario; the robot controller is emulated on a pseudo-terminal, "
+                                   "printed at start). Units mm, degrees, Celsius, hPa unless SetUnits says "
+                                   "otherwise.")
+    p.add_argument("--port", type=cliargs.integer(0, 65535), required=True,
+                   help="TCP port (700 is a real tracker's; 0 picks a free one, printed)")
+    p.add_argument("--reflector-mm", type=cliargs.pairs_mm(3), metavar="X,Y,Z",
+                   help="a reflector at rest at X,Y,Z mm in the tracker's frame")
+    p.add_argument("--scenario", help="a six-axis scenario YAML whose station is !Tracker: its robot carries the "
+                                      "reflector through the campaign")
+    p.add_argument("--seed", type=cliargs.seed, default=None,
+                   help="noise, beam-break and drift seed (default: the scenario's, 0 without one)")
+    p.set_defaults(func=cmd_tracker_emulator)
     return parser
 
 
 #: Options whose values may start with '-' (negative angles, coordinates).
 _SIGNED_VALUE_OPTIONS = ("--grid1-deg", "--grid2-deg", "--reflectors-mm", "--nominal-mm", "--stations-mm",
-                         "--tool-offset-mm", "--tool-offsets-mm")
+                         "--tool-offset-mm", "--tool-offsets-mm", "--reflector-mm")
 
 
 def _join_signed_values(argv):

@@ -44,12 +44,15 @@ class FiveAxisOptions(SolverOptions):
     """Solver options plus the error model: ``model`` geometric (location errors and tool offsets) | errormap (plus
     the error motions every ``pitch_deg`` of each rotary axis' travel); ``tool_offsets_mm`` one [x, y, z] per
     tool index in the tool frame (mm; default 0 for every tool: tool 0 is the reference, the others' errors are
-    identified); ``smoothing`` the maps' prior ('auto' by default for errormap; geometric has no maps)."""
+    identified); ``smoothing`` the maps' prior ('auto' by default for errormap; geometric has no maps); ``linear``
+    an earlier ``olti-volumetric/1`` result whose linear-axis motions and squareness are held fixed in the model
+    (:func:`~olti_drake.io.five_axis_io.load_linear_from`; None: perfect linear axes)."""
 
     model: str = "errormap"
     pitch_deg: float = 15.0
     tool_offsets_mm: Optional[Sequence[Sequence[float]]] = None
     smoothing: object = "auto"
+    linear: Optional[str] = None
 
 
 # ----------------------------------------------------------------------------------------------- the model
@@ -147,9 +150,10 @@ class FramedPositionModel:
 
 
 # ----------------------------------------------------------------------------------------------- the program
-def error_model(machine, campaign, options: FiveAxisOptions) -> FiveAxisErrors:
+def error_model(machine, campaign, options: FiveAxisOptions, linear=None) -> FiveAxisErrors:
     """The error model the options ask for on ``machine``: location errors always; the error motions every
-    ``pitch_deg`` with ``errormap`` (bidirectional when the campaign has directions); tool offsets."""
+    ``pitch_deg`` with ``errormap`` (bidirectional when the campaign has directions); tool offsets; the known
+    linear-axis motions ``linear`` (or perfect linear axes)."""
     if options.model not in MODELS:
         raise InputError(f"--model {options.model}: a five-axis machine takes {' or '.join(MODELS)}")
     tools = options.tool_offsets_mm
@@ -158,7 +162,7 @@ def error_model(machine, campaign, options: FiveAxisOptions) -> FiveAxisErrors:
         raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but {campaign.source} uses tool indices "
                          f"0..{campaign.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     return FiveAxisErrors(machine, location=True, motions=options.model == "errormap", pitch_deg=options.pitch_deg,
-                          bidirectional=campaign.directions is not None, linear=None, tool_offsets_mm=tools,
+                          bidirectional=campaign.directions is not None, linear=linear, tool_offsets_mm=tools,
                           identify_tool_offsets=len(tools) > 1)
 
 
@@ -221,7 +225,12 @@ class FiveAxisIdentification(Calibration):
 
             o = dataclasses.replace(o, smoothing="off")  # (no maps: nothing to smooth)
         self.campaign, self.machine, self.model_name, self._options = campaign, machine, o.model, o
-        self.errors = error_model(machine, campaign, o)
+        self.linear_from = None
+        if o.linear is not None:
+            from olti_drake.io.five_axis_io import load_linear_from
+
+            self.linear_from = load_linear_from(o.linear, machine, campaign.commands, campaign.source)
+        self.errors = error_model(machine, campaign, o, self.linear_from and self.linear_from.motions)
         self._settings = dict(location=True, motions=o.model == "errormap", pitch_deg=float(o.pitch_deg),
                               bidirectional=campaign.directions is not None,
                               tool_offsets_mm=self.errors.tools.tolist(),
@@ -234,6 +243,11 @@ class FiveAxisIdentification(Calibration):
         super().__init__(meas, o, gauge if len(gauge.constraints) else None, campaign.source)
         self.gauge = self._gauge_sentence(gauge)
         self.notes.extend(f"{g}: not separable by this campaign ({why}): held at 0" for g, why in self.dropped.items())
+        if self.linear_from is not None:
+            self.notes.append(f"linear axes: the 18 error motions and 3 squareness errors of {self.linear_from.path} "
+                              f"(sha256 {self.linear_from.sha256[:12]}...) held fixed, not estimated, about the "
+                              f"loop's carriage frames; their covariance is propagated into every u "
+                              f"(docs/five_axis.md)")
         if len(self.kinds) > 1:
             self.notes.append("mixed campaign: each reading kind weighed by its u (mm): " + ", ".join(
                 f"{k} {MIXED_SIGMAS_MM[k]:g}" for k in self.kinds))
@@ -244,10 +258,15 @@ class FiveAxisIdentification(Calibration):
 
     def _separable(self):
         """:func:`separable` on the Jacobian of the campaign's own measurement at the start (its stations, nests and
-        tracker frames the nuisance)."""
+        tracker frames the nuisance), on perfect linear axes: what a campaign separates is structural (known linear
+        motions of a few µm break the exact symmetries by their own size, not by what the campaign sees)."""
         pm = self._framed()
         meas, kinds = measurement(self.campaign, pm)
-        _, J = meas.residuals(meas.start_vector())
+        known, self.errors.linear_motions = self.errors.linear_motions, None
+        try:
+            _, J = meas.residuals(meas.start_vector())
+        finally:
+            self.errors.linear_motions = known
         J, what = J.toarray(), " + ".join(kinds) + " readings, their own unknowns free"
         R = meas.roughness() if smoothing_on(self._options) else None
         if R is not None and R.shape[0]:  # what the smoothness prior determines (a map's shape between and beyond
@@ -290,6 +309,45 @@ class FiveAxisIdentification(Calibration):
     def solve(self):
         """The fit (:meth:`Calibration.fit`: LM, the covariance and std of every parameter, k = 1)."""
         return self.fit()
+
+    def fit(self, uncertainty: bool = True):
+        """:meth:`Calibration.fit`; with linear axes from a volumetric result, the covariance adds what that
+        result's own uncertainty (its parameters' covariance, held fixed here) does to the estimate:
+        S C_θ Sᵀ, S = dx/dθ = −H⁻¹ Jᵀ J_θ within the gauge (H = JᵀJ + the priors; linear, JCGM 100 §5)."""
+        fit = super().fit(uncertainty)
+        if uncertainty and self.linear_from is not None:
+            C = self._linear_covariance(fit.x)
+            fit.covariance = fit.covariance + C
+            fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
+        return fit
+
+    def _linear_covariance(self, x) -> np.ndarray:
+        """S C_θ Sᵀ over :attr:`names` (:meth:`fit`): J_θ by forward differences of the residuals in each
+        volumetric parameter (the motions are linear in them: exact to rounding), one step of 10⁻³ (mm, µrad)."""
+        from scipy.linalg import null_space
+
+        lf, em, n = self.linear_from, self.errors, len(self.names)
+        r0, J = self.residuals(x)
+        J = np.asarray(self._pad(J).todense())
+        live = lf.motion_parameters()
+        Jt = np.empty((len(r0), live.size))
+        try:
+            for c, k in enumerate(live):
+                theta = lf.params.copy()
+                theta[k] += 1e-3
+                em.linear_motions = lf.relocated(theta)
+                Jt[:, c] = (self.residuals(x)[0] - r0) / 1e-3
+        finally:
+            em.linear_motions = lf.motions
+        H = J.T @ J
+        prior = self._prior_hessian()
+        if prior is not None:
+            H = H + prior
+        A, _ = self._equality_rows()
+        N = null_space(A) if A.size else np.eye(H.shape[0])
+        S = -N @ np.linalg.solve(N.T @ H @ N, N.T @ (J.T @ Jt))
+        C = S @ lf.covariance[np.ix_(live, live)] @ S.T
+        return ((C + C.T) / 2)[:n, :n]
 
 
 def identify_five_axis(campaign_path, machine_path, workpiece_frame: str, tool_frame: str,

@@ -372,11 +372,12 @@ def check_design_space(candidates_mm, n_stations: int, n_targets: int, regions: 
 
 def design_machine_stations(info: MachineStationInformation, candidates_mm, n_stations: int, *,
                             criterion: str = "max", seed: int = 0, starts: int = 3, max_sweeps: int = 5,
-                            min_separation_mm: float = 100.0, regions: str = "the regions", progress=None):
+                            min_separation_mm: float = 100.0, regions: str = "the regions", progress=None, **where):
     """Coordinate exchange over the candidates for ``n_stations`` heads (:func:`_exchange`, the serial design's
     rule, every slot's candidates evaluated at once by :class:`LayoutCosts`), after the degeneracy checks and
     the run-time estimate (:func:`check_design_time`); refuses a design whose best layout cannot solve.
-    ``progress(start, sweep, cost_mm)`` is called after every sweep."""
+    ``progress(start, sweep, cost_mm)`` is called after every sweep. ``where``: the starts' ``workers``,
+    ``backend``, ``scheduler`` (:func:`olti_drake.estimation.serial_design.coordinate_exchange`)."""
     from olti_drake.threads import single_thread_blas
 
     cand = np.atleast_2d(np.asarray(candidates_mm, float))
@@ -386,7 +387,7 @@ def design_machine_stations(info: MachineStationInformation, candidates_mm, n_st
         raise InputError(f"criterion: 'max' or 'mean', not {criterion!r}")
     costs = LayoutCosts(info.targets_mm, info.nominal_mm, info.gauge_kind, info.errors, cand)
     with single_thread_blas():  # many small products: threads only contend
-        d = _exchange(costs, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress)
+        d = _exchange(costs, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress, where)
     if not np.isfinite(d.cost_mm):
         raise InputError(f"{regions}: no layout of {n_stations} stations found by {starts} start(s) that the "
                          f"multilateration can solve (stations in one plane or line): widen the regions")
@@ -419,7 +420,7 @@ def check_design_time(n_targets: int, n_candidates: int, n_stations: int, starts
 
 
 def _exchange(costs: LayoutCosts, n_stations: int, criterion: str, seed: int, starts: int, max_sweeps: int,
-              min_separation_mm: float, progress=None):
+              min_separation_mm: float, progress=None, where=None):
     """The coordinate exchange of :func:`olti_drake.estimation.serial_design.design_stations` (seeded random
     starts of feasible candidates pairwise ``min_separation_mm`` apart; per sweep, each slot takes the candidate
     that lowers the cost most), every slot's candidates evaluated in one batch."""
@@ -435,7 +436,7 @@ def _exchange(costs: LayoutCosts, n_stations: int, criterion: str, seed: int, st
     best, best_cost, evaluations = coordinate_exchange(
         cand, feasible, n_stations, lambda layout: score(costs.u(layout, [-1])[0]),
         lambda others, trial: score(costs.u(others, trial)), seed=seed, starts=starts, max_sweeps=max_sweeps,
-        min_separation_mm=min_separation_mm, progress=progress)
+        min_separation_mm=min_separation_mm, progress=progress, **(where or {}))
     u = costs.u(best, [-1])[0]
     readings = np.where(reads, len(costs.targets_mm), 0)
     return StationDesign(cand[best], best_cost, criterion, cand, readings, evaluations, starts, u)

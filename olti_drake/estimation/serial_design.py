@@ -241,17 +241,19 @@ def check_block_sizes(info, n_candidates: int) -> None:
 def design_stations(info: StationInformation, candidates_mm, n_stations: int, *, criterion: str = "max",
                     seed: int = 0, starts: int = 3, max_sweeps: int = 5,
                     min_separation_mm: float = MIN_SEPARATION_MM,
-                    progress: Optional[Callable[[int, int, float], None]] = None) -> StationDesign:
-    """Coordinate exchange over ``candidates_mm`` (C, 3) for ``n_stations`` stations (module docstring)."""
+                    progress: Optional[Callable[[int, int, float], None]] = None, **where) -> StationDesign:
+    """Coordinate exchange over ``candidates_mm`` (C, 3) for ``n_stations`` stations (module docstring); ``where``:
+    the starts' ``workers``, ``backend``, ``scheduler`` (:func:`coordinate_exchange`; default: this process)."""
     if criterion not in ("max", "mean"):
         raise InputError(f"criterion: 'max' or 'mean', not {criterion!r}")
     cand = np.atleast_2d(np.asarray(candidates_mm, float))
     check_block_sizes(info, len(cand))
     with single_thread_blas():  # thousands of small (n x n) products: threads only contend
-        return _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress)
+        return _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress,
+                         where)
 
 
-def _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress):
+def _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_separation_mm, progress, where):
     blocks, counts = zip(*(info.block(c) for c in cand))
     counts = np.asarray(counts)
     feasible = np.flatnonzero(counts >= MIN_READINGS)
@@ -266,49 +268,80 @@ def _exchange(info, cand, n_stations, criterion, seed, starts, max_sweeps, min_s
     best, best_cost, evaluations = coordinate_exchange(
         cand, feasible, n_stations, lambda layout: layout_cost(info, [blocks[i] for i in layout], criterion),
         slot_costs, seed=seed, starts=starts, max_sweeps=max_sweeps, min_separation_mm=min_separation_mm,
-        progress=progress)
+        progress=progress, **where)
     u = info.position_u(sum(blocks[i] for i in best))
     return StationDesign(cand[best], best_cost, criterion, cand, counts, evaluations, starts, u)
 
 
 def coordinate_exchange(cand, feasible, n_stations: int, layout_cost, slot_costs, *, seed: int, starts: int,
-                        max_sweeps: int, min_separation_mm: float, progress=None):
+                        max_sweeps: int, min_separation_mm: float, progress=None, workers: int = 1,
+                        backend: str = "loky", scheduler=None):
     """The station layout search of every design (robots and machine tools): from ``starts`` seeded random layouts
     of ``feasible`` candidates (indices into ``cand`` (C, 3) mm) pairwise ``min_separation_mm`` apart, sweeps in
     which each slot takes the candidate that lowers the cost most -- ``slot_costs(others, trial)`` (the costs of
     the layouts ``others`` + each of ``trial``, (T,)); ``layout_cost(layout)`` one layout's -- until a sweep
     improves nothing or ``max_sweeps``. Returns (best layout, its cost, layouts evaluated); ``progress(start,
-    sweep, cost)`` after each sweep."""
+    sweep, cost)`` after each sweep (as each start's search comes back). The starts are drawn here, in order, from
+    one generator of ``seed``; each start's search is a trial of :func:`olti_drake.estimation.trials.run_trials`
+    on ``workers`` of ``backend`` (1: in this process), so the result does not depend on where they run."""
+    from olti_drake.estimation.trials import TrialTask, run_trials
+
     rng = np.random.default_rng(seed)
-    best, best_cost, evaluations = None, np.inf, 0
-    for start in range(starts):
-        layout = _random_layout(rng, cand, feasible, n_stations, min_separation_mm)
-        if layout is None:
-            raise InputError(f"no {n_stations} feasible candidates are {min_separation_mm:g} mm apart: widen the "
-                             f"regions or lower --min-separation-mm")
-        cost = float(layout_cost(layout))
-        evaluations += 1
-        for sweep in range(max_sweeps):
-            improved = False
-            for slot in range(n_stations):
-                others = [i for k, i in enumerate(layout) if k != slot]
-                near = (np.linalg.norm(cand[feasible, None] - cand[others][None], axis=2).min(axis=1) if others
-                        else np.full(len(feasible), np.inf))
-                trial = feasible[(near >= min_separation_mm) & ~np.isin(feasible, layout)]
-                if not trial.size:
-                    continue
-                c = np.asarray(slot_costs(others, trial), dtype=float)
-                evaluations += len(trial)
-                k = int(np.argmin(c))
-                if c[k] < cost * (1 - 1e-9):
-                    cost, layout[slot], improved = float(c[k]), int(trial[k]), True
-            if progress:
-                progress(start, sweep, cost)
-            if not improved:
-                break
+    layouts = [_random_layout(rng, cand, feasible, n_stations, min_separation_mm) for _ in range(starts)]
+    if any(layout is None for layout in layouts):
+        raise InputError(f"no {n_stations} feasible candidates are {min_separation_mm:g} mm apart: widen the "
+                         f"regions or lower --min-separation-mm")
+    search = dict(cand=cand, feasible=feasible, layout_cost=layout_cost, slot_costs=slot_costs, max_sweeps=max_sweeps,
+                  min_separation_mm=min_separation_mm)
+
+    def report(done, result):  # a start searched elsewhere: its sweeps reported as it comes back
+        for sweep, cost in enumerate(result[3]) if progress and not result[4] else ():
+            progress(done - 1, sweep, cost)
+
+    # In this process the sweeps are reported as they end (``progress`` does not travel to workers).
+    task = TrialTask(_search, search, _exchange_from, local=dict(search, progress=progress))
+    found = run_trials(task, starts, seed, workers=workers, backend=backend, scheduler=scheduler,
+                       args=list(enumerate(layouts)), progress=report)
+    best, best_cost = None, np.inf
+    for layout, cost, *_ in found:
         if cost < best_cost or best is None:  # (every layout inf: the caller refuses it by name)
             best, best_cost = list(layout), cost
-    return best, best_cost, evaluations
+    return best, best_cost, sum(f[2] for f in found)
+
+
+def _search(search):
+    return search
+
+
+def _exchange_from(search, seed, start):
+    """The sweeps of ``start`` = (index, layout) from its layout (drawn by :func:`coordinate_exchange`; ``seed``
+    unused): (layout, cost, layouts evaluated, cost after each sweep, whether ``search['progress']`` had them)."""
+    cand, feasible, min_sep = search["cand"], search["feasible"], search["min_separation_mm"]
+    index, layout = start[0], list(start[1])
+    live = search.get("progress")
+    n_stations = len(layout)
+    cost = float(search["layout_cost"](layout))
+    evaluations, trace = 1, []
+    for sweep in range(search["max_sweeps"]):
+        improved = False
+        for slot in range(n_stations):
+            others = [i for k, i in enumerate(layout) if k != slot]
+            near = (np.linalg.norm(cand[feasible, None] - cand[others][None], axis=2).min(axis=1) if others
+                    else np.full(len(feasible), np.inf))
+            trial = feasible[(near >= min_sep) & ~np.isin(feasible, layout)]
+            if not trial.size:
+                continue
+            c = np.asarray(search["slot_costs"](others, trial), dtype=float)
+            evaluations += len(trial)
+            k = int(np.argmin(c))
+            if c[k] < cost * (1 - 1e-9):
+                cost, layout[slot], improved = float(c[k]), int(trial[k]), True
+        trace.append(cost)
+        if live:
+            live(index, sweep, cost)
+        if not improved:
+            break
+    return layout, cost, evaluations, trace, live is not None
 
 
 def _random_layout(rng, cand, feasible, n, min_sep):

@@ -10,7 +10,8 @@ Two methods from one reading-error model built from a budget (000 Table 2,
   nonlinear problem (10), collect the estimates. Trials are solved in batches:
   the exact gradient J(x)ᵀr(x) of every trial with the Hessian factorized once
   at the solution -- a chord iteration that converges to each trial's own
-  least-squares solution -- over worker processes on the machine's cores.
+  least-squares solution -- over worker processes: this machine's cores or a cluster's
+  (:func:`olti_drake.estimation.trials.run_trials`, joblib: loky, Dask, Ray).
 
 Reading errors (per reading k at reflector distance D_k):
 ``reading`` contributors add along the beam; ``pose`` contributors displace
@@ -19,8 +20,6 @@ contributors tilt the beam by ψ, which shortens the reading by D ψ²/2 (the
 cosine error). Units: mm and degrees; angles of the budget in rad.
 """
 
-import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -31,13 +30,15 @@ from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import FitRefused
 from olti_drake.model.budget import Budget, ReadingErrors
 from olti_drake.model.propagation import predicted_std
-from olti_drake.threads import single_thread_blas
+from olti_drake.estimation.trials import TrialTask, effective_workers, run_trials
 
 #: Trials per batch: the unit of seeding (reproducible whatever the worker count) and of progress.
 BATCH = 250
 #: Batches per round of the adaptive procedure (at least; more when the coverage probability needs them):
 #: fixed, so adaptive results do not depend on the workers.
 ROUND_BATCHES = 4
+#: Fewest blocks that ``workers=None`` sends to worker processes (fewer run in this process).
+MIN_PARALLEL_BLOCKS = 4
 #: Default cap on the trials of the adaptive procedure (``olti uncertainty --max-trials``).
 MAX_TRIALS = 50_000
 
@@ -95,22 +96,38 @@ class MonteCarlo:
     coverage: float = 0.95
 
 
-# Worker processes inherit the problem through fork: the Identifier holds Drake objects that do not pickle.
-_WORK = {}
+def _mc_work(work):
+    """What a Monte Carlo worker builds once: the fixed part of every trial (``work``, as it arrived)."""
+    return work
 
 
-def _mc_batch(seed, size: int):
-    # seed and size travel with the task: forked workers outlive a round, _WORK keeps only what is fixed.
-    w = _WORK
-    rng = np.random.default_rng(seed)
-    E = w["errors"].draw(rng, w["distance"], size)
-    with single_thread_blas():  # the workers already fill the cores
-        if w["scatter"] is None:
-            return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"])
-        return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"])
+def _mc_block(w, seed, size: int):
+    """One block of ``size`` trials: the readings' errors drawn from ``seed`` (the block's own), each trial
+    re-solved. The unit of seeding and of the batched solver: blocks of :data:`BATCH` whatever the workers."""
+    E = w["errors"].draw(np.random.default_rng(seed), w["distance"], size)
+    if w["scatter"] is None:
+        return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], tol=w["tol"])
+    return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"], tol=w["tol"])
 
 
-def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30):
+def _travelling_program(ident):
+    """What of ``ident`` the trials evaluate, in a form that can travel to worker processes: a
+    :class:`~olti_drake.estimation.calibration.Calibration`'s residuals (and batched ``residual_rows``) are its
+    measurement's, which pickles (its Drake plant rebuilt in the worker: SerialChain); the program itself holds a
+    Drake MathematicalProgram, which does not. Any other program travels as itself."""
+    from olti_drake.estimation.calibration import Calibration
+
+    measurement = getattr(ident, "measurement", None)
+    return measurement if measurement is not None and type(ident).residuals is Calibration.residuals else ident
+
+
+def _tolerance(x, tol=None):
+    """The convergence tolerance of a trial's steps: ``tol`` (scalar or per parameter (n,), in the parameters'
+    units) or by default 1e-13 of the largest |x| (at least 1e-13)."""
+    return 1e-13 * max(1.0, np.max(np.abs(x))) if tol is None else np.asarray(tol, float)
+
+
+def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30, tol=None):
     """:func:`_solve_trials` for a program without batched residuals (e.g. a
     :class:`~olti_drake.estimation.calibration.Calibration`): the same chord iteration on the exact gradient,
     trial by trial (each stops at its own convergence). Here a trial's row of D is r(x̂) + its errors, so that
@@ -118,33 +135,33 @@ def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30):
     where r and J are known, is one product for all trials. The iteration converges linearly: once the
     last two steps shrink by a rate ρ < 0.1 and the steps still to come (|step| ρ / (1 − ρ)) sum below a
     tenth of the tolerance, the trial is converged without one more evaluation (each costs a forward
-    kinematics of the campaign)."""
+    kinematics of the campaign). Step sizes are measured in units of the tolerance (:func:`_tolerance`)."""
     out = np.full((len(D), len(x)), np.nan)
-    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    tol = _tolerance(x, tol)
     r, J = ident.residuals(x)
     first = x - ((r - D) @ J + x @ Q + q) @ B  # Q symmetric: (Q x)ᵀ = xᵀ Q
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for t, d in enumerate(D):
             xt = first[t].copy()
-            previous = np.max(np.abs(first[t] - x))
+            previous = np.max(np.abs(first[t] - x) / tol)
             for _ in range(max_iter - 1):
                 r, J = ident.residuals(xt)
                 step = (J.T @ (r - d) + Q @ xt + q) @ B
                 xt -= step
-                size = np.max(np.abs(step))
-                if not size >= tol:  # converged, or NaN (stays NaN below)
+                size = np.max(np.abs(step) / tol)
+                if not size >= 1.0:  # converged, or NaN (stays NaN below)
                     break
                 rate = size / previous
-                if rate < 0.1 and size * rate / (1.0 - rate) < 0.1 * tol:
+                if rate < 0.1 and size * rate / (1.0 - rate) < 0.1:
                     size = 0.0  # what is left is below the tolerance by the observed contraction
                     break
                 previous = size
-            if size < tol:
+            if size < 1.0:
                 out[t] = xt
     return out
 
 
-def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
+def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30, tol=None):
     """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
 
     Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
@@ -152,23 +169,24 @@ def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30):
     row is NaN, for :func:`monte_carlo` to refuse.
     """
     X = np.tile(x, (len(D), 1))
-    tol = 1e-13 * max(1.0, np.max(np.abs(x)))
+    tol = _tolerance(x, tol)
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial is caught below, not warned about
         for _ in range(max_iter):
             r, _, vals = ident.residual_rows(X, D)
             G = (r[..., None] * vals).reshape(len(X), -1) @ scatter + X @ Q + q
             step = G @ B
             X -= step
-            last = np.max(np.abs(step), axis=1)
-            if np.max(last) < tol:
+            last = np.max(np.abs(step) / tol, axis=1)
+            if np.max(last) < 1.0:
                 break
-    X[~(last < tol)] = np.nan  # also catches NaN steps
+    X[~(last < 1.0)] = np.nan  # also catches NaN steps
     return X
 
 
 def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int = 0, workers: Optional[int] = None,
                 adaptive: bool = False, tolerance_digits: int = 2, max_trials: int = MAX_TRIALS,
-                progress: Optional[Callable[[int, int], None]] = None, coverage: float = 0.95) -> MonteCarlo:
+                progress: Optional[Callable[[int, int], None]] = None, coverage: float = 0.95,
+                tolerance=None, backend: str = "loky", scheduler=None) -> MonteCarlo:
     """JCGM 101 Monte Carlo of a least-squares estimate (000 §5; 001 §4.4).
 
     ``ident``: any :class:`~olti_drake.estimation.calibration.LeastSquaresProgram` with
@@ -186,7 +204,13 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
     stable to the tolerance of ``tolerance_digits`` significant digits of the
     standard uncertainty (JCGM 101 §7.9.4), or ``max_trials`` are done
     (then not converged, said in the notes). Batches of :data:`BATCH` trials
-    have their own seeds (from ``seed``): results do not depend on ``workers``.
+    have their own seeds (from ``seed``): results do not depend on ``workers``, ``backend`` (loky, dask,
+    ray) or ``scheduler``, where the blocks run (:func:`olti_drake.estimation.trials.run_trials`; ``workers``
+    None: up to 2 cores here from :data:`MIN_PARALLEL_BLOCKS` blocks on, else -- or when the program cannot
+    travel -- this process). ``tolerance``: a trial's
+    convergence tolerance, scalar or per parameter (:func:`_tolerance`; e.g. a small share of each parameter's u
+    where parameters of very different units meet); default the program's own ``trial_tolerance`` when it
+    states one.
     """
     if trials < 2:
         raise InputError(f"trials must be >= 2, got {trials}")
@@ -204,32 +228,38 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
         scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
     else:  # trials one by one on ident.residuals; the trial's readings relative to the campaign's
         model, scatter = ident.residuals(x)[0][None], None
-    _WORK.update(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0],
-                 q=q, Q=Q, scatter=scatter)
-    workers = min(os.cpu_count() or 1, 2) if workers is None else max(1, workers)
-    seeds = np.random.SeedSequence(seed)
+    work = dict(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0], q=q, Q=Q, scatter=scatter,
+                tol=getattr(ident, "trial_tolerance", None) if tolerance is None else tolerance)
+    task = TrialTask(_mc_work, dict(work, ident=_travelling_program(ident)), _mc_block, local=work)
+    if workers is None and backend == "loky" and not adaptive and trials < MIN_PARALLEL_BLOCKS * BATCH:
+        workers = 1  # a few blocks: starting the workers (seconds: imports, the problem) costs more than they gain
+    if workers is None and effective_workers(None) > 1 and backend == "loky":
+        try:
+            task.portable()
+        except InputError:  # a program that cannot travel runs here unless workers are asked for
+            workers = 1
+    seeds = np.random.SeedSequence(seed)  # rounds continue it: the blocks' seeds do not depend on the workers
     out, batches, done = [], 0, 0
     history, stable = [], False
-    with _pool(workers) as pool:
-        while True:
-            n = trials if not adaptive else round_trials(coverage)
-            sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
-            children = seeds.spawn(len(sizes))
-            results = pool.map(_mc_batch, children, sizes) if pool else map(_mc_batch, children, sizes)
-            for part in results:
-                out.append(part)
-                done += len(part)
-                if progress:
-                    progress(done, trials if not adaptive else max_trials)
-            batches += len(sizes)
-            if not adaptive:
-                break
-            history.append(_round_summary(np.vstack(out[-len(sizes):]), coverage))
-            stable = len(history) >= 2 and _stable(history, tolerance_digits)
-            if stable or done + n > max_trials:
-                break
+    while True:
+        n = trials if not adaptive else round_trials(coverage)
+        sizes = [min(BATCH, n - i) for i in range(0, n, BATCH)]
+
+        def report(k, _, first=done, sizes=sizes):
+            if progress:
+                progress(first + sum(sizes[:k]), trials if not adaptive else max_trials)
+
+        out.extend(run_trials(task, len(sizes), seeds, workers=workers, backend=backend, scheduler=scheduler,
+                              args=sizes, progress=report))
+        done += n
+        batches += len(sizes)
+        if not adaptive:
+            break
+        history.append(_round_summary(np.vstack(out[-len(sizes):]), coverage))
+        stable = len(history) >= 2 and _stable(history, tolerance_digits)
+        if stable or done + n > max_trials:
+            break
     samples = np.vstack(out)
-    _WORK.clear()
     failed = int(np.isnan(samples).any(axis=1).sum())
     if failed:
         raise FitRefused(f"{ident.source}: Monte Carlo refused, nothing written -- {failed} of {len(samples)} trials "
@@ -258,31 +288,6 @@ def _check_sample_size(trials: int, n: int, option: str) -> None:
         raise InputError(f"{option} {trials}: the Monte Carlo samples of {n} parameters would take "
                          f"{size / 2 ** 30:.3g} GiB (at most {MAX_SAMPLE_BYTES / 2 ** 30:g} GiB, i.e. "
                          f"{int(MAX_SAMPLE_BYTES // (8 * n))} trials); use fewer trials")
-
-
-def _pool(workers):
-    import multiprocessing as mp
-    import contextlib
-
-    if workers <= 1:
-        return contextlib.nullcontext(None)
-    return ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=die_with_parent,
-                               initargs=(os.getpid(),))
-
-
-def die_with_parent(parent_pid: int) -> None:
-    """A worker's first act: ask the kernel to end it when its parent dies (Linux ``PR_SET_PDEATHSIG``), so that
-    ``kill -9`` of ``olti uncertainty`` leaves no worker running its trials on the cores; if the parent is already
-    gone (it died before this ran), end now."""
-    import ctypes
-    import signal
-
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):  # (not Linux: no such call; the executor's own shutdown still applies)
-        pass
-    if os.getppid() != parent_pid:
-        os._exit(1)
 
 
 def _round_summary(samples, coverage) -> np.ndarray:

@@ -57,6 +57,18 @@ def serial_columns(n_joints: int) -> tuple:
 MACHINE3D_COLUMNS = ("station", "target", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "tool", "displacement_mm", "valid")
 
 
+#: A tracker campaign's measured values after the joints (formats.md "Point campaign (laser tracker)", tracker
+#: frame, mm) and the environment the tracker used with each reading (°C, hPa, %RH: docs/tracker.md).
+TRACKER_COLUMNS = ("x_mm", "y_mm", "z_mm", "valid", "temperature_c", "pressure_hpa", "humidity_pct")
+_FLOAT_COLUMNS = ("displacement_mm",) + TRACKER_COLUMNS[:3] + TRACKER_COLUMNS[4:]
+
+
+def tracker_columns(n_joints: int) -> tuple:
+    """The columns of a tracker run log: theta<i>_deg, dir<i>, :data:`TRACKER_COLUMNS` and the run-log columns."""
+    return (tuple(f"theta{i + 1}_deg" for i in range(n_joints)) + tuple(f"dir{i + 1}" for i in range(n_joints))
+            + TRACKER_COLUMNS + _LOG_COLUMNS)
+
+
 def machine3d_columns() -> tuple:
     """The columns of a 3D machine run log: the 3D machine campaign's (station = pan/tilt head, target,
     x/y/z_cmd_mm, tool, displacement_mm, valid) and the run-log columns (``plan_row`` = the target)."""
@@ -67,7 +79,7 @@ def _formats_of(columns) -> tuple:
     """The value formats of a log's columns (the SCARA's as they always were)."""
     if tuple(columns) == COLUMNS:
         return _FORMATS
-    head = tuple("%.12g" if c.startswith("theta") or c.endswith("_cmd_mm") else "%.9f" if c == "displacement_mm"
+    head = tuple("%.12g" if c.startswith("theta") or c.endswith("_cmd_mm") else "%.9f" if c in _FLOAT_COLUMNS
                  else "%d" for c in columns[:-len(_LOG_COLUMNS)])
     return head + _LOG_FORMATS
 

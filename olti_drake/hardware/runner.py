@@ -231,6 +231,46 @@ class _Serial(_Scara):
         write_json(os.path.join(out_dir, "truth.json"), serial_truth_result(self.setup, t), measurement=True)
 
 
+class _Tracker(_Serial):
+    """The same for a six-axis campaign measured by an emScon laser tracker (``station: !Tracker``,
+    hardware.tracker_station): every pose once, the point in the tracker frame and the environment per row."""
+
+    comment = ("olti_drake six-axis point campaign (olti run, laser tracker; formats.md \"Point campaign (laser "
+               "tracker)\"): mm and degrees; x/y/z_mm in the tracker frame; temperature_c, pressure_hpa, "
+               "humidity_pct: the tracker's environment at the reading; valid 0 = no beam (kept, NaN); step/session/"
+               "status (emScon status)/reads/rezeros/time: the run log (docs/runner.md, docs/tracker.md)")
+
+    def __init__(self, scenario):
+        from olti_drake.hardware.runlog import tracker_columns
+        from olti_drake.hardware.tracker_station import prepare_tracker
+
+        self.scenario = scenario
+        self.setup = s = prepare_tracker(scenario)
+        self.measured = np.asarray(s.measure, bool)
+        self.columns = tracker_columns(s.n_joints)
+        self._step = {(0, int(s.row[k])): int(k) for k in np.flatnonzero(self.measured)}
+
+    def build(self, station_factory, extend, sink):
+        from olti_drake.hardware.tracker_station import build_tracker_diagram
+
+        if extend is not None:
+            raise InputError("olti run: a tracker campaign takes no extend hook (no live view yet)")
+        return build_tracker_diagram(self.setup, station_factory, sink)
+
+    def step_of(self, record) -> int:
+        return self._step[(0, int(record[-1]))]
+
+    def invalid(self, record) -> bool:
+        return record[2 * self.setup.n_joints + 3] == 0
+
+    def write_truth(self, out_dir) -> None:
+        """The emulated truth (an in-process emulator only): the robot and the true tracker frame."""
+        from olti_drake.hardware.tracker_station import tracker_truth
+
+        if not self.scenario.station.host:
+            tracker_truth(self.setup, out_dir)
+
+
 class _Machine3D(_Scara):
     """The same for a 3D machine-tool campaign (sim.machine3d_campaign): every row is a reading (head j,
     target i: step = j x targets + i), the log's columns those of the 3D machine campaign."""
@@ -399,8 +439,10 @@ def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = No
 
 def _campaign_kind(scenario):
     """The campaign of a loaded scenario, by its kind (:func:`~olti_drake.sim.serial_scenario.scenario_kind`)."""
-    from olti_drake.sim.serial_scenario import scenario_kind
+    from olti_drake.sim.serial_scenario import Tracker, scenario_kind
 
+    if isinstance(getattr(scenario, "station", None), Tracker):
+        return _Tracker(scenario)
     return {"scara": _Scara, "serial": _Serial, "machine3d": _Machine3D}[scenario_kind(scenario)](scenario)
 
 

@@ -335,7 +335,9 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
     of :mod:`olti_drake.sim.serial_station` too: its simulated or emulated N-joint station): ``Simulated``
     -> :func:`olti_drake.sim.campaign.AddSimulatedStation` (a Diagram), ``Emulated`` ->
     :func:`AddEmulatedStation`, ``Hardware`` -> :func:`AddRealStation` (operator prompt on the
-    console). All have the same ports (the simulated one adds ``true_position`` and
+    console); a setup with its own ``add_station`` (``station: !Tracker``:
+    :func:`~olti_drake.hardware.tracker_station.prepare_tracker` sets ``AddTrackerStation``, an emScon tracker or
+    its emulator) -> that. All have the same ports (the simulated one adds ``true_position`` and
     ``query_object``); an emulated or hardware station's ``close()`` releases its ports.
     ``session``: 0 for a campaign's first run, n for its n-th resumption (``olti run --resume``):
     an emulator then draws fresh noise.
@@ -360,6 +362,9 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
             return AddRealMachine3DStation(builder, setup, name)
         from olti_drake.sim.machine3d_station import AddMachine3DStation
         return AddMachine3DStation(builder, machine, name)
+    own = getattr(setup, "add_station", None)   # a setup that brings its station (the tracker's: docs/tracker.md)
+    if own is not None:
+        return own(builder, setup, name, session)
     if isinstance(setup.scenario.station, Emulated):
         return AddEmulatedStation(builder, setup, name, session)
     if isinstance(setup.scenario.station, Hardware):

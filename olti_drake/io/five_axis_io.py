@@ -315,18 +315,107 @@ def file_sha256(path) -> str:
         return hashlib.sha256(f.read()).hexdigest()
 
 
+@dataclass
+class LinearFrom:
+    """The linear axes of a five-axis machine taken from an earlier ``olti-volumetric/1`` result: the motions in
+    the five-axis loop's convention (:class:`~olti_drake.model.five_axis_errors.RelocatedMotions`), the file and
+    its sha256."""
+
+    motions: object
+    path: str
+    sha256: str
+    model: object = None
+    params: Optional[np.ndarray] = None
+    covariance: Optional[np.ndarray] = None
+
+    def motion_parameters(self) -> np.ndarray:
+        """Indices of the result's parameters that move the linear axes (motions and squareness, not the tool
+        offsets) and carry an uncertainty."""
+        tools = np.zeros(len(self.params), bool)
+        for g in self.model.tool_groups:
+            tools[self.model.slices[g]] = True
+        return np.flatnonzero(~tools & (np.diag(self.covariance) > 0))
+
+    def relocated(self, params):
+        """The motions of the result's model at ``params`` (its parameter vector), about the loop's frames."""
+        from olti_drake.model.five_axis_errors import RelocatedMotions
+
+        return RelocatedMotions(self.model.motions(params), self.motions.offsets)
+
+    def entry(self, reference: str) -> dict:
+        """The result's ``linear_from`` (the file as ``reference`` names it, relative to the result)."""
+        from olti_drake.formats import VOLUMETRIC_RESULT
+
+        return {"file": reference, "sha256": self.sha256, "format": VOLUMETRIC_RESULT,
+                "held": "the 18 error motions and 3 squareness errors of the linear axes, fixed (not estimated)",
+                "reference_point": "the volumetric result's spindle reference point is the tool frame's origin "
+                                   "(docs/five_axis.md)"}
+
+
+def load_linear_from(path, machine, commands=None, source: str = "the campaign") -> "LinearFrom":
+    """The linear-axis motions of the volumetric result at ``path`` for ``machine`` (formats.md, *Machine tool in
+    3D*), checked in one line naming the file: an ``olti-volumetric/1`` result (another kind refused); the machine
+    has X, Y and Z, each moving the tool point +1 mm along its letter per mm of command relative to the workpiece
+    at zero commands (the volumetric positions are the commands, ISO 841's sense); the same topology (which axes
+    the table carries); a travel that covers ``commands`` (M, n_axes) mm/deg of ``source``."""
+    from olti_drake.io.volumetric_io import load_volumetric_result
+    from olti_drake.model.five_axis import LINEAR
+    from olti_drake.model.five_axis_errors import carriage_offsets, linear_config
+
+    name = os.fspath(path)
+    result = load_volumetric_result(path)
+    if tuple(machine.linear) != tuple(LINEAR):
+        raise InputError(f"--linear {name}: machine model {machine.path} has the linear axes "
+                         f"{', '.join(machine.linear) or 'none'}; a volumetric result is of X, Y and Z")
+    zero = np.zeros((1, len(machine.axes))).clip(machine.lower, machine.upper)
+    for k, a in enumerate(LINEAR):
+        step = zero.copy()
+        step[0, k] += 1.0
+        slope = _nominal_points(machine, step) - _nominal_points(machine, zero)
+        if not np.allclose(slope, np.eye(3)[k], atol=1e-9):
+            raise InputError(f"--linear {name}: in machine model {machine.path} +1 mm of {a} moves the tool "
+                             f"{np.round(slope[0], 6).tolist()} mm relative to the workpiece, not +1 along "
+                             f"{a.lower()}: the volumetric result's positions would not be this machine's {a} "
+                             f"commands")
+    cfg, ours = result.model.config, linear_config(machine)
+    if (tuple(cfg.tool_chain), tuple(cfg.work_chain)) != (tuple(ours.tool_chain), tuple(ours.work_chain)):
+        raise InputError(f"--linear {name}: topology tool_chain {list(cfg.tool_chain)}, work_chain "
+                         f"{list(cfg.work_chain)}; machine model {machine.path} has tool_chain "
+                         f"{list(ours.tool_chain)}, work_chain {list(ours.work_chain)}")
+    for k, a in enumerate(LINEAR if commands is not None else ()):
+        q = np.asarray(commands, float)[:, machine.axes.index(a)]
+        lo, hi = cfg.travel_mm[a]
+        if q.min() < lo - 1e-6 or q.max() > hi + 1e-6:
+            raise InputError(f"--linear {name}: travel_mm {a} [{lo:g}, {hi:g}] does not cover the {a} commands of "
+                             f"{source}, [{q.min():g}, {q.max():g}] mm")
+    from olti_drake.model.five_axis_errors import RelocatedMotions
+
+    return LinearFrom(RelocatedMotions(result.motions, carriage_offsets(machine)), name, file_sha256(path),
+                      result.model, np.asarray(result.params, float), np.asarray(result.covariance, float))
+
+
+def _nominal_points(machine, commands):
+    """The nominal tool points (workpiece frame, mm) without the travel check (a unit step may leave it)."""
+    from olti_drake.model.five_axis_plan import _tool_points
+
+    return _tool_points(machine, commands, (0.0, 0.0, 0.0))
+
+
 #: The layout's keys that are labels, not values (left out of the ``uncertainty``).
 _LABELS = ("station_labels", "station_frames", "tracker_frame_stands_on", "held", "measurement_sigmas_mm")
 
 
-def machine5_result_dict(ident, fit, machine_reference: str, notes=()) -> dict:
+def machine5_result_dict(ident, fit, machine_reference: str, notes=(),
+                         linear_reference: Optional[str] = None) -> dict:
     """The ``olti-machine5/1`` result (formats.md) of a five-axis identification ``ident``
     (:class:`olti_drake.estimation.five_axis.FiveAxisIdentification`) and its ``fit``, by the one codec
     (:func:`~olti_drake.io.documents.result_document`): the machine file (as ``machine_reference`` names it,
     relative to the result) and its sha256, the frames and axes, the error model's settings, the errors by ISO
     name (``layout``: location errors in mm and µrad, error motions with ``grid_deg``, ``forward``/``reverse``),
     the tool offsets, stations / nests / tracker frames, the held (dropped) groups, the gauge, the uncertainty in
-    the same keys (k = 1) and the covariance (:func:`olti_drake.io.serial_io.covariance_entry`)."""
+    the same keys (k = 1) and the covariance (:func:`olti_drake.io.serial_io.covariance_entry`); with linear axes
+    from a volumetric result (``--linear``), ``linear_from`` (:meth:`LinearFrom.entry`, the file as
+    ``linear_reference`` names it)."""
     from olti_drake.io.documents import result_document
     from olti_drake.io.serial_io import covariance_entry
 
@@ -338,6 +427,9 @@ def machine5_result_dict(ident, fit, machine_reference: str, notes=()) -> dict:
               **ident.layout(fit.x),
               "tool_offset_mm": em.tool_offsets(ident.position_model.theta(fit.x)).tolist(),
               "dropped": dict(ident.dropped)}
+    linear = getattr(ident, "linear_from", None)
+    if linear is not None:
+        values["linear_from"] = linear.entry(linear_reference or linear.path)
     unc = {k: v for k, v in ident.layout(fit.std).items() if k not in _LABELS}
     return result_document("machine5", values, fit, gauge=ident.gauge, uncertainty=unc,
                            n_readings=ident.campaign.n_readings, campaign=ident.campaign.digest,
@@ -388,7 +480,7 @@ def load_machine5_result(path) -> Machine5Result:
     if file_sha256(file) != mach.get("sha256"):
         raise InputError(f"{name}: key 'machine.sha256': {file} has changed since the identification")
     machine = FiveAxisMachine.from_file(file, mach["workpiece_frame"], mach["tool_frame"])
-    em = FiveAxisErrors(machine, **settings)
+    em = FiveAxisErrors(machine, **settings, linear=_linear_of(doc, name, machine))
     pm = FiveAxisPositionModel(machine, em, np.zeros((1, len(machine.axes))).clip(machine.lower, machine.upper),
                                np.ones((1, len(machine.rotary))) if em.bidirectional and em.maps else None,
                                held=held)
@@ -399,6 +491,21 @@ def load_machine5_result(path) -> Machine5Result:
         idx = [cnames.index(n) for n in pm.names]
         C = C[np.ix_(idx, idx)]
     return Machine5Result(machine, em, pm.names, x, C, held, doc)
+
+
+def _linear_of(doc: dict, name: str, machine):
+    """The linear axes' motions of a result identified with ``--linear`` (its ``linear_from``: the file relative to
+    the result, checked against its sha256), or None."""
+    entry = doc.get("linear_from")
+    if entry is None:
+        return None
+    file = entry.get("file", "") if isinstance(entry, dict) else ""
+    file = file if os.path.isabs(file) else os.path.join(os.path.dirname(os.path.abspath(name)), file)
+    if not os.path.isfile(file):
+        raise InputError(f"{name}: key 'linear_from.file': {file} not found")
+    if file_sha256(file) != entry.get("sha256"):
+        raise InputError(f"{name}: key 'linear_from.sha256': {file} has changed since the identification")
+    return load_linear_from(file, machine).motions
 
 
 def _theta_from_layout(doc: dict, em, name: str) -> np.ndarray:

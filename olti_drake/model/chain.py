@@ -72,6 +72,13 @@ class SerialChain:
     plant: object = field(default=None, repr=False)
     tool_frame_index: object = field(default=None, repr=False)
 
+    def __reduce__(self):
+        # Pickled (to worker processes: estimation.trials) without the Drake plant, which does not pickle: the
+        # numbers travel as they are, the receiving process reads the plant from ``path`` once (_unpickled_chain).
+        state = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                 if f.name not in ("plant", "tool_frame_index")}
+        return _unpickled_chain, (state,)
+
     @property
     def n_joints(self) -> int:
         return len(self.joint_names)
@@ -160,6 +167,24 @@ class SerialChain:
                 jac[:, :, base + 3 + k] = _cross(u, r) * DEG
         jac[:, :, 7 * n:] = rot_t
         return p, jac
+
+
+#: (path, tool frame) -> (plant, tool frame index) read in this process by :func:`_unpickled_chain`.
+_PLANTS = {}
+
+
+def _unpickled_chain(state: dict) -> SerialChain:
+    """A pickled :class:`SerialChain` with its plant read again from its file, once per process; without a plant
+    where the file is not (a cluster's worker on another machine: the chain's kinematics need none)."""
+    key = (state["path"], state["tool_frame"])
+    if key not in _PLANTS:
+        try:
+            loaded = load_serial_chain(*key)
+            _PLANTS[key] = (loaded.plant, loaded.tool_frame_index)
+        except ValueError:  # (the file is not on this machine)
+            _PLANTS[key] = (None, None)
+    plant, frame = _PLANTS[key]
+    return SerialChain(**state, plant=plant, tool_frame_index=frame)
 
 
 def _times(stack, const):

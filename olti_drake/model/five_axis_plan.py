@@ -47,6 +47,7 @@ class FiveAxisPlan:
     nest: np.ndarray
     station_frames: Tuple[str, ...] = ()
     nests_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    path_names: Tuple[str, ...] = ()
 
     def __len__(self) -> int:
         return len(self.commands)
@@ -187,23 +188,63 @@ def rtest_plan(machine: FiveAxisMachine, nests_mm, steps: int, ranges_deg=None, 
     offsets = np.asarray(tool_offsets_mm, float).reshape(-1, 3)
     if not 0 <= int(tool) < len(offsets):
         raise InputError(f"{where}: tool must be an index 0..{len(offsets) - 1} of the tool offsets, got {tool!r}")
-    lo_hi = _ranges(machine, dict(ranges_deg or {}), where)
-    s = np.linspace(0.0, 1.0, steps)[:, None]
-    rot = np.vstack([lo_hi[:, 0] + s * np.diff(lo_hi, axis=1)[:, 0], (lo_hi[:, 0] + s * np.diff(lo_hi, axis=1)[:, 0])
-                     [::-1]])
-    cmds = []
-    for n, p in enumerate(nests):
-        c = linear_for_points(machine, rot, np.broadcast_to(p, (len(rot), 3)), offsets[int(tool)])
-        ok = _within(machine, c)
-        if not ok.all():
-            k = int(np.flatnonzero(~ok)[0])
-            raise InputError(f"{where}: nest {n} at {p.tolist()} mm: pose {k} (rotary {np.round(rot[k], 3).tolist()} "
-                             f"deg) needs linear commands outside the travel; move the nest or narrow ranges_deg")
-        cmds.append(c)
+    rot = _forth_and_back(_ranges(machine, dict(ranges_deg or {}), where), steps)
+    cmds = [_following(machine, rot, p, offsets[int(tool)], f"{where}: nest {n}") for n, p in enumerate(nests)]
     m = len(rot)
     plan = _rows(machine, np.vstack(cmds), np.full(m * len(nests), int(tool)), np.full(m * len(nests), -1),
                  np.repeat(np.arange(len(nests)), m), ())
     plan.nests_mm = nests
+    return plan
+
+
+def _forth_and_back(lo_hi: np.ndarray, steps: int) -> np.ndarray:
+    """(2 steps, n_rotary) deg: every rotary axis from the low to the high end of its range in ``steps`` poses,
+    then back."""
+    up = lo_hi[:, 0] + np.linspace(0.0, 1.0, steps)[:, None] * np.diff(lo_hi, axis=1)[:, 0]
+    return np.vstack([up, up[::-1]])
+
+
+def _following(machine, rot, point, offset, where: str) -> np.ndarray:
+    """Commands at the rotary poses ``rot`` with the linear axes keeping the nominal tool point ``offset`` on
+    ``point`` (workpiece frame, mm); a pose needing linear commands outside the travel refused in one line."""
+    c = linear_for_points(machine, rot, np.broadcast_to(point, (len(rot), 3)), offset)
+    ok = _within(machine, c)
+    if not ok.all():
+        k = int(np.flatnonzero(~ok)[0])
+        raise InputError(f"{where} at {np.asarray(point).tolist()} mm: pose {k} (rotary "
+                         f"{np.round(rot[k], 3).tolist()} deg) needs linear commands outside the travel; move it or "
+                         f"narrow ranges_deg")
+    return c
+
+
+def bk_paths(machine: FiveAxisMachine, ball_mm, steps: int, ranges_deg=None, hold_deg=None, tool: int = 0,
+             tool_offsets_mm=((0.0, 0.0, 0.0),), where: str = "bk") -> FiveAxisPlan:
+    """ISO 10791-6 BK-type paths around one ball (its centre ``ball_mm`` in the workpiece frame, mm): per rotary
+    axis in turn, that axis alone from the low to the high end of its ``ranges_deg`` (deg; default the travel) in
+    ``steps`` poses and back, the others held at ``hold_deg`` (default 0, within the travel); then all of them
+    together (K4-like); the linear axes following so the nominal tool point (tool ``tool``) stays on the ball.
+    ``nest`` is the path's index, ``nests_mm`` the ball per path, ``path_names`` e.g. 'C alone', 'A+C'.
+    Deterministic (no draw)."""
+    ball = np.asarray(ball_mm, float).reshape(-1)
+    steps = int(steps)
+    if ball.shape != (3,) or not np.all(np.isfinite(ball)) or steps < 2:
+        raise InputError(f"{where}: ball_mm must be a finite [x, y, z] and steps >= 2, got {ball_mm!r}, {steps}")
+    check_allocation(f"{where}: steps", steps, [float(steps), 2 * (len(machine.rotary) + 1), 64], what="values "
+                     "(rows)", hint="use fewer steps")
+    offsets = np.asarray(tool_offsets_mm, float).reshape(-1, 3)
+    lo_hi = _ranges(machine, dict(ranges_deg or {}), where)
+    k = [machine.axes.index(a) for a in machine.rotary]
+    hold = np.array([float(dict(hold_deg or {}).get(a, 0.0)) for a in machine.rotary])
+    hold = np.clip(hold, machine.lower[k], machine.upper[k])
+    sweep = _forth_and_back(lo_hi, steps)
+    paths = [np.where(np.arange(len(k)) == j, sweep, hold) for j in range(len(k))] + [sweep]
+    names = [f"{a} alone" for a in machine.rotary] + ["+".join(machine.rotary)]
+    cmds = [_following(machine, rot, ball, offsets[int(tool)], f"{where}: path {n}") for n, rot in zip(names, paths)]
+    m = len(sweep)
+    plan = _rows(machine, np.vstack(cmds), np.full(m * len(paths), int(tool)), np.full(m * len(paths), -1),
+                 np.repeat(np.arange(len(paths)), m), ())
+    plan.nests_mm = np.tile(ball, (len(paths), 1))
+    plan.path_names = tuple(names)
     return plan
 
 
@@ -226,5 +267,5 @@ def combine(*plans: FiveAxisPlan) -> FiveAxisPlan:
                         np.concatenate([p.nest for p in plans]), frames, nests)
 
 
-__all__ = ["FiveAxisPlan", "STATION_FRAMES", "combine", "linear_for_points", "rtest_plan",
+__all__ = ["FiveAxisPlan", "STATION_FRAMES", "bk_paths", "combine", "linear_for_points", "rtest_plan",
            "tracking_plan", "tracking_program"]

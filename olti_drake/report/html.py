@@ -34,7 +34,8 @@ from olti_drake.report.iso230 import (ARCSEC_PER_DEG, axis_statistics, map_stati
 OUTPUT_NAMES = ("report.html", "iso230.json", "fig_maps.png", "fig_reversal.png", "fig_uncertainty_map.png",
                 "fig_residuals.png", "fig_path_x200.png", "fig_error_vectors.png", "fig_targets.png",
                 "fig_target_uncertainty.png", "fig_motions_X.png", "fig_motions_Y.png", "fig_motions_Z.png",
-                "fig_volumetric_error.png", "fig_station_layout.png")
+                "fig_volumetric_error.png", "fig_station_layout.png", "fig_motions_A.png", "fig_motions_B.png",
+                "fig_motions_C.png")
 
 # -- inputs ---------------------------------------------------------------------------------------------
 def _budget_of(unc: Optional[dict], unc_path, default):
@@ -203,6 +204,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
 
     # -- parameters --------------------------------------------------------------------------------------------
     page.add("<h2>Identified parameters</h2>")
+    page.source(None, columns={2: unc_path, 3: unc_path} if unc is not None else None)  # (u, U: the file's)
     if std_src is None:
         page.add(ui.p("No standard uncertainties available (neither an uncertainty file nor an 'uncertainty' object "
                     "in the result).", "note"))
@@ -321,6 +323,7 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
     # -- residuals ------------------------------------------------------------------------------------------------
     page.add("<h2>Residuals</h2>")
     if ident is not None:
+        page.source(campaign_path)
         r = ident.residuals(x)[0]
         grp = data.reflector
         rows = [(f"reflector {j}", int(np.sum(grp == j)), f"{1e3 * np.sqrt(np.mean(r[grp == j] ** 2)):.2f}",
@@ -336,10 +339,10 @@ def _scara_report(page, raw, result_path, unc, unc_path, campaign_path, truth, t
 
     # -- validation against the truth ------------------------------------------------------------------------------
     if truth_robot is not None:
-        _validation_section(page, model, kind, truth_robot, nominal, data, truth_note)
+        _validation_section(page, model, kind, truth_robot, nominal, data, truth_note, truth_path)
 
 
-def _validation_section(page, model, kind, truth_robot, nominal, data, truth_note):
+def _validation_section(page, model, kind, truth_robot, nominal, data, truth_note, truth_path=None):
     """000 §4.3 with the simulated tracker: the result's model (and the other model from the campaign)."""
     from olti_drake.report.figures import plot_error_vectors, plot_path_deviation
     from olti_drake.estimation.identification import IdentificationOptions, identify
@@ -361,6 +364,7 @@ def _validation_section(page, model, kind, truth_robot, nominal, data, truth_not
     sets = {"x200": x200_path(L1, L2), "grid": grid_paths(L1, L2, r1, r2),
             "random": random_commands(500, [0, STREAM_RANDOM_COMMANDS], r1, r2, L1, L2)}
     page.add("<h2>Validation on commands not used in the identification (000 §4.3, simulation)</h2>")
+    page.source(truth_path)  # (the simulated truth's readings, compared with the result's models)
     page.add(ui.p("The simulated truth robot is measured by the simulated laser tracker (AT960-XR of 000 §4.3, seed 0) "
                 "on the X = 200 mm path (Figs. 9-10), a grid of Cartesian paths (Fig. 11) and 500 random commands; "
                 "each model's predictions are rotated about J1 onto the tracker readings (the unobservable gauge) "
@@ -494,6 +498,7 @@ def _machine_report(page, raw, result_path, unc, unc_path, campaign_path, k):
                         f"U (k = {k:g}) of the estimated target positions (001 Fig. 14)")
     page.add("<h2>Residuals</h2>")
     if data is not None:
+        page.source(campaign_path)
         # 001 Eq. (3): the identified targets, stations and dead paths against every reading
         r = norm(T[data.target] - S[data.station]) - L0[data.station] - data.displacement_mm
         page.figure(lambda p: ui.plot_residuals(np.arange(len(r)), r, data.station, "station", p), "fig_residuals.png",
@@ -509,8 +514,10 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
 
     Args:
         result_path: ``olti-result/1`` (SCARA, 000; N-joint robots), ``olti-multilateration/1`` (machine tool,
-            001, 2D or 3D) or ``olti-volumetric/1`` (the machine's 21 error motions:
-            :mod:`olti_drake.report.volumetric_report`; no uncertainty file or truth).
+            001, 2D or 3D), ``olti-volumetric/1`` (the machine's 21 error motions:
+            :mod:`olti_drake.report.volumetric_report`; no uncertainty file or truth) or ``olti-machine5/1``
+            (a five-axis machine: :mod:`olti_drake.report.five_axis_report`; ``tolerances`` its acceptance
+            thresholds, no truth).
         out_dir: output directory (created).
         uncertainty_path: ``olti uncertainty`` output for this result (``olti-uncertainty/1``); must have
             the result's keys and shapes. Default: the result's own ``uncertainty`` object.
@@ -536,11 +543,16 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
         if not os.path.isfile(p):
             raise InputError(f"{p}: " + ("is a directory, expected a file" if os.path.isdir(p) else "no such file"))
     kind, raw = read_result(result_path)  # (io.documents: the kind of any result file, old ones included)
-    if (iso9283_path or tolerances) and kind != "serial":
+    if (iso9283_path or tolerances) and kind not in ("serial", "machine5") or iso9283_path and kind == "machine5":
         raise InputError(f"{os.fspath(result_path)}: --iso9283 and --tolerance apply to robots from a model file "
-                         f"(olti identify --robot), not to a {kind} result")
-    if tolerances and not iso9283_path:
+                         f"(olti identify --robot), --tolerance also to five-axis results, not to a {kind} result")
+    if tolerances and not iso9283_path and kind == "serial":
         raise InputError("--tolerance needs --iso9283 VALIDATION.csv (the campaign its characteristics come from)")
+    if kind == "machine5":  # a five-axis machine: report/five_axis_report.py
+        from olti_drake.report.five_axis_report import five_axis_page
+
+        page = five_axis_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, tolerances)
+        return _write_page(page, raw, result_path, out_dir, date)
     if kind == "volumetric":  # the machine's 21 error motions: report/volumetric_report.py
         return _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path, truth_path, date)
     unc = read_json(uncertainty_path, UNCERTAINTY_FORMAT, "an uncertainty file") if uncertainty_path else None
@@ -558,7 +570,7 @@ def write_report(result_path, out_dir, uncertainty_path=None, campaign_path=None
         if not (np.isfinite(k) and k > 0):
             raise InputError(f"{os.fspath(uncertainty_path)}: 'expanded.k' must be > 0, got {k:g}")
 
-    page = ui.Page(out_dir)
+    page = ui.Page(out_dir, result_path)
     if kind == "serial":
         from olti_drake.report.serial_report import serial_report
 
@@ -580,7 +592,7 @@ def _volumetric_page(raw, result_path, out_dir, uncertainty_path, campaign_path,
         if given:
             raise InputError(f"{os.fspath(given)}: {option} does not apply to a volumetric result ({VOLUMETRIC_FORMAT} "
                              f"carries its own uncertainty, covariance included); give the result and --campaign only")
-    page = ui.Page(out_dir)
+    page = ui.Page(out_dir, result_path)
     volumetric_report(page, raw, result_path, campaign_path, 2.0)
     return _write_page(page, raw, result_path, out_dir, date)
 
@@ -589,11 +601,12 @@ def _write_page(page, raw, result_path, out_dir, date):
     """Write the filled ``page`` as report.html (and iso230.json for an error map); returns the written paths."""
     date = date if date is not None else raw.get("date")
     header = list(page.header_rows) + ([("date", date)] if date else [])
-    head = "<dl>" + "".join(f"<dt>{ui.e(a)}</dt><dd>{ui.e(b)}</dd>" for a, b in header) + "</dl>"
-    title = page.parts[0]
-    body = [title, head] + page.parts[1:]
-    body.append(ui.p(f"olti_drake report; units mm and degrees (uncertainties of lengths in µm, angles in mdeg; "
-                   f"1 mdeg = {ARCSEC_PER_DEG / 1e3:g}″). Figures are embedded and written next to this page."))
+    page.source(None)  # (the header and the footer: the result's)
+    page.add("<dl>" + "".join(f"<dt>{ui.e(a)}</dt><dd>{ui.e(b)}</dd>" for a, b in header) + "</dl>")
+    page.add(ui.p(f"olti_drake report; units mm and degrees (uncertainties of lengths in µm, angles in mdeg; "
+                  f"1 mdeg = {ARCSEC_PER_DEG / 1e3:g}″). Figures are embedded and written next to this page."))
+    *sections, head, foot = page.parts
+    body = [sections[0], head, page.legend()] + sections[1:] + [foot]
     doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
            f"<title>{ui.e('olti report: ' + os.path.basename(os.fspath(result_path)))}</title>"
            f"<style>{ui.CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")

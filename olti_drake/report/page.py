@@ -4,16 +4,28 @@ section and the figures every kind of result shares (reversal values, residuals)
 Used by :mod:`olti_drake.report.html` (SCARA and machine-tool pages) and
 :mod:`olti_drake.report.serial_report` (N-joint robots). Units: the page shows lengths in mm with
 uncertainties in µm, angles in mdeg.
+
+**Every number carries the hash of its data file** (issue 26, item 4): a :class:`Page` made with the result file
+(``Page(out_dir, result_path)``) stamps every text element it is given (table cells, paragraphs, headings,
+figure captions and images: :data:`STAMPED`) with ``data-sha256="<sha256 of the file>"``, and the page's top
+lists every file with its sha256 (:meth:`Page.legend`). The file is the result's by default; a section whose
+numbers come from another file says so once, after its ``<h2>``, by ``page.source(path)`` (``columns={index:
+path}``: table columns from yet another file, e.g. the u of an uncertainty file); the next ``<h2>`` returns to
+the result. A new report (e.g. a five-axis page) gets the stamps by building its :class:`Page` with the result
+path and calling :meth:`Page.source` where a section's data is another file's; nothing else.
 """
 
 import base64
 import html
+import itertools
 import os
+import re
 from typing import List
 
 import numpy as np
 
 from olti_drake.errors import InputError
+from olti_drake.io.five_axis_io import file_sha256
 from olti_drake.io.outputs import make_dir
 from olti_drake.report.iso230 import ARCSEC_PER_DEG, EXTREME, NOT_AVAILABLE, STATISTICS
 
@@ -75,7 +87,7 @@ def check_uncertainty(unc: dict, raw: dict, keys, unc_path, result_path) -> None
     def walk(u, r, prefix):
         for k in keys if prefix == "" else r:
             name = f"{prefix}{k}"
-            if k not in r:
+            if k not in r or isinstance(r[k], str):  # (a label, e.g. tracker_frame.convention: no value)
                 continue
             if k not in u:
                 raise InputError(f"{os.fspath(unc_path)}: does not match {os.fspath(result_path)}: missing key "
@@ -104,18 +116,70 @@ def png_uri(path) -> str:
         return "data:image/png;base64," + base64.b64encode(f.read()).decode("ascii")
 
 
-class Page:
-    """Accumulates HTML sections and figures (written as PNG into ``out_dir`` and embedded)."""
+#: The elements that show text and so carry ``data-sha256`` (module docstring); an element stamped already keeps
+#: its own.
+STAMPED = ("td", "th", "p", "h1", "h2", "h3", "dt", "dd", "figcaption", "img", "li", "caption")
+_STAMP = re.compile(r"<(" + "|".join(STAMPED) + r")(?=[\s>/])(?![^>]*data-sha256)")
+_CELL = re.compile(r'<(td|th) data-sha256="([0-9a-f]*)"')
+_ROW = re.compile(r"<tr>.*?</tr>", re.S)
 
-    def __init__(self, out_dir):
+
+def stamp(s: str, digest: str, columns=None) -> str:
+    """``s`` with ``data-sha256="digest"`` on every :data:`STAMPED` element; ``columns`` {cell index: digest}:
+    table cells of those columns carry their own."""
+    s = _STAMP.sub(lambda m: f'<{m[1]} data-sha256="{digest}"', s)
+    if not columns:
+        return s
+
+    def row(m):  # (cells counted per row: the i-th cell of a row is column i)
+        k = itertools.count()
+        return _CELL.sub(lambda c: f'<{c[1]} data-sha256="{columns.get(next(k), c[2])}"', m[0])
+
+    return _ROW.sub(row, s)
+
+
+class Page:
+    """Accumulates HTML sections and figures (written as PNG into ``out_dir`` and embedded); with ``data`` (the
+    result file) every element is stamped with its data file's sha256 (module docstring)."""
+
+    def __init__(self, out_dir, data=None):
         self.out_dir = out_dir
         self.parts: List[str] = []
         self.written: List[str] = []
         self.header_rows: list = []  # (label, value) of the page header
         self.iso = None  # {axis: AxisStatistics} of a SCARA error map
+        self.sources: dict = {}  # {file: sha256}, in order of use: the legend
+        self.default = self.current = self.digest(data) if data is not None else None
+        self.columns: dict = {}
+
+    def digest(self, path) -> str:
+        name = os.fspath(path)
+        if name not in self.sources:
+            self.sources[name] = file_sha256(name)
+        return self.sources[name]
+
+    def source(self, path, columns=None) -> None:
+        """The numbers added from now to the next ``<h2>`` come from ``path`` (``None``: the result's);
+        ``columns`` {table column index: path} those columns' from another file."""
+        self.current = self.default if path is None else self.digest(path)
+        self.columns = {i: self.digest(c) for i, c in (columns or {}).items() if c is not None}
+        if self.parts and self.parts[-1].startswith("<h2") and self.current is not None:  # (the section's heading)
+            self.parts[-1] = re.sub(r'data-sha256="[0-9a-f]*"', f'data-sha256="{self.current}"', self.parts[-1])
 
     def add(self, s: str):
-        self.parts.append(s)
+        if s.startswith("<h2"):  # a new section: the result's numbers until it says otherwise
+            self.current, self.columns = self.default, {}
+        self.parts.append(s if self.current is None else stamp(s, self.current, self.columns))
+
+    def legend(self) -> str:
+        """The files the page's numbers come from, each with its sha256 (each row stamped with its own)."""
+        if not self.sources:
+            return ""
+        rows = "".join(f'<tr><td class="l" data-sha256="{d}">{e(f)}</td><td class="l" data-sha256="{d}">{d}</td>'
+                       f"</tr>" for f, d in self.sources.items())
+        return (f'<p data-sha256="{self.default}">Data files of this page: every number carries the sha256 of the '
+                f'file it came from (attribute data-sha256).</p><table><tr><th class="l" data-sha256="{self.default}">'
+                f'file</th><th class="l" data-sha256="{self.default}">sha256</th></tr>{rows}</table>')
 
     def figure(self, make, name: str, caption: str):
         """``make(path)`` writes the PNG; the page embeds it as a data: URI with ``caption``."""

@@ -27,7 +27,7 @@ from olti_drake.report.iso230 import axis_statistics
 _VALUE_SUFFIXES = ("_mm", "_deg")
 _META = {"format", "kind", "model", "robot", "gauge", "residual_rms_mm", "n_readings", "uncertainty", "dropped", "iterations",
          "condition_number", "solver", "outliers", "converged", "warnings", "campaign", "notes", "held", "truth",
-         "date", "station_labels", "drift_reference_h"}
+         "date", "station_labels", "drift_reference_h", "covariance", "smoothing", "priors"}
 
 
 def value_keys(raw: dict) -> tuple:
@@ -234,6 +234,7 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
     page.header_rows = info
 
     page.add("<h2>Identified parameters</h2>")
+    page.source(None, columns={2: unc_path, 3: unc_path} if unc is not None else None)  # (u, U: the file's)
     page.add(ui.p("Location errors of each joint frame relative to its parent (dx, dy, dz in mm; drx, dry, drz in "
                   "deg), the tool point's offset in the tool frame, and the measurement's own unknowns. "
                   + ("No standard uncertainties available." if std_src is None else
@@ -277,6 +278,7 @@ def serial_report(page, raw, result_path, unc, unc_path, campaign_path, truth_pa
     if campaign_path is not None:
         r, group, label = _residuals(result, campaign_path, camp)
         page.add("<h2>Residuals</h2>")
+        page.source(campaign_path)
         page.add(ui.p(f"Reading minus the identified model's prediction for every valid reading of the campaign "
                       f"(a point campaign: the distance between the measured and the predicted point), RMS {1e3 * np.sqrt(np.mean(r ** 2)):.2f} µm."))
         page.figure(lambda path: ui.plot_residuals(np.arange(len(r)), r, group, label, path), "fig_residuals.png",
@@ -294,8 +296,6 @@ def iso9283_section(page, result, validation_path, tolerances=None) -> list:
     poses: the **nominal** kinematics (the robot file, with the identified tool point: what an uncalibrated
     controller commands) and the **identified** model's prediction (what a compensation by this result would
     leave). RP is the same for both. Returns the verdict lines (``tolerances``: {characteristic: mm/deg})."""
-    import hashlib
-
     from olti_drake.io.serial_io import read_serial_campaign
     from olti_drake.model.serial import tracker_to_base
     from olti_drake.report.iso9283 import STANDARD_CYCLES, pose_characteristics, verdicts
@@ -319,8 +319,9 @@ def iso9283_section(page, result, validation_path, tolerances=None) -> list:
     by_nominal = pose_characteristics(pose, model.positions(camp.commands, camp.dirs, nominal), attained,
                                       camp.line, where)
     by_model = pose_characteristics(pose, model.positions(camp.commands, camp.dirs, x), attained, camp.line, where)
-    digest = hashlib.sha256(open(validation_path, "rb").read()).hexdigest()
     page.add("<h2>ISO 9283 pose accuracy and repeatability</h2>")
+    page.source(validation_path)
+    digest = page.digest(validation_path)
     n = min(c.cycles for c in by_model)
     page.add(ui.p(f"From {ui.e(where)} (sha256 {digest[:16]}…): {len(by_model)} poses, {n}–"
                   f"{max(c.cycles for c in by_model)} cycles each"

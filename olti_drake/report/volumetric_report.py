@@ -262,6 +262,7 @@ def _residual_section(page, res, raw, data, campaign_path):
     if data is None:
         page.add(ui.p("Give the campaign (--campaign) to plot the residuals per station.", "note"))
         return
+    page.source(campaign_path)
     S, L0 = np.asarray(raw["stations_mm"], float), np.asarray(raw["dead_paths_mm"], float)
     p = res.model.positions(data.commands_mm, data.tool, res.params)
     r = np.linalg.norm(p[data.target] - S[data.station], axis=1) - L0[data.station] - data.displacement_mm

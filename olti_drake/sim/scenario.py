@@ -44,7 +44,8 @@ from olti_drake.units import UNIT_BOUNDS
 #: synthetic robot and heads (``hardware.serial_emulator``, when no scenario gives them).
 SEED_STREAMS = {"laser": 0, "reflector_estimate": 1, "emulator_session": 2,
                 "emulator_noise": 10, "emulator_faults": 11, "emulator_truth": 12, "head_error": 20,
-                "rtest": 30}  # rtest: the five-axis R-test device's noise (sim/five_axis_station.py)
+                "rtest": 30,  # rtest: the five-axis R-test device's noise (sim/five_axis_station.py)
+                "tracker": 40}  # tracker: the emScon tracker emulator of session k (hardware/tracker_station.py)
 
 
 def stream_key(name) -> int:

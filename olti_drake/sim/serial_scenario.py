@@ -31,7 +31,8 @@ from olti_drake.errors import InputError
 from olti_drake.io.csvio import read_yaml
 from olti_drake.limits import check_allocation
 from olti_drake.model.instrument import InterferometerOptions
-from olti_drake.sim.scenario import Emulated, Hardware, ScenarioPaths, Simulated, _nonnegative, _positive  # the SCARA scenario's station kinds and field checks
+# the SCARA scenario's station kinds, run policy and field checks
+from olti_drake.sim.scenario import Emulated, Hardware, RunPolicy, ScenarioPaths, Simulated, _nonnegative, _positive
 
 #: Working float64 values a plan pose or raster point carries (commands, FK, IK, readings): an estimate for the
 #: allocation guards of ``plan.step_deg`` and ``points_per_axis`` (:func:`olti_drake.limits.check_allocation`).
@@ -118,6 +119,60 @@ class RobotMounted:
 
 
 @dataclass
+class Tracker:
+    """A laser tracker over emScon TCP measuring the cat's eye on the tool open loop (docs/tracker.md).
+
+    ``host`` empty: ``olti run`` starts the tracker emulator (a local TCP port) and the N-joint robot emulator
+    in-process; else the tracker at ``host``:``port`` (a real one: port 700) and the robot controller on
+    ``robot_port`` (olti protocol, ``robot_driver``). ``position_mm`` / ``rotation_deg``: the tracker's nominal
+    placement in the robot base frame (tracker point m = R (p - position), R = Rx Ry Rz), what the station points
+    with; the emulated tracker stands ``emulator_offset_mm`` / ``emulator_rotation_deg`` off it (its truth).
+    The emulator's ``capture_mm``, noise (``u_const_um`` + ``u_per_m_um`` per m, coverage ``coverage_k``),
+    ``beam_break`` / ``reflector_lost`` probabilities per measurement, ``environment`` [°C, hPa, %RH] and its
+    ``drift`` per measurement; ``policy.rereads``: re-pointings after a beam interruption."""
+
+    host: str = ""
+    port: int = 700
+    robot_port: str = ""
+    robot_driver: str = "olti"
+    baud: int = 115200
+    timeout_s: float = 5.0
+    retries: int = 2
+    position_mm: List[float] = field(default_factory=lambda: [1300.0, 0.0, -300.0])
+    rotation_deg: List[float] = field(default_factory=lambda: [0.0, 0.0, 180.0])
+    emulator_offset_mm: List[float] = field(default_factory=lambda: [0.05, -0.04, 0.03])
+    emulator_rotation_deg: List[float] = field(default_factory=lambda: [0.0, 0.0, 0.002])
+    capture_mm: float = 5.0
+    u_const_um: float = 15.0
+    u_per_m_um: float = 6.0
+    coverage_k: float = 2.0
+    beam_break: float = 0.0
+    reflector_lost: float = 0.0
+    environment: List[float] = field(default_factory=lambda: [20.0, 1013.25, 45.0])
+    drift: List[float] = field(default_factory=lambda: [0.01, 0.05, 0.1])
+    policy: RunPolicy = field(default_factory=RunPolicy)
+
+    def validate(self, where: str) -> None:
+        for key in ("position_mm", "rotation_deg", "emulator_offset_mm", "emulator_rotation_deg", "environment",
+                    "drift"):
+            _vector(f"{where}.{key}", getattr(self, key), 3)
+        for key in ("capture_mm", "timeout_s", "coverage_k"):
+            _positive(f"{where}.{key}", getattr(self, key))
+        for key in ("u_const_um", "u_per_m_um"):
+            _nonnegative(f"{where}.{key}", getattr(self, key))
+        _nonnegative(f"{where}.policy.reread_delay_s", self.policy.reread_delay_s)
+        for key in ("beam_break", "reflector_lost"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise InputError(f"{where}.{key}: a probability 0..1, got {getattr(self, key)!r}")
+        if not 0 < self.port < 65536:
+            raise InputError(f"{where}.port must be 1..65535, got {self.port!r}")
+        if self.host and not self.robot_port:
+            raise InputError(f"{where}.robot_port is empty: a tracker at {self.host} needs the robot controller's port")
+        if self.retries < 0 or self.policy.rereads < 0:
+            raise InputError(f"{where}: retries and policy.rereads must be >= 0")
+
+
+@dataclass
 class SerialPlanRules:
     """The plan (:class:`~olti_drake.estimation.serial_plan.PlanRules`, mm and deg; ``ranges_deg``
     empty = the joint limits) and its ``seed``. Robot-mounted: ``overrun_deg`` is the approach
@@ -164,8 +219,9 @@ class SerialScenario(ScenarioPaths):
     seed: int = 0
     period_s: float = 1.0
     #: The station ``olti run`` takes the campaign on: ``!Simulated`` (``olti simulate``), ``!Emulated``
-    #: (the N-joint device emulator, docs/emulator.md; floor tracers only).
-    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
+    #: (the N-joint device emulator, docs/emulator.md; floor tracers only), ``!Hardware``, ``!Tracker`` (an
+    #: emScon laser tracker or its emulator, docs/tracker.md).
+    station: Union[Simulated, Emulated, Hardware, Tracker] = field(default_factory=Simulated)
     base: str = ""
 
     def robot_path(self) -> str:
@@ -216,6 +272,10 @@ class SerialScenario(ScenarioPaths):
         except ValueError as e:
             raise InputError(str(e)) from None
         _positive(f"{where}: period_s", self.period_s)
+        if isinstance(self.station, Tracker):
+            if not isinstance(s, FloorTracers):
+                raise InputError(f"{where}: station !Tracker measures a cat's eye on the tool: scheme !FloorTracers")
+            self.station.validate(f"{where}: station")
         return self
 
     @staticmethod
