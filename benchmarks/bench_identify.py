@@ -74,7 +74,7 @@ from olti_drake.model.scara import JointCommands
 from olti_drake.sim.scenario import Scenario
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
-from timing import best_of, cpu_busy  # noqa: E402
+from timing import best_of, machine_header  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -490,14 +490,8 @@ def scaling():
 
 
 def main() -> int:
-    print(f"bench_identify: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, numpy {np.__version__}, "
-          f"scipy {scipy.__version__}")
-    busy = cpu_busy()
-    if busy is not None:
-        print(f"CPU use by other processes just before the run: {100 * busy:.0f}% of {os.cpu_count()} CPUs")
-        if busy > 0.25:
-            print("warning: the CPUs are shared right now -- dense linear algebra (OpenBLAS threads) can be many "
-                  "times slower; timings are unreliable, re-run on an idle machine")
+    machine_header("bench_identify", f", scipy {scipy.__version__}",
+                   "dense linear algebra (OpenBLAS threads) can be many times slower; ")
     data = load_campaign(PAPER_CAMPAIGN)
     identify(data)  # warm-up: pydrake imports and first-call costs
     identify(data, IdentificationOptions(solver="nlp"))

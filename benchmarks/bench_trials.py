@@ -31,7 +31,7 @@ from olti_drake.io.csvio import load_campaign
 from olti_drake.model.budget import ReadingErrors
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
-from timing import best_of, cpu_busy  # noqa: E402
+from timing import best_of, machine_header  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -44,12 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=int, default=4000, help="Monte Carlo trials (default 4000: 16 blocks)")
     ap.add_argument("--dask", action="store_true", help="also on a local Dask cluster of 2 workers")
     a = ap.parse_args(argv)
-    print(f"bench_trials: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, numpy {np.__version__}")
-    busy = cpu_busy()
-    if busy is not None:
-        print(f"CPU use by other processes just before the run: {100 * busy:.0f}% of {os.cpu_count()} CPUs")
-        if busy > 0.25:
-            print("warning: the CPUs are shared right now -- timings are unreliable, re-run on an idle machine")
+    machine_header("bench_trials")
     data = load_campaign(PAPER_CAMPAIGN)
     errors = ReadingErrors(load_budget(PAPER_BUDGET))
     ident = Identifier(data)

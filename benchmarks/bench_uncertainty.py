@@ -41,7 +41,7 @@ from olti_drake.model.plan import bidirectional_grid
 from olti_drake.estimation.uncertainty import linear_covariance, monte_carlo
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the benchmarks' own helpers
-from timing import best_of, cpu_busy  # noqa: E402
+from timing import best_of, machine_header  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PAPER_CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -66,12 +66,7 @@ def row(label, ms, note=""):
 
 
 def main() -> int:
-    print(f"bench_uncertainty: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, numpy {np.__version__}")
-    busy = cpu_busy()
-    if busy is not None:
-        print(f"CPU use by other processes just before the run: {100 * busy:.0f}% of {os.cpu_count()} CPUs")
-        if busy > 0.25:
-            print("warning: the CPUs are shared right now -- timings are unreliable, re-run on an idle machine")
+    machine_header("bench_uncertainty")
 
     data = load_campaign(PAPER_CAMPAIGN)
     budget = load_budget(PAPER_BUDGET) if os.path.exists(PAPER_BUDGET) else paper000_budget()

@@ -1,5 +1,7 @@
 """Timing helpers shared by the benchmarks (wall clock; the machines are shared and noisy)."""
 
+import os
+import sys
 import time
 
 import numpy as np
@@ -28,3 +30,15 @@ def cpu_busy(seconds: float = 0.5):
     except (OSError, ValueError, IndexError):
         return None
     return 1.0 - (i1 - i0) / max(t1 - t0, 1e-9)
+
+
+def machine_header(name: str, extra: str = "", why: str = "") -> float:
+    """Print the benchmark's machine line and, when others use the CPUs, a warning (their share; ``why``: what
+    that does to this benchmark). Returns the busy share (None off Linux)."""
+    print(f"{name}: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, numpy {np.__version__}{extra}")
+    busy = cpu_busy()
+    if busy is not None:
+        print(f"CPU use by other processes just before the run: {100 * busy:.0f}% of {os.cpu_count()} CPUs")
+        if busy > 0.25:
+            print(f"warning: the CPUs are shared right now -- {why}timings are unreliable, re-run on an idle machine")
+    return busy

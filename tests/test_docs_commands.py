@@ -87,6 +87,16 @@ PARSED_ONLY = {
             "needs a Ray cluster (the ray extra is not in the suite's install)",
     },
     "docs/five_axis.md": {
+        "olti run diagrams/scenarios.yaml --scenario machine5_emulated --out run5":
+            "9-29 s for 1 000 readings on the five-axis emulator; tests/test_machine5_run.py runs a 120-reading one, "
+            "killed and resumed",
+        "olti run diagrams/scenarios.yaml --scenario machine5_emulated --out run5 --resume": "as above",
+        'olti identify run5/campaign.csv --machine olti_drake/models/trunnion_ac.urdf --model geometric '
+        '--tool-offsets-mm "0,0,0;0,60,30" --out run5/r.json': "needs the run above (tests/test_machine5_run.py "
+                                                                "identifies its run's campaign)",
+        "python -m olti_drake.cli.emulator diagrams/machine_5axis.yaml --link /tmp/m5":
+            "a device that runs until stopped, on a fixed /tmp path (tests/test_machine5_run.py starts it)",
+        "olti run diagrams/scenarios.yaml --scenario machine5_bench --out bench5": "needs the emulator above",
         "olti identify campaign.csv --machine olti_drake/models/trunnion_ac.urdf --workpiece-frame workpiece "
         "--tool-frame tool --model errormap [--grid-step-deg 15] [--smoothing auto|off|W] --out r.json":
             PLACEHOLDERS + " (run by tests/test_five_axis_identify.py on simulated campaigns)",
@@ -113,7 +123,7 @@ PARSED_ONLY = {
     },
     "docs/machine_3d.md": {
         "olti identify CAMPAIGN.csv --model volumetric --tool-offsets-mm '0,0,100;150,0,100;0,150,140' "
-        "[--knot-spacing-mm 50] [--topology serial|table-xy|table-yx] [--pitch-mm 10] [--budget B.yaml] [--smoothing auto|off] --out R.json":
+        "[--knot-spacing-mm 50] [--topology serial|table-xy|table-yx|table-y] [--pitch-mm 10] [--budget B.yaml] [--smoothing auto|off] --out R.json":
             PLACEHOLDERS,
         "olti design RESULT.json --regions BOXES.yaml [--stations N] [--criterion max|mean] [--budget B.yaml] "
         "[--step-mm S] [--seed 0] [--starts 3] [--max-sweeps 5] [--min-separation-mm 100] --out DESIGN.json":
@@ -153,6 +163,8 @@ PARSED_ONLY = {
         "python -m olti_drake.cli.emulator --robot my_arm.urdf --tool-frame tool0": PLACEHOLDERS,
         "python -m olti_drake.cli.emulator m3.yaml --link /tmp/m3 [--seed N] [--speed realistic] [fault flags]":
             "a device that runs until stopped; tests/test_machine3d_run.py drives it",
+        "python -m olti_drake.cli.emulator diagrams/machine_5axis.yaml --link /tmp/m5 [--seed N] [--speed realistic] "
+        "[fault flags]": "a device that runs until stopped; tests/test_machine5_run.py drives it",
     },
 }
 

@@ -127,26 +127,22 @@ def test_unreachable_targets_are_refused_naming_the_row(machine, known_model):
 @pytest.fixture(scope="module")
 def identified(machine, tmp_path_factory):
     """A truth outside the family (harmonic error motions with backlash, location errors of 10-50 µm, linear-axis
-    error motions and squareness; the zero angles no relative measurement separates set to 0), a distance campaign
-    at random commands read from six stations riding on the table (not planned by the tool), identified with the
-    default errormap (15° grid, smoothing auto) and the linear axes known (as from an earlier volumetric
-    calibration, ``--linear``)."""
-    import olti_drake.estimation.five_axis as fa
+    error motions and squareness: sines, outside the B-spline family; the zero angles no relative measurement
+    separates set to 0), a distance campaign at random commands read from six stations riding on the table (not
+    planned by the tool), identified with the default errormap (15° grid, smoothing auto) and the linear axes from
+    an earlier volumetric calibration on the public path (``--linear``): ``olti identify --model volumetric
+    --topology table-y`` of a simulated 3-axis campaign of the same linear truth
+    (:func:`test_five_axis_linear.identified_linear`), its result passed as ``FiveAxisOptions(linear=path)``."""
+    from olti_drake.model.five_axis_errors import RelocatedMotions, carriage_offsets
+    from test_five_axis_linear import identified_linear
 
-    truth = no_dropped_truth(synthetic_truth(machine, seed=3, linear=True))
-    path = tmp_path_factory.mktemp("bk") / "campaign.csv"
+    d = tmp_path_factory.mktemp("bk")
+    linear_path, linear = identified_linear(machine, d, seed=4)
+    truth = no_dropped_truth(synthetic_truth(machine, seed=3))
+    truth.linear = RelocatedMotions(linear, carriage_offsets(machine))  # (the carriages' motions about the loop)
+    path = d / "campaign.csv"
     write_five_axis_campaign(path, distance_campaign(machine, truth, 150, 1, SIX_TABLE_STATIONS, "workpiece"))
-    build = fa.error_model
-
-    def with_linear(machine, campaign, options, linear=None):
-        em = build(machine, campaign, options)
-        return FiveAxisErrors(machine, motions=bool(em.maps), pitch_deg=options.pitch_deg,
-                              bidirectional=em.bidirectional, linear=truth.linear, tool_offsets_mm=em.tools,
-                              identify_tool_offsets=bool(em.tool_groups))
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(fa, "error_model", with_linear)
-        ident, fit = identify(machine, path)
+    ident, fit = identify(machine, path, linear=str(linear_path))
     k = ident.position_model.n_params
 
     def model(c, d, t):

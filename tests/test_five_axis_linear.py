@@ -88,34 +88,38 @@ def olti(capsys, *argv):
     return code, out, err
 
 
-@pytest.fixture(scope="module")
-def volumetric_result(swivel, tmp_path_factory):
-    """(path, truth motions): ``olti identify --model volumetric`` on a simulated 3-axis campaign of the swivel
-    head's linear axes (the travel's corners and 150 random commands, 3 tools, 5 stations, 001 Table 4 noise;
-    200 mm knots)."""
+def identified_linear(machine, directory, seed=7, knot_spacing_mm=200.0, n=150):
+    """(path, truth motions): ``olti identify --model volumetric --topology <the machine's>`` on a simulated 3-axis
+    campaign of the machine's linear axes (the travel's corners and ``n`` random commands, 3 tools, 5 stations, 001
+    Table 4 noise; knots every ``knot_spacing_mm``): the truth :func:`linear_truth` on those knots (sines of periods
+    >= 4 intervals: outside the spline family), in the volumetric model's convention."""
     from olti_drake.cli.verbs import main
 
-    d = tmp_path_factory.mktemp("vol")
-    cfg = linear_config(swivel)
-    motions = linear_truth(MachineConfig(cfg.tool_chain, cfg.work_chain, cfg.travel_mm, 200.0, TOOLS), 7,
-                           amplitude_urad=20.0)
-    rng = np.random.default_rng(8)
+    cfg = linear_config(machine)
+    cfg = MachineConfig(cfg.tool_chain, cfg.work_chain, cfg.travel_mm, knot_spacing_mm, TOOLS)
+    motions = linear_truth(cfg, seed, amplitude_urad=20.0)
+    rng = np.random.default_rng(seed + 1)
     lo, hi = (np.array([cfg.travel_mm[a][e] for a in "XYZ"]) for e in (0, 1))
     corners = [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-    c = np.vstack([corners, rng.uniform(lo, hi, (150, 3))])
+    c = np.vstack([corners, rng.uniform(lo, hi, (n, 3))])
     cmd, tool = np.tile(c, (3, 1)), np.repeat(np.arange(3), len(c))
-    D = np.linalg.norm(tool_positions(MachineConfig(cfg.tool_chain, cfg.work_chain, cfg.travel_mm, 200.0, TOOLS),
-                                      motions, cmd, tool)[:, None] - STATIONS_3D[None], axis=-1)
+    D = np.linalg.norm(tool_positions(cfg, motions, cmd, tool)[:, None] - STATIONS_3D[None], axis=-1)
     reading = D - 0.5 + ReadingErrors(default_budget("machine")).draw(rng, D.ravel(), 1)[0].reshape(D.shape)
     i, j = np.repeat(np.arange(len(cmd)), len(STATIONS_3D)), np.tile(np.arange(len(STATIONS_3D)), len(cmd))
     write_machine_campaign({"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
                             "z_cmd_mm": cmd[i, 2], "tool": tool[i], "displacement_mm": reading.ravel()},
-                           d / "campaign3.csv")
-    code = main(["identify", str(d / "campaign3.csv"), "--model", "volumetric", "--tool-offsets-mm",
-                 ";".join(",".join(f"{v:g}" for v in t) for t in TOOLS), "--knot-spacing-mm", "200",
-                 "--out", str(d / "vol.json")])
+                           directory / "campaign3.csv")
+    code = main(["identify", str(directory / "campaign3.csv"), "--model", "volumetric", "--topology", cfg.topology,
+                 "--tool-offsets-mm", ";".join(",".join(f"{v:g}" for v in t) for t in TOOLS),
+                 "--knot-spacing-mm", f"{knot_spacing_mm:g}", "--out", str(directory / "vol.json")])
     assert code == 0
-    return d / "vol.json", motions
+    return directory / "vol.json", motions
+
+
+@pytest.fixture(scope="module")
+def volumetric_result(swivel, tmp_path_factory):
+    """:func:`identified_linear` of the swivel head's (serial X-Y-Z) linear axes."""
+    return identified_linear(swivel, tmp_path_factory.mktemp("vol"))
 
 
 @pytest.fixture(scope="module")
@@ -223,7 +227,9 @@ def test_what_does_not_fit_is_refused_in_one_line(swivel, thin_campaign, volumet
     doc = json.loads(vol_path.read_text())
     doc["topology"] = {"tool_chain": ["Z"], "work_chain": ["Y", "X"]}
     (tmp_path / "table.json").write_text(json.dumps(doc))
-    with pytest.raises(InputError, match=r"topology tool_chain \['Z'\], work_chain \['Y', 'X'\]"):
+    with pytest.raises(InputError,
+                       match=r"topology tool_chain \['Z'\], work_chain \['Y', 'X'\] \(--topology table-xy\)"):
         load_linear_from(tmp_path / "table.json", swivel)
-    with pytest.raises(InputError, match="topology"):  # (the trunnion's linear axes: X, Z on the head, Y on the table)
+    # (the trunnion: X, Z on the head, Y on the table)
+    with pytest.raises(InputError, match=r"\(--topology serial\); machine model .* \(--topology table-y\)$"):
         load_linear_from(vol_path, FiveAxisMachine.from_file(TRUNNION))

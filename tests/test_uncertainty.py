@@ -22,7 +22,7 @@ from olti_drake.model.budget import Budget, ReadingErrors
 from olti_drake.sim.campaign import prepare, simulate_vectorized, write_campaign
 from olti_drake.estimation.identification import IdentificationOptions, Identifier, identify
 from olti_drake.sim.scenario import Scenario
-from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, linear_covariance,
+from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, draw_by_content, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.report.validation import campaign_data, random_commands
 
@@ -366,8 +366,9 @@ def test_mc_trials_are_each_re_solved_to_their_own_minimum(small):
 
     ident, x, errors = small
     mc = monte_carlo(ident, x, errors, trials=4, seed=3, workers=1)
-    E = errors.draw(np.random.default_rng(np.random.SeedSequence(3).spawn(1)[0]), ident.beam_lengths(x), 4)
     model = ident.residual_rows(x[None], np.zeros(len(ident.data)))[0][0]  # the model's own readings at x
+    E = draw_by_content(errors, np.random.default_rng(np.random.SeedSequence(3).spawn(1)[0]), ident.beam_lengths(x),
+                        model, 4)  # (the errors in the readings' content order, as every trial draws them)
     std = Identifier(ident.data, IdentificationOptions(model="errormap")).solve().std
     d = ident.data
     opts = IdentificationOptions(grid1_deg=ident.robot0.map1.grid_deg, grid2_deg=ident.robot0.map2.grid_deg)

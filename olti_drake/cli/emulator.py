@@ -21,7 +21,8 @@ def main(argv=None) -> int:
         description="Emulate the robot controller and the interferometer counter of a scenario on two "
                     "pseudo-terminals (docs/emulator.md).")
     p.add_argument("scenario", nargs="?", help="scenario YAML (default: the paper-000 scenario); a 3D machine-tool "
-                                               "scenario (heads_mm) emulates its X, Y, Z controller and pan/tilt heads")
+                                               "scenario (heads_mm) emulates its X, Y, Z controller and pan/tilt "
+                                               "heads, a five-axis one (machine_model) its controller and heads")
     p.add_argument("--robot", metavar="NAME|MODEL",
                    help="emulate an N-joint serial robot and its tracer heads instead of the SCARA: a robot name "
                         "(ur5) or a URDF/SDFormat file (with --tool-frame); protocol version 2")
@@ -86,8 +87,11 @@ def _emulator(a, faults):
     if a.robot is None and a.scenario is not None:
         from olti_drake.sim.serial_scenario import scenario_kind
 
-        if scenario_kind(a.scenario) == "machine3d":
+        kind = scenario_kind(a.scenario)
+        if kind == "machine3d":
             return _machine3d_emulator(a, common)
+        if kind == "machine5":
+            return _machine5_emulator(a, common)
     if a.robot is None:
         if a.tool_frame is not None:
             raise ValueError("--tool-frame needs --robot")
@@ -117,6 +121,25 @@ def _machine3d_emulator(a, common):
     return Machine3DEmulator(setup.machine.scenario, run=setup.run, budget=setup.machine.budget,
                              seed=doc.seed if a.seed is None else a.seed,
                              encoder_resolution=0.0 if a.exact_encoder else DEFAULT_AXIS_RESOLUTION_MM, **common)
+
+
+def _machine5_emulator(a, common):
+    """The five-axis emulator of a five-axis scenario (``machine_model``): its controller (the model file's axes)
+    and a pan/tilt head line per station, the truth the scenario's (as ``olti run`` with ``!Emulated`` starts
+    it; the R-test nests, which the protocol cannot read, are ignored)."""
+    from olti_drake.hardware.machine5_emulator import Machine5Emulator
+    from olti_drake.sim.five_axis_station import load_five_axis_scenario, prepare_five_axis
+
+    if a.tool_frame is not None or a.reflector:
+        raise ValueError(f"{a.scenario}: a five-axis scenario: --tool-frame and --reflector do not apply (the heads "
+                         f"are the counters)")
+    doc = load_five_axis_scenario(a.scenario)
+    if not (doc.tracking.bed_heads_mm or doc.tracking.table_heads_mm):
+        raise ValueError(f"{a.scenario}: no pan/tilt heads (tracking.bed_heads_mm, tracking.table_heads_mm) to "
+                         f"emulate; R-test nests are not on the line protocol (docs/protocol.md)")
+    run = prepare_five_axis(doc, f"scenario {a.scenario}")
+    return Machine5Emulator(run, seed=doc.seed if a.seed is None else a.seed,
+                            encoder_resolution=0.0 if a.exact_encoder else None, **common)
 
 
 if __name__ == "__main__":

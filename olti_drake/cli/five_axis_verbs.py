@@ -26,8 +26,10 @@ def summary(ident, fit, doc) -> str:
 def predict(args) -> int:
     """``olti predict R.json POINTS.csv --out P.csv``: the tool point in the workpiece frame (mm) of every command
     by the identified machine, and its standard uncertainty (k = 1), sqrt(diag(J C Jᵀ))
-    (:func:`olti_drake.model.propagation.predicted_std`; 0 when the result stores no covariance)."""
+    (:func:`olti_drake.model.propagation.predicted_std`; 0 when the result stores no covariance) with the
+    result's lack of fit (``covariance.lack_of_fit_mm``) in quadrature."""
     from olti_drake.io.five_axis_io import load_machine5_result, read_five_axis_points, write_predictions
+    from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
     from olti_drake.model.propagation import predicted_std
 
     res = load_machine5_result(args.result)
@@ -38,6 +40,7 @@ def predict(args) -> int:
     pm = res.position_model(c, d, tool)
     p, J = pm.jacobian(res.x)
     u = (predicted_std(J.tocsr(), res.covariance, dim=3) if res.covariance is not None else np.zeros_like(p))
+    u = with_lack_of_fit(u, res.lack_of_fit_mm)  # (the maps' representation on their grid: estimation.five_axis)
     write_predictions(args.out, c, d, tool, res.machine, p, u)
     print(f"predicted {len(c)} tool points (five-axis machine, workpiece frame); max u (k=1) {1e3 * u.max():.2f} um; "
           f"wrote {args.out}")

@@ -527,9 +527,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--knot-spacing-mm", type=cliargs.length_mm,
                    help="volumetric: largest B-spline knot interval of the error motions (default: up to 8 intervals "
                         "per axis, fewer when the campaign has few distinct positions)")
-    p.add_argument("--topology", choices=("serial", "table-xy", "table-yx"), default="serial",
+    p.add_argument("--topology", choices=("serial", "table-xy", "table-yx", "table-y"), default="serial",
                    help="volumetric: serial X-Y-Z (default); table-xy: table carries X on Y, column Z; table-yx: "
-                        "table carries Y on X, column Z")
+                        "table carries Y on X, column Z; table-y: table carries Y, column X, ram Z on X (the A/C "
+                        "trunnion's linear axes)")
     p.add_argument("--pitch-mm", type=cliargs.length_mm,
                    help="volumetric: the motion values and their uncertainties every S mm (default 10)")
     p.add_argument("--budget", help="budget YAML whose predicted reading uncertainty the residual RMS is checked "

@@ -18,7 +18,9 @@ error model whose point i is seen in the base or the workpiece frame, so that on
 campaign cannot separate (:func:`~olti_drake.model.five_axis_errors.separable`, on the measurement's own
 Jacobian: stations, nests and frames as nuisance) is held at 0 and named with the reason; the error motions'
 gauge (grid mean 0, no rotating first harmonic) is the model's. The maps' smoothness prior ('auto': its weight
-by restricted maximum likelihood) as the robots'. Uncertainties: the engine's linear covariance (JCGM 100).
+by restricted maximum likelihood) as the robots'. Uncertainties: the engine's linear covariance (JCGM 100) plus,
+for the maps, their representation on the grid (:meth:`FiveAxisIdentification.representation`: a Type B bubble
+between nodes, its effect on every estimate and its share of a predicted point, ``Fit.lack_of_fit_mm``).
 Units: mm, deg (commands), µrad.
 """
 
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import (Calibration, SolverOptions, UnidentifiableError, smoothing_on,
@@ -204,6 +207,17 @@ def measurement(campaign, pm):
     return CombinedMeasurement(pm, parts, sigmas), kinds
 
 
+def residual_rows(ident) -> tuple:
+    """(campaign row (R,), coordinate (R,)) of every residual row of the identification's measurement, in its
+    order (:func:`measurement`: distances one row each, nests and tracker points three, x y z)."""
+    rows, coord = [], []
+    for k in ident.kinds:
+        idx = np.flatnonzero(ident.campaign.kind == k)
+        per = 1 if k == "distance" else 3
+        rows.append(np.repeat(idx, per))
+        coord.append(np.tile(np.arange(per), idx.size))
+    return np.concatenate(rows), np.concatenate(coord)
+
 
 class FiveAxisIdentification(Calibration):
     """A five-axis campaign (:class:`~olti_drake.io.five_axis_io.FiveAxisCampaign`) on ``machine``: the engine's
@@ -313,20 +327,79 @@ class FiveAxisIdentification(Calibration):
     def fit(self, uncertainty: bool = True):
         """:meth:`Calibration.fit`; with linear axes from a volumetric result, the covariance adds what that
         result's own uncertainty (its parameters' covariance, held fixed here) does to the estimate:
-        S C_θ Sᵀ, S = dx/dθ = −H⁻¹ Jᵀ J_θ within the gauge (H = JᵀJ + the priors; linear, JCGM 100 §5)."""
+        S C_θ Sᵀ, S = dx/dθ = −H⁻¹ Jᵀ J_θ within the gauge (H = JᵀJ + the priors; linear, JCGM 100 §5); with maps,
+        their representation on the grid (:meth:`representation`: in the covariance, and as the lack of fit every
+        predicted point shares), said in the notes."""
         fit = super().fit(uncertainty)
         if uncertainty and self.linear_from is not None:
             C = self._linear_covariance(fit.x)
             fit.covariance = fit.covariance + C
             fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
+        if uncertainty and self.errors.maps:
+            C, lack = self.representation(fit.x)
+            fit.covariance = fit.covariance + C
+            fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
+            fit.lack_of_fit_mm = float(np.hypot(fit.lack_of_fit_mm, lack))
+            fit.notes.append(f"map representation (JCGM 100 §3.4.1, §4.3: the maps are piecewise linear, the motions "
+                             f"between their nodes need not be): per map segment a bubble error of u = 1/8 of the "
+                             f"identified nodes' second difference (linear interpolation's error, h² f''/8), its "
+                             f"effect on the estimate added to the covariance; its {1e3 * lack:.3g} um at the "
+                             f"readings (RMS) added in quadrature to every predicted tool point's u as the lack of "
+                             f"fit (docs/five_axis.md)")
         return fit
+
+    def representation(self, x):
+        """(C (n, n) over :attr:`names`, e mm): the error motions' representation on their grid as an uncertainty.
+        Between two nodes a smooth motion departs from the map's straight line by a bubble a·4t(1−t) (t ∈ [0, 1]
+        along the segment; linear interpolation's error h² f''/8 at mid-segment), ``a`` per segment unknown: a
+        Type B u (JCGM 100 §4.3; §3.4.1, the model's incompleteness) of 1/8 of the larger second difference of the identified nodes at its ends
+        (h² f''). The readings' derivatives in the bubbles, Jt = 4 t (1 − t)·∂r/∂(node), give their effect on the
+        estimate, S C_a Sᵀ (:meth:`_propagated`: the location errors it trades with too), and e, their RMS effect
+        on a reading (mm of the first reading kind), that a predicted point shares (Fit.lack_of_fit_mm)."""
+        _, J = self.residuals(x)
+        J = self._pad(J)
+        Jt, u2 = self._bubbles(x, J)
+        if not u2.size:
+            return np.zeros((len(self.names), len(self.names))), 0.0
+        return self._propagated(J, Jt, u2), float(np.sqrt(np.mean(Jt.multiply(Jt) @ u2)))
+
+    def _bubbles(self, x, J):
+        """(Jt (rows, segments) sparse, u² (segments,)) of :meth:`representation`, over the free maps' segments;
+        J the residuals' Jacobian at x (sparse)."""
+        from olti_drake.model.five_axis_errors import BRANCHES
+
+        fpm, em = self.position_model, self.errors
+        theta = fpm.theta(x)
+        remap = np.full(em.n_params, -1)
+        remap[fpm.free_cols] = np.arange(fpm.free_cols.size)
+        J = sp.csr_matrix(J)
+        point = residual_rows(self)[0]
+        rows = np.arange(len(point))
+        blocks, amps = [], []
+        for (L, c), jm in em.maps.items():
+            s, n = em.slices[jm.joint], jm.emap.n_nodes
+            if n < 3 or remap[s.start] < 0:
+                continue  # (a held motion: not estimated; two nodes: no curvature to tell)
+            cols, w = np.zeros((fpm.n_points, 2), int), np.zeros((fpm.n_points, 2))
+            for f, pm in fpm.parts.items():
+                cols[fpm.index[f]], w[fpm.index[f]] = pm._interp[L]
+            k = cols[point, 0]  # (each reading's segment: its left node, in its branch's block)
+            vals = np.asarray(J[rows, remap[s.start + k]]).ravel() * 4.0 * w[point, 1]
+            for b in range(len(BRANCHES[:1 + em.bidirectional])):
+                v = theta[s][b * n:(b + 1) * n]
+                d = np.abs(np.diff(v, 2))
+                d = np.concatenate([d[:1], d, d[-1:]])  # (the end nodes: their neighbour's)
+                on = (k >= b * n) & (k < b * n + n - 1)
+                blocks.append(sp.csr_matrix((vals[on], (rows[on], k[on] - b * n)), shape=(len(point), n - 1)))
+                amps.append(np.maximum(d[:-1], d[1:]) / 8.0)
+        if not blocks:
+            return sp.csr_matrix((len(point), 0)), np.zeros(0)
+        return sp.hstack(blocks, format="csr"), np.concatenate(amps) ** 2
 
     def _linear_covariance(self, x) -> np.ndarray:
         """S C_θ Sᵀ over :attr:`names` (:meth:`fit`): J_θ by forward differences of the residuals in each
         volumetric parameter (the motions are linear in them: exact to rounding), one step of 10⁻³ (mm, µrad)."""
-        from scipy.linalg import null_space
-
-        lf, em, n = self.linear_from, self.errors, len(self.names)
+        lf, em = self.linear_from, self.errors
         r0, J = self.residuals(x)
         J = np.asarray(self._pad(J).todense())
         live = lf.motion_parameters()
@@ -339,14 +412,30 @@ class FiveAxisIdentification(Calibration):
                 Jt[:, c] = (self.residuals(x)[0] - r0) / 1e-3
         finally:
             em.linear_motions = lf.motions
-        H = J.T @ J
+        return self._propagated(J, Jt, lf.covariance[np.ix_(live, live)])
+
+    def _propagated(self, J, Jt, C_theta) -> np.ndarray:
+        """S C_θ Sᵀ over :attr:`names`: what quantities θ held out of the fit (their covariance C_θ, the residuals'
+        derivatives Jt in them) do to the estimate, S = dx/dθ = −H⁻¹ Jᵀ Jt within the gauge (H = JᵀJ + the priors
+        at the solution, J dense or sparse over all decision variables; linear, JCGM 100 §5)."""
+        from scipy.linalg import qr
+
+        def dense(M):
+            return M.toarray() if sp.issparse(M) else np.asarray(M)
+
+        H = dense(J.T @ J)
         prior = self._prior_hessian()
         if prior is not None:
             H = H + prior
         A, _ = self._equality_rows()
-        N = null_space(A) if A.size else np.eye(H.shape[0])
-        S = -N @ np.linalg.solve(N.T @ H @ N, N.T @ (J.T @ Jt))
-        C = S @ lf.covariance[np.ix_(live, live)] @ S.T
+        N = np.eye(H.shape[0])
+        if A.size:  # (the null space of the few gauge rows by a pivoted QR: an n x n SVD took most of the time)
+            Q, R, _ = qr(A.T, pivoting=True)
+            d = np.abs(np.diag(R))
+            N = Q[:, int(np.sum(d > 1e-12 * max(float(d.max(initial=0.0)), 1e-300))):]
+        S = -N @ np.linalg.solve(N.T @ H @ N, N.T @ dense(J.T @ Jt))
+        C = (S * np.asarray(C_theta, float)) @ S.T if np.ndim(C_theta) == 1 else S @ C_theta @ S.T
+        n = len(self.names)
         return ((C + C.T) / 2)[:n, :n]
 
 

@@ -37,6 +37,7 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from olti_drake.errors import InputError
+from olti_drake.model.propagation import predicted_variance
 
 #: The frames a candidate region may name (``frame:`` of a region; default ``base``).
 FRAMES = ("base", "workpiece", "nest")
@@ -249,7 +250,7 @@ class FiveAxisDesignProblem:
             return np.inf, np.inf, np.inf, {n: None for n in self.names}
         C = np.linalg.inv(info[np.ix_(ok, ok)])
         Jk = self._eval[:, :, ok]
-        u = np.sqrt(np.maximum(np.einsum("mci,ij,mcj->m", Jk, C, Jk), 0.0))
+        u = np.sqrt(predicted_variance(Jk, C).sum(axis=1))  # (the point's u: its coordinates' variances summed)
         umax, umean = float(u.max()), float(u.mean())
         cost = (umax if criterion == "max" else umean) + UNIDENTIFIED_MM * int((~ok).sum())
         std = np.sqrt(np.maximum(np.diag(C), 0.0))

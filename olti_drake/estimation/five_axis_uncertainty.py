@@ -25,6 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from olti_drake.errors import InputError
+from olti_drake.estimation.five_axis import residual_rows  # noqa: F401  (the readings' rows, here since issue 25)
 
 #: The re-solved model values must reproduce the result's within this share of their u (else: not its campaign).
 REPRODUCE_U = 0.05
@@ -102,24 +103,13 @@ def canonical_rows(campaign) -> np.ndarray:
     return rank
 
 
-def residual_rows(ident) -> tuple:
-    """(campaign row (R,), coordinate (R,)) of every residual row of the identification's measurement, in its
-    order (:func:`~olti_drake.estimation.five_axis.measurement`: distances one row each, nests and tracker points
-    three, x y z)."""
-    rows, coord = [], []
-    for k in ident.kinds:
-        idx = np.flatnonzero(ident.campaign.kind == k)
-        per = 1 if k == "distance" else 3
-        rows.append(np.repeat(idx, per))
-        coord.append(np.tile(np.arange(per), idx.size))
-    return np.concatenate(rows), np.concatenate(coord)
-
-
 class CanonicalErrors:
     """Reading errors (:class:`~olti_drake.model.budget.ReadingErrors`) of the rows of a measurement, each row's
     times ``scale[row]`` (the mixed campaign's row scaling; 1 otherwise), drawn in the order ``order`` (rows by
     content, :func:`canonical_rows`): a Monte Carlo on the campaign's rows in another file order draws the same
     error for the same reading."""
+
+    ordered_by_content = True  # (uncertainty._draw_by_content: this order is already the rows' content)
 
     def __init__(self, errors, order, scale):
         self.errors, self.order, self.scale = errors, np.asarray(order, int), np.asarray(scale, float)
@@ -143,7 +133,7 @@ def identification_sigma(ident, fit) -> float:
     from olti_drake.estimation.uncertainty import _solution_map
 
     B = _solution_map(ident, fit.x)[0]
-    known = linear_axes_covariance(ident, fit.x)  # (--linear: the volumetric result's part is not the readings')
+    known = held_out_covariance(ident, fit.x)  # (--linear, the maps' representation: not the readings' part)
     unit, own = np.diag(B), np.diag(fit.covariance - (0.0 if known is None else known))
     ok = unit > 1e-12 * max(float(unit.max()), 1e-300)
     s2 = float(np.median(own[ok] / unit[ok])) if ok.any() else float("nan")
@@ -199,6 +189,17 @@ def linear_axes_covariance(ident, x):
     return ident._linear_covariance(x)
 
 
+def held_out_covariance(ident, x):
+    """What the identification's covariance holds beyond the readings' errors and the prior (n, n), or None: the
+    linear axes' (:func:`linear_axes_covariance`) plus the maps' representation on their grid
+    (:meth:`~olti_drake.estimation.five_axis.FiveAxisIdentification.representation`), as the fit added them."""
+    parts = [linear_axes_covariance(ident, x)]
+    if getattr(ident, "errors", None) is not None and ident.errors.maps:
+        parts.append(ident.representation(x)[0])
+    parts = [C for C in parts if C is not None]
+    return sum(parts) if parts else None
+
+
 def with_prior_spread(ident, x, errors, std, cov, samples, every, seed: int = 0):
     """(std, samples for intervals or None, notes): a propagation's result (:func:`olti_drake.cli.propagate.
     propagate`: ``cov`` linear, or ``every`` Monte Carlo sample and ``samples`` those for intervals) with what the
@@ -208,11 +209,14 @@ def with_prior_spread(ident, x, errors, std, cov, samples, every, seed: int = 0)
     without either."""
     from olti_drake.estimation.serial_uncertainty import prior_spread
 
-    priors, known = smoothing_priors(ident, x), linear_axes_covariance(ident, x)
+    priors, known = smoothing_priors(ident, x), held_out_covariance(ident, x)
     notes = list(priors.notes)
-    if known is not None:
+    if getattr(ident, "linear_from", None) is not None:
         notes.append("the linear axes' uncertainty (the --linear volumetric result's covariance, held fixed in the "
                      "fit) added, as the identification states it")
+    if ident.errors.maps:
+        notes.append("the maps' representation on their grid (a bubble between nodes, FiveAxisIdentification."
+                     "representation) added, as the identification states it")
     if priors.Q is None and known is None:
         return std, samples, notes
     u2 = float(np.mean(errors.std(ident.beam_lengths(x)) ** 2))
@@ -225,3 +229,20 @@ def with_prior_spread(ident, x, errors, std, cov, samples, every, seed: int = 0)
         rng = np.random.default_rng([seed, 25])
         every = every + rng.standard_normal(every.shape) @ (V * np.sqrt(np.maximum(lam, 0.0))).T
     return every.std(axis=0, ddof=1), (every if samples is not None else None), notes
+
+
+def tool_point_u(ident, fit, commands, directions=None, tool=None):
+    """(tool points (M, 3), their u (M, 3)) mm, k = 1, workpiece frame, at ``commands`` (mm, deg) on the fit of
+    ``ident`` (:class:`~olti_drake.estimation.five_axis.FiveAxisIdentification`): the covariance propagated
+    (:func:`~olti_drake.model.propagation.predicted_std`) and the fit's lack of fit added in quadrature
+    (:func:`~olti_drake.estimation.serial_uncertainty.with_lack_of_fit`) -- as ``olti predict`` does."""
+    from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
+    from olti_drake.model.five_axis_errors import FiveAxisPositionModel
+    from olti_drake.model.propagation import predicted_std
+
+    pm = FiveAxisPositionModel(ident.machine, ident.errors, commands, directions, tool, frame="workpiece",
+                               held=ident.position_model.held)
+    k = pm.n_params
+    p, J = pm.jacobian(fit.x[:k])
+    u = predicted_std(J.tocsr(), np.asarray(fit.covariance)[:k, :k], dim=3)
+    return p, with_lack_of_fit(u, getattr(fit, "lack_of_fit_mm", 0.0))

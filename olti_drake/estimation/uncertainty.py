@@ -101,10 +101,39 @@ def _mc_work(work):
     return work
 
 
+def content_order(d_true, distance) -> np.ndarray:
+    """(n,) the readings in an order set by their content, not by the campaign's rows: by beam length, then the
+    model's own readings at the estimate (``d_true`` (K,) mm, K = per · n rows: a tracker point's x, y, z
+    together), each rounded to 1 nm so that the estimate of the same campaign in another row order (equal to
+    rounding) sorts the same. Ties are identical readings, whose errors may be swapped without changing the
+    least-squares solution."""
+    n = len(distance)
+    keys = np.column_stack([np.asarray(distance, float).reshape(n, 1),
+                            np.asarray(d_true, float).reshape(n, -1)])
+    return np.lexsort(np.round(keys * 1e6).T[::-1])
+
+
+def draw_by_content(errors, rng, distance, d_true, size: int) -> np.ndarray:
+    """(size, K) reading errors in the campaign's rows, drawn in :func:`content_order` (a Monte Carlo of the same
+    campaign in another row order draws the same error for the same reading); ``errors`` that order their rows
+    themselves (``ordered_by_content``) draw as they are."""
+    n, K = len(distance), np.size(d_true)
+    if getattr(errors, "ordered_by_content", False) or n == 0 or K % n:
+        return errors.draw(rng, distance, size)  # (no per-reading layout to order by)
+    order = content_order(d_true, distance)
+    drawn = errors.draw(rng, np.asarray(distance)[order], size)
+    per = drawn.shape[1] // len(distance)
+    E = np.empty_like(drawn)
+    E[:, (per * order[:, None] + np.arange(per)).ravel()] = drawn
+    return E
+
+
 def _mc_block(w, seed, size: int):
-    """One block of ``size`` trials: the readings' errors drawn from ``seed`` (the block's own), each trial
-    re-solved. The unit of seeding and of the batched solver: blocks of :data:`BATCH` whatever the workers."""
-    E = w["errors"].draw(np.random.default_rng(seed), w["distance"], size)
+    """One block of ``size`` trials: the readings' errors drawn from ``seed`` (the block's own) in an order set
+    by the readings' content (:func:`draw_by_content`: results do not depend on the campaign's row order), each
+    trial re-solved. The unit of seeding and of the batched solver: blocks of :data:`BATCH` whatever the
+    workers."""
+    E = draw_by_content(w["errors"], np.random.default_rng(seed), w["distance"], w["d_true"], size)
     if w["scatter"] is None:
         return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], tol=w["tol"])
     return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"], tol=w["tol"])

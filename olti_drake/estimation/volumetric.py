@@ -56,14 +56,13 @@ from olti_drake.model.measurements import StationDistanceMeasurement
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD,  # noqa: F401
                                            MachineConfig, VolumetricModel, VolumetricPositionModel, motion_names,
                                            motion_role, motion_roughness, motion_unit, observability,
-                                           roughness_lever_mm, check_table_sizes)
+                                           roughness_lever_mm, check_table_sizes, TOPOLOGIES)
 
 #: The conditions that fix the gauge (the frame), each by name; the fixed B-spline coefficients are no unknowns
 #: (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE_CONDITIONS`).
 GAUGE_CONDITIONS = VOLUMETRIC_GAUGE_CONDITIONS
 #: What the gauge fixes, in one sentence (:data:`olti_drake.model.gauges.VOLUMETRIC_GAUGE`).
 GAUGE = VOLUMETRIC_GAUGE
-TOPOLOGIES = {"serial": (("X", "Y", "Z"), ()), "table-xy": (("Z",), ("Y", "X")), "table-yx": (("Z",), ("X", "Y"))}
 
 
 def volumetric_campaign(data, source: str = ""):

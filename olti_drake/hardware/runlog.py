@@ -75,12 +75,24 @@ def machine3d_columns() -> tuple:
     return MACHINE3D_COLUMNS + _LOG_COLUMNS
 
 
+#: A five-axis distance campaign's columns after the commands and directions (formats.md "Five-axis machine tools").
+MACHINE5_COLUMNS = ("tool", "station", "station_frame", "displacement_mm", "valid")
+
+
+def machine5_columns(axes) -> tuple:
+    """The columns of a five-axis run log: the machine's command columns (``x_cmd_mm`` ..., ``a_cmd_deg`` ...),
+    ``dir_<axis>`` per axis, :data:`MACHINE5_COLUMNS` and the run-log columns (``plan_row`` = the plan's row)."""
+    from olti_drake.io.five_axis_io import command_columns
+
+    return command_columns(axes) + tuple(f"dir_{a.lower()}" for a in axes) + MACHINE5_COLUMNS + _LOG_COLUMNS
+
+
 def _formats_of(columns) -> tuple:
     """The value formats of a log's columns (the SCARA's as they always were)."""
     if tuple(columns) == COLUMNS:
         return _FORMATS
-    head = tuple("%.12g" if c.startswith("theta") or c.endswith("_cmd_mm") else "%.9f" if c in _FLOAT_COLUMNS
-                 else "%d" for c in columns[:-len(_LOG_COLUMNS)])
+    head = tuple("%.12g" if c.startswith("theta") or c.endswith(("_cmd_mm", "_cmd_deg")) else "%.9f" if c in
+                 _FLOAT_COLUMNS else "%s" if c == "station_frame" else "%d" for c in columns[:-len(_LOG_COLUMNS)])
     return head + _LOG_FORMATS
 
 

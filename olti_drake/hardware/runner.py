@@ -10,7 +10,9 @@ or the real robot and heads behind the same hardware station (``_Serial``: the l
 a record goes, the resumed state); a 3D machine-tool scenario (``heads_mm``:
 :mod:`olti_drake.sim.machine3d_station`) on the diagram of :mod:`olti_drake.sim.machine3d_campaign`,
 its station simulated, the 3D machine emulator or the real controller and pan/tilt heads
-(``_Machine3D``). Every kind takes an ``extend`` hook, called as
+(``_Machine3D``); a five-axis scenario (``machine_model``: :mod:`olti_drake.sim.five_axis_station`) its distance
+campaign on the diagram of :mod:`olti_drake.sim.five_axis_campaign`, its station simulated, the five-axis emulator
+or the real controller and pan/tilt heads (``_Machine5``). Every kind takes an ``extend`` hook, called as
 ``extend(builder, setup=, station=, sequencer=, steering=, recorder=)`` before the diagram is built.
 
 Resuming (``--resume``) after Ctrl-C, ``kill -9`` or a lost line starts the
@@ -334,6 +336,54 @@ class _Machine3D(_Scara):
                    measurement=True)
 
 
+class _Machine5(_Machine3D):
+    """The same for a five-axis distance campaign (sim.five_axis_campaign): every plan row is a reading (step =
+    row), the log's columns the five-axis campaign's (commands, dir_<axis>, tool, station, station_frame,
+    displacement_mm, valid; formats.md) so that ``olti identify --machine`` reads the run's campaign.csv."""
+
+    comment = ("olti_drake five-axis campaign (olti run; formats.md \"Five-axis machine tools\"): mm and degrees; "
+               "station = pan/tilt head, station_frame where it stands; dir = approach direction; valid 0 = beam lost "
+               "(kept); plan_row = step = the plan's row; step/session/status/reads/rezeros/time: the run log "
+               "(docs/runner.md)")
+
+    def __init__(self, scenario):
+        from olti_drake.hardware.runlog import machine5_columns
+        from olti_drake.sim.five_axis_campaign import prepare_five_axis_campaign
+
+        self.scenario = scenario
+        self.setup = s = prepare_five_axis_campaign(scenario)
+        self.columns = machine5_columns(s.run.machine.axes)
+        self.measured = np.ones(s.n_steps, bool)
+        self._commands, self._dirs = s.run.plan.commands, s.run.plan.directions.astype(float)
+        self._valid = len(self.columns) - 9          # the log's 'valid' column (before the run-log columns)
+
+    def build(self, station_factory, extend, sink):
+        from olti_drake.sim.five_axis_campaign import build_five_axis_campaign_diagram
+
+        return build_five_axis_campaign_diagram(self.setup, station_factory, extend=extend, sink=sink)
+
+    def step_of(self, record) -> int:
+        return int(record[-1])
+
+    def invalid(self, record) -> bool:
+        return record[self._valid] == 0
+
+    def reflector_at(self, step: int) -> int:
+        j = self.setup.run.plan.station
+        return int(j[min(step, len(j) - 1)])
+
+    def write_truth(self, out_dir) -> None:
+        from olti_drake.io.csvio import read_table
+        from olti_drake.io.outputs import write_json
+        from olti_drake.sim.five_axis_campaign import five_axis_truth_result
+
+        if os.path.exists(os.path.join(out_dir, "truth.json")):
+            return
+        t = read_table(os.path.join(out_dir, "campaign.csv"), ("valid",))
+        write_json(os.path.join(out_dir, "truth.json"), five_axis_truth_result(self.setup, t["valid"]),
+                   measurement=True)
+
+
 def _resume_simulated_systems(station, context, step: int, prev_cmd, prev_dir) -> None:
     """A simulated station (a Diagram) put where the uninterrupted campaign was at ``step``: its approach-
     direction joints (``error_map_joint``) get the previous row's command and directions (deg/mm), its 3D
@@ -404,11 +454,12 @@ def _load(scenario, base_dir=None):
     """(Scenario, its file or None) of a Scenario, SerialScenario or Machine3DScenarioFile object, a YAML
     path or None (the paper default); a six-axis file (``scheme``: sim.serial_scenario.scenario_kind) or a
     3D machine-tool one (``heads_mm``) loads as one."""
+    from olti_drake.sim.five_axis_station import FiveAxisScenarioFile
     from olti_drake.sim.machine3d_station import Machine3DScenarioFile
     from olti_drake.sim.scenario import Scenario, load_scenario
     from olti_drake.sim.serial_scenario import SerialScenario
 
-    if isinstance(scenario, (Scenario, SerialScenario, Machine3DScenarioFile)):
+    if isinstance(scenario, (Scenario, SerialScenario, Machine3DScenarioFile, FiveAxisScenarioFile)):
         return scenario, getattr(scenario, "source_file", None)
     if scenario is None:
         return load_scenario(None), None
@@ -418,14 +469,18 @@ def _load(scenario, base_dir=None):
 def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = None):
     """The scenario ``olti run`` takes: a six-axis one (``SerialScenario``) when the file (or its named
     scenario, or a base) has a ``scheme``, a 3D machine-tool one (``Machine3DScenarioFile``) when it has
-    ``heads_mm``, else the SCARA's (``load_scenario``)."""
+    ``heads_mm``, a five-axis one (``FiveAxisScenarioFile``) when it has ``machine_model``, else the SCARA's
+    (``load_scenario``)."""
     from olti_drake.sim.scenario import load_scenario
     from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 
     kind = scenario_kind(path, name)
-    if kind == "machine5":  # no emulated or hardware five-axis station yet: simulate only
-        raise InputError(f"scenario {os.fspath(path)}: olti run does not take five-axis scenarios yet (no emulated or "
-                         f"hardware five-axis station); olti simulate runs its diagram")
+    if kind == "machine5":
+        from olti_drake.sim.five_axis_station import load_five_axis_scenario
+
+        doc = load_five_axis_scenario(path, name, text)
+        doc.source_file = os.fspath(path)
+        return doc
     if kind == "machine3d":
         from olti_drake.sim.machine3d_station import load_machine3d_scenario
 
@@ -443,7 +498,8 @@ def _campaign_kind(scenario):
 
     if isinstance(getattr(scenario, "station", None), Tracker):
         return _Tracker(scenario)
-    return {"scara": _Scara, "serial": _Serial, "machine3d": _Machine3D}[scenario_kind(scenario)](scenario)
+    return {"scara": _Scara, "serial": _Serial, "machine3d": _Machine3D,
+            "machine5": _Machine5}[scenario_kind(scenario)](scenario)
 
 
 def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[Callable[[], object]] = None,
@@ -453,7 +509,8 @@ def run(scenario, out_dir: str, *, resume: bool = False, should_stop: Optional[C
 
     ``scenario``: a :class:`~olti_drake.sim.scenario.Scenario`, a six-axis
     :class:`~olti_drake.sim.serial_scenario.SerialScenario` (floor tracers), a 3D machine tool's
-    :class:`~olti_drake.sim.machine3d_station.Machine3DScenarioFile`, a scenario YAML path, or None
+    :class:`~olti_drake.sim.machine3d_station.Machine3DScenarioFile`, a five-axis
+    :class:`~olti_drake.sim.five_axis_station.FiveAxisScenarioFile`, a scenario YAML path, or None
     (the paper-000 default); its ``station`` (simulated, emulated or hardware) takes the readings.
     ``should_stop()`` is polled between simulator steps (from this thread; it may read a flag
     another thread or a signal handler sets): a truthy value ends the

@@ -105,6 +105,8 @@ class HardwareStation(LeafSystem):
         self.layout = getattr(robot, "layout", None) or SCARA_LAYOUT
         n = self.layout.n
         self.revolute = np.array(self.layout.revolute)
+        self._lower, self._upper = (np.array([getattr(a, k) for a in self.layout.axes], float)
+                                    for k in ("lower", "upper"))
         self.heads = callable(getattr(counter, "aim", None))
         self.s = _StateLayout(n)
         self.DeclareVectorInputPort(command_port, n)
@@ -176,7 +178,9 @@ class HardwareStation(LeafSystem):
             try:
                 if approach:
                     before = cmd - np.where(self.revolute, directions * self.policy.approach_overrun_deg, 0.0)
-                    self._movj_wait(before)
+                    # Within the travel (a rotary axis near its limit is still approached from the planned side:
+                    # a pose at the limit was reached from inside).
+                    self._movj_wait(np.clip(before, self._lower, self._upper))
                 self._movj_wait(cmd)
                 return
             except AlarmActive:
@@ -348,11 +352,25 @@ def AddStation(builder, setup, name: str = "station", session: int = 0):
     emulator (:class:`~olti_drake.hardware.machine3d_emulator.Machine3DEmulator`), ``Hardware`` ->
     :func:`AddRealMachine3DStation`; the device stations have the simulated one's port names
     (``target_command``, ``station``, ``head_command``; no ``tool`` input, no ``true_position``).
+
+    The five-axis machine tool (a :class:`~olti_drake.sim.five_axis_campaign.FiveAxisCampaignSetup`, or a
+    ``FiveAxisRun``): ``Simulated`` -> :func:`~olti_drake.sim.five_axis_station.AddFiveAxisStation`, ``Emulated``
+    -> the five-axis emulator (:class:`~olti_drake.hardware.machine5_emulator.Machine5Emulator`), ``Hardware`` ->
+    :func:`AddRealMachine5Station`; the device stations take ``command`` (n_axes; m, rad), ``station`` and
+    ``head_command`` (no ``direction``, ``tool``, ``nest``: the controller and the aim see to them).
     """
     from olti_drake.sim.campaign import AddSimulatedStation
     from olti_drake.sim.scenario import Emulated, Hardware
 
     kind = scenario_kind(setup)
+    if kind == "machine5":                   # the five-axis machine tool (sim.five_axis_campaign)
+        cfg = getattr(setup.scenario, "station", None)
+        if isinstance(cfg, Emulated):
+            return AddEmulatedStation(builder, setup, name, session)
+        if isinstance(cfg, Hardware):
+            return AddRealMachine5Station(builder, setup, name)
+        from olti_drake.sim.five_axis_station import AddFiveAxisStation
+        return AddFiveAxisStation(builder, getattr(setup, "run", setup), name)
     if kind == "machine3d":                  # the 3D machine tool
         machine = _machine3d(setup)
         cfg = getattr(setup.scenario, "station", None) if machine is not setup else None
@@ -399,6 +417,8 @@ def _machine3d(setup):
 
 #: The 3D machine station's input names (as its simulated station's).
 MACHINE3D_PORTS = dict(command_port="target_command", selector_port="station")
+#: The five-axis station's input names (as its simulated station's).
+MACHINE5_PORTS = dict(command_port="command", selector_port="station")
 
 
 #: Noise stream of an emulator started for a resumed session (sim.scenario.SEED_STREAMS).
@@ -421,11 +441,11 @@ def AddEmulatedStation(builder, setup, name: str = "station", session: int = 0):
     seed = None if session == 0 else stream_seed(setup.scenario.seed, STREAM_EMULATOR, session)
     closers = []
     kind = scenario_kind(setup)
-    if kind == "machine3d":                  # the 3D machine tool: X, Y, Z and a pan/tilt head per station
-        emu = machine3d_emulator_for(setup, seed, cfg).start()
+    if kind in ("machine3d", "machine5"):    # a machine tool: its axes and a pan/tilt head per station
+        emu = (machine3d_emulator_for if kind == "machine3d" else machine5_emulator_for)(setup, seed, cfg).start()
         closers.append(emu.stop)
         station = _open_station(builder, setup, cfg, emu.robot_port, emu.head_ports, 115200, closers, None, name,
-                                machine3d=True)
+                                machine_axes=_machine_axes(setup))
     elif kind == "serial":                   # a six-axis setup: N joints, the heads as counters
         emu = serial_emulator_for(setup, seed, cfg).start()
         closers.append(emu.stop)
@@ -469,18 +489,43 @@ def machine3d_emulator_for(setup, seed, cfg):
                              faults=cfg.faults(), latch_beam_loss=cfg.latch_beam_loss)
 
 
+def machine5_emulator_for(setup, seed, cfg):
+    """The five-axis emulator of a ``FiveAxisCampaignSetup``: its planned run (truth, heads, head error, tools, cat's
+    eye, interferometer, budget); ``seed`` None = the scenario's."""
+    from olti_drake.hardware.machine5_emulator import Machine5Emulator
+
+    return Machine5Emulator(setup.run, seed=setup.scenario.seed if seed is None else seed, speed=cfg.speed,
+                            faults=cfg.faults(), latch_beam_loss=cfg.latch_beam_loss)
+
+
+def AddRealMachine5Station(builder, setup, name: str = "station"):
+    """Open a five-axis campaign's controller (``robot_port``: the model file's axes, X, Y, Z in mm and the rotary
+    letters in deg, in its order) and pan/tilt heads (``head_ports``: one per station, the bed's then the table's)
+    and add the station driving them (the head's aim selects the cat's eye: no prompt)."""
+    return _open_real_machine_station(builder, setup, name, "a five-axis campaign", "in station order (bed, table)")
+
+
+def _open_real_machine_station(builder, setup, name, what, order):
+    cfg = setup.scenario.station
+    n = len(setup.stations_mm)
+    if len(cfg.head_ports) != n or not cfg.robot_port:
+        raise InputError(f"station: !Hardware: {what} needs robot_port (the machine's controller) and head_ports: "
+                         f"one serial port per pan/tilt head, {n} {order} (got {len(cfg.head_ports)})")
+    return _open_station(builder, setup, cfg, cfg.robot_port, list(cfg.head_ports), cfg.baud, [], None, name,
+                         machine_axes=_machine_axes(setup))
+
+
+def _machine_axes(setup) -> tuple:
+    """The axis letters a machine tool's controller must announce: X, Y, Z (3D), the model file's (five-axis)."""
+    run = getattr(setup, "run", None)
+    return tuple(run.machine.axes) if scenario_kind(setup) == "machine5" else ("X", "Y", "Z")
+
+
 def AddRealMachine3DStation(builder, setup, name: str = "station"):
     """Open a 3D machine campaign's controller (``robot_port``: three linear axes X, Y, Z announced in mm)
     and pan/tilt heads (``head_ports``, one per head in the order of ``heads_mm``) and add the station
     driving them (the head's aim selects the cat's eye: no prompt)."""
-    cfg = setup.scenario.station
-    n = len(setup.stations_mm)
-    if len(cfg.head_ports) != n or not cfg.robot_port:
-        raise InputError(f"station: !Hardware: a 3D machine campaign needs robot_port (the machine's controller) "
-                         f"and head_ports: one serial port per pan/tilt head, {n} in the order of heads_mm "
-                         f"(got {len(cfg.head_ports)})")
-    return _open_station(builder, setup, cfg, cfg.robot_port, list(cfg.head_ports), cfg.baud, [], None, name,
-                         machine3d=True)
+    return _open_real_machine_station(builder, setup, name, "a 3D machine campaign", "in the order of heads_mm")
 
 
 def AddRealStation(builder, setup, set_reflector=None, name: str = "station"):
@@ -505,14 +550,15 @@ def AddRealSerialStation(builder, setup, name: str = "station"):
 
 
 def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, set_reflector, name,
-                  machine3d: bool = False):
+                  machine_axes=None):
     """Open both devices with the scenario's drivers, add the station; close everything on failure.
 
     ``counter_port``: the counter's port, or a list of tracer heads' ports (one per station: the
     counter is then their :class:`~olti_drake.hardware.drivers.TracerHeads`).
     ``set_reflector(counter, j)`` readies reflector j (None: the station refuses a change).
-    ``machine3d``: the controller must announce three linear axes (X, Y, Z mm); the station's inputs
-    get the 3D machine station's names (:data:`MACHINE3D_PORTS`).
+    ``machine_axes``: a machine tool's axis letters the controller must announce, in order (X, Y, Z in mm, rotary
+    letters in deg); the station's inputs then get the machine station's names (:data:`MACHINE3D_PORTS`, the
+    five-axis :data:`MACHINE5_PORTS`).
     """
     from olti_drake.hardware.drivers import TracerHeads, driver_class
 
@@ -533,13 +579,14 @@ def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, 
                 raise StationError(f"station: {e}") from None
             closers.append(devices[-1].close)
         robot, counter = devices[0], (TracerHeads(devices[1:]) if heads else devices[1])
-        if machine3d:
-            _check_machine_axes(robot, robot_port)
+        if machine_axes is not None:
+            _check_machine_axes(robot, robot_port, machine_axes)
         # A counter driver that knows the reflector set-up (a test bench) does it; else the hook (operator).
         hook = getattr(counter, "set_up_reflector", None) or (
             None if set_reflector is None else (lambda j: set_reflector(counter, j)))
         station = AddHardwareStation(builder, setup, (robot, counter), hook, name, policy=cfg.policy,
-                                     **(MACHINE3D_PORTS if machine3d else {}))
+                                     **({} if machine_axes is None else MACHINE3D_PORTS if len(machine_axes) == 3
+                                        else MACHINE5_PORTS))
     except BaseException:
         for c in reversed(closers):
             c()
@@ -548,10 +595,13 @@ def _open_station(builder, setup, cfg, robot_port, counter_port, baud, closers, 
     return station
 
 
-def _check_machine_axes(robot, port) -> None:
-    """A 3D machine's controller announces three linear axes (X, Y, Z in mm, in that order); else one line."""
+def _check_machine_axes(robot, port, letters) -> None:
+    """A machine tool's controller announces its axes: ``letters`` in that order, X, Y, Z in mm and a rotary
+    letter in deg; else one line naming both (bad input: the scenario's machine is not the device's)."""
+    want = tuple(f"{a}_{'mm' if a in 'XYZ' else 'deg'}" for a in letters)
     layout = getattr(robot, "layout", None)
-    if layout is None or layout.n != 3 or any(layout.revolute):
-        got = "no axes" if layout is None else ", ".join(layout.labels)
-        raise StationError(f"station: the controller on {port} announces {got}; a 3D machine campaign needs three "
-                           f"linear axes X, Y, Z (mm)")
+    got = () if layout is None else tuple(layout.labels)
+    if got != want:
+        kind = "a 3D machine campaign" if tuple(letters) == ("X", "Y", "Z") else "the machine file"
+        raise InputError(f"station: the controller on {port} announces {', '.join(got) or 'no axes'}; {kind} "
+                           f"needs the axes {', '.join(want)} (mm, deg) in that order")

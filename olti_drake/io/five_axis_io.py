@@ -379,9 +379,11 @@ def load_linear_from(path, machine, commands=None, source: str = "the campaign")
                              f"commands")
     cfg, ours = result.model.config, linear_config(machine)
     if (tuple(cfg.tool_chain), tuple(cfg.work_chain)) != (tuple(ours.tool_chain), tuple(ours.work_chain)):
+        def named(c):  # (the --topology that gives this stacking, when one does)
+            return f" (--topology {c.topology})" if c.topology else " (no --topology gives it)"
         raise InputError(f"--linear {name}: topology tool_chain {list(cfg.tool_chain)}, work_chain "
-                         f"{list(cfg.work_chain)}; machine model {machine.path} has tool_chain "
-                         f"{list(ours.tool_chain)}, work_chain {list(ours.work_chain)}")
+                         f"{list(cfg.work_chain)}{named(cfg)}; machine model {machine.path} has tool_chain "
+                         f"{list(ours.tool_chain)}, work_chain {list(ours.work_chain)}{named(ours)}")
     for k, a in enumerate(LINEAR if commands is not None else ()):
         q = np.asarray(commands, float)[:, machine.axes.index(a)]
         lo, hi = cfg.travel_mm[a]
@@ -455,6 +457,18 @@ class Machine5Result:
 
         return FiveAxisPositionModel(self.machine, self.errors, commands, directions, tool, frame="workpiece",
                                      held=self.held)
+
+    @property
+    def lack_of_fit_mm(self) -> float:
+        """The model error (mm, k = 1) every predicted tool point shares, added in quadrature to the u the
+        covariance gives: ``covariance.lack_of_fit_mm`` (0 when absent; the maps' representation between their
+        nodes, :meth:`~olti_drake.estimation.five_axis.FiveAxisIdentification.representation`), read and checked
+        as a serial result's (:attr:`olti_drake.io.serial_io.SerialResult.lack_of_fit_mm`)."""
+        from types import SimpleNamespace
+
+        from olti_drake.io.serial_io import SerialResult
+
+        return SerialResult.lack_of_fit_mm.fget(SimpleNamespace(data=self.document))
 
 
 def load_machine5_result(path) -> Machine5Result:

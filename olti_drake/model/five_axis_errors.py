@@ -709,6 +709,23 @@ def _check_directions(directions, M: int, rotary, needed: bool):
     return d
 
 
+def representation_bound(em: FiveAxisErrors, truth, samples: int = 721) -> Dict[Tuple[str, str], float]:
+    """Per error motion and branch, ``(E_XC, "forward")`` -> b (mm or µrad): how far a continuous truth (any
+    object with ``motion_values(L, q, direction)`` (M, 6), e.g. :class:`~olti_drake.model.five_axis_truth.
+    FiveAxisTruth`) lies from its representation on ``em``'s grid -- the truth sampled at the nodes and
+    interpolated as the model does (piecewise linear, paper 000 Eq. (7)-(9)), the largest deviation over the
+    travel (``samples`` commands). A map value is then compared with the truth within 3 u + b."""
+    out = {}
+    for (L, c), jm in em.maps.items():
+        g = jm.emap.grid_deg
+        q = np.linspace(g[0], g[-1], samples)
+        r = COMPONENTS.index(c)
+        for b, sign in zip(BRANCHES[:1 + em.bidirectional], (1.0, -1.0)):
+            nodes = truth.motion_values(L, g, sign)[:, r]
+            out[(jm.joint, b)] = float(np.max(np.abs(np.interp(q, g, nodes) - truth.motion_values(L, q, sign)[:, r])))
+    return out
+
+
 # --------------------------------------------------------------------------- what a campaign separates
 @dataclass(frozen=True)
 class Separability:

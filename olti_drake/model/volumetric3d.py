@@ -91,6 +91,14 @@ def _fixed_ends(name: str) -> Tuple[bool, bool]:
 
 
 # --------------------------------------------------------------------------- configuration
+#: The named stackings (``--topology``): (tool_chain, work_chain), each from the machine base outward. serial: X on
+#: the base, Y on X, Z on Y; table-xy: the table carries X on Y, the column Z; table-yx: the table carries Y on X,
+#: the column Z; table-y: the table carries Y, the column X and the ram Z on X (the A/C trunnion's linear axes,
+#: ``models/trunnion_ac.urdf``).
+TOPOLOGIES = {"serial": (("X", "Y", "Z"), ()), "table-xy": (("Z",), ("Y", "X")), "table-yx": (("Z",), ("X", "Y")),
+              "table-y": (("X", "Z"), ("Y",))}
+
+
 @dataclass(frozen=True)
 class MachineConfig:
     """Topology, travel, knot spacing and tool offsets of a three-axis machine.
@@ -133,6 +141,11 @@ class MachineConfig:
         if t.ndim != 2 or t.shape[1] != 3 or not len(t) or not np.all(np.isfinite(t)):
             raise ValueError(f"tool_offsets_mm must be a non-empty list of finite [x, y, z], "
                              f"got {self.tool_offsets_mm!r}")
+
+    @property
+    def topology(self) -> str:
+        """The name of the stacking (a key of :data:`TOPOLOGIES`, ``--topology``), or '' for an unnamed one."""
+        return next((k for k, v in TOPOLOGIES.items() if v == (tuple(self.tool_chain), tuple(self.work_chain))), "")
 
     @property
     def chain(self) -> Tuple[str, ...]:

@@ -35,7 +35,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict
+from typing import Dict, Union
 
 import numpy as np
 
@@ -43,7 +43,7 @@ from olti_drake.errors import InputError
 from olti_drake.model.budget import paper001_budget
 from olti_drake.model.instrument import InterferometerOptions
 from olti_drake.formats import MACHINE5_TRUTH
-from olti_drake.sim.scenario import ScenarioPaths, stream_seed
+from olti_drake.sim.scenario import Emulated, Hardware, ScenarioPaths, Simulated, _check_station, stream_seed
 
 M_TO_MM = 1e3
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
@@ -120,9 +120,12 @@ class RTestSpec:
 class FiveAxisScenarioFile(ScenarioPaths):
     """A five-axis campaign as YAML (``diagrams/machine_5axis.yaml``). Its kind is told by the top-level key
     ``machine_model`` (:func:`~olti_drake.sim.serial_scenario.scenario_kind`). ``tracking`` and ``rtest`` may both
-    be given (one campaign mixes them: the distance rows first). ``olti simulate`` simulates it; there is no emulated
-    or hardware five-axis station yet (``olti run`` refuses the kind). ``machine_model.file`` is relative to the file
-    that gives it; a ``base`` layer's machine path is not rebased (give it in the file that uses it)."""
+    be given (one campaign mixes them: the distance rows first). ``olti simulate`` simulates it; ``olti run`` takes its
+    distance campaign (no R-test nests) on ``station``: ``!Simulated`` (this diagram's), ``!Emulated`` (the five-axis
+    emulator, :mod:`olti_drake.hardware.machine5_emulator`) or ``!Hardware {robot_port: ..., head_ports: [...]}``
+    (the controller and one port per pan/tilt head, station order: the bed's, then the table's).
+    ``machine_model.file`` is relative to the file that gives it; a ``base`` layer's machine path is not rebased
+    (give it in the file that uses it)."""
 
     #: The kind of scenario this is (:func:`olti_drake.sim.serial_scenario.scenario_kind`).
     KIND = "machine5"
@@ -135,6 +138,7 @@ class FiveAxisScenarioFile(ScenarioPaths):
     budget: str = ""
     seed: int = 0
     period_s: float = 1.0
+    station: Union[Simulated, Emulated, Hardware] = field(default_factory=Simulated)
     base: str = ""
 
     def machine_path(self) -> str:
@@ -179,6 +183,7 @@ class FiveAxisScenarioFile(ScenarioPaths):
             self.interferometer.validate(f"{where}: interferometer")
         except ValueError as e:
             raise InputError(str(e)) from None
+        _check_station(f"{where}: station", self.station, heads=len(tr.bed_heads_mm) + len(tr.table_heads_mm))
         return self
 
 
@@ -456,16 +461,21 @@ def AddFiveAxisStation(builder, run, name: str = "station"):
     return builder.AddNamedSystem(name, inner.Build())
 
 
-def build_five_axis_diagram(run: FiveAxisRun):
-    """The whole campaign as a Diagram; returns (diagram, recorder, sequencer)."""
+def build_five_axis_diagram(run: FiveAxisRun, station_factory=None, recorder=None, extend=None):
+    """The whole campaign as a Diagram; returns (diagram, recorder, sequencer). ``station_factory(builder, run)``
+    adds the station (default :func:`AddFiveAxisStation`; a device station of ``olti run`` has no ``direction``,
+    ``tool``, ``nest`` inputs and no ``rtest_displacement``: those ports are left out / read NaN); ``recorder``
+    replaces the :class:`FiveAxisRecorder` (its ``status`` input, if any, gets the station's);
+    ``extend(builder, station, sequencer, steering, recorder)`` adds systems before the diagram is built."""
     from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
 
     from olti_drake.sim.systems import RowSequencer
 
     S, p, m = _systems(), run.plan, run.machine
     revolute = np.array([a not in "XYZ" for a in m.axes])
     builder = DiagramBuilder()
-    station = AddFiveAxisStation(builder, run)
+    station = (station_factory or AddFiveAxisStation)(builder, run)
     seq = builder.AddNamedSystem("machine_sequencer", RowSequencer({
         "command": np.where(revolute, np.radians(p.commands), p.commands / M_TO_MM),
         "direction": p.rotary_directions(m).astype(float), "tool": p.tool.astype(float),
@@ -474,19 +484,26 @@ def build_five_axis_diagram(run: FiveAxisRun):
     nominal = builder.AddNamedSystem("five_axis_plant", S["FiveAxisNominal"](m, run.tool_offsets_mm,
                                                                            run.catseye_axis_tool))
     steer = builder.AddNamedSystem("pan_tilt_steering", S["FiveAxisSteering"](run.heads_est, p.station_frames))
-    rec = builder.AddNamedSystem("machine_recorder", S["FiveAxisRecorder"](run.scenario.period_s))
+    rec = builder.AddNamedSystem("machine_recorder", recorder or S["FiveAxisRecorder"](run.scenario.period_s))
     for port in ("command", "tool"):
         builder.Connect(seq.GetOutputPort(port), nominal.GetInputPort(port))
     for port in ("command", "direction", "tool", "station", "nest"):
-        builder.Connect(seq.GetOutputPort(port), station.GetInputPort(port))
+        if station.HasInputPort(port):      # a device station: the controller keeps the directions, the aim the tool
+            builder.Connect(seq.GetOutputPort(port), station.GetInputPort(port))
     for frame in ("base", "workpiece"):
         builder.Connect(nominal.GetOutputPort(f"nominal_{frame}"), steer.GetInputPort(f"nominal_{frame}"))
     builder.Connect(seq.GetOutputPort("station"), steer.GetInputPort("station"))
     builder.Connect(steer.GetOutputPort("head_command"), station.GetInputPort("head_command"))
     for port in ("row", "kind"):
         builder.Connect(seq.GetOutputPort(port), rec.GetInputPort(port))
-    for port in ("displacement", "valid", "rtest_displacement"):
-        builder.Connect(station.GetOutputPort(port), rec.GetInputPort(port))
+    for port in ("displacement", "valid", "rtest_displacement", "status"):
+        if station.HasOutputPort(port) and rec.HasInputPort(port):
+            builder.Connect(station.GetOutputPort(port), rec.GetInputPort(port))
+    if not station.HasOutputPort("rtest_displacement"):    # no R-test device on the line protocol
+        nan = builder.AddNamedSystem("rtest_unavailable", ConstantVectorSource(np.full(3, np.nan)))
+        builder.Connect(nan.get_output_port(), rec.GetInputPort("rtest_displacement"))
+    if extend is not None:
+        extend(builder, station, seq, steer, rec)
     diagram = builder.Build()
     diagram.station, diagram.machine = station, m  # keep the plant the systems read alive
     return diagram, rec, seq
