@@ -11,7 +11,7 @@ tools = 360 targets, 5 pan/tilt heads, 001 Table 4 noise), multilaterated:
 - ours: ``LayoutCosts.u`` of a batch of layouts (four stations + each of the candidates), per layout (best of
   3); the two must agree to 1e-9;
 - the default design (``design_machine_stations``: 3 starts, <= 5 sweeps, candidates on the default step of
-  the three boxes of tests/test_machine_design.py, ~100 candidates) end to end, and the dense evaluation's time
+  the three boxes of tests/estimation/test_machine_design.py, ~100 candidates) end to end, and the dense evaluation's time
   for the same number of layouts (extrapolated: it is what the design ran before).
 
 Exits 1 when the two evaluations disagree, the ratio (dense per layout / ours per layout) is below 20, or the

@@ -13,12 +13,12 @@ every 50 mm: 147 parameters), for 600 seeded random targets × 2 tools
   must agree to 1e-6 mm per unit parameter;
 - fit: Gauss–Newton on the 3D targets of a synthetic truth (sums of sines, not
   in the basis) measured in an unknown frame (rigid 6-dof gauge), the
-  test-only solver of ``tests/test_volumetric3d.py`` (until the identifier is
+  test-only solver of ``tests/model/test_volumetric3d.py`` (until the identifier is
   wired); 600 targets × 3 tools so that all 21 motions are separable (with 2
   tools one rotation of Z about the tool line is not: docs/machine_3d.md);
 - observability of the 2-tool layout (SVD of the projected Jacobian);
 - volumetric identification: ``estimation.volumetric.identify_volumetric`` on the
-  3-tool distance campaign of ``tests/test_volumetric_cli.py`` (308 commands × 3
+  3-tool distance campaign of ``tests/cli/test_volumetric_cli.py`` (308 commands × 3
   tools × 5 stations = 4620 readings, truth outside the basis, 001 Table 4 noise):
   observability before solving, LM with Drake step programs, budget covariance
   (best of 2); baseline in the same run: ``scipy.optimize.least_squares`` (trf,

@@ -5,7 +5,7 @@
 Per seeded truth outside the model family (:func:`olti_drake.model.five_axis_truth.synthetic_truth`: harmonic error
 motions with backlash, location errors of 10-50 µm / 20-100 µrad), campaign kind (``distance``: 150 random commands
 read from 6 stations riding on the table; ``rtest``: ISO 10791-6 BK-type R-test paths around 3 balls
-(``tests/test_five_axis_coverage.bk_campaign``: A alone, C alone, A+C); ``mixed``: 40 commands
+(``tests/estimation/test_five_axis_coverage.bk_campaign``: A alone, C alone, A+C); ``mixed``: 40 commands
 from 4 table stations plus the R-test paths; readings 1 µm) and grid pitch, the errormap identification (smoothing
 'auto') is compared with the truth:
 
@@ -16,7 +16,7 @@ from 4 table stations plus the R-test paths; readings 1 µm) and grid pitch, the
 * ``tool max z`` / ``tool >3u``: |error| / u of the predicted tool points (workpiece frame, each coordinate) at 200
   unseen random commands, the result's own u (covariance and lack of fit, :func:`tool_point_u`).
 
-The campaigns are the tests' (``tests/test_five_axis_identify.py``: not planned by the tool). Units: mm, µrad.
+The campaigns are the tests' (``tests/estimation/test_five_axis_identify.py``: not planned by the tool). Units: mm, µrad.
 """
 
 import argparse

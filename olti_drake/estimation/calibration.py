@@ -124,12 +124,12 @@ AUTO_HUBER_K = 1.345
 #: ``loss='auto'``: an l2 fit whose residual RMS exceeds this multiple of its robust sigma (1.4826 MAD) has a heavy
 #: tail (Gaussian residuals: 1.0; Laplace: 1.38; clean six-axis campaigns, truths outside the model family: 1.0-1.23
 #: measured; 8 % of the readings in a 2.5-8.7 mm dead-path jump over ~0.7 mm of resolution noise and model error:
-#: 2.1-2.4, tests/test_real_data.py) -- outliers, besides the gross ones (:data:`GROSS_OUTLIER_SIGMA`).
+#: 2.1-2.4, tests/estimation/test_real_data.py) -- outliers, besides the gross ones (:data:`GROSS_OUTLIER_SIGMA`).
 HEAVY_TAIL_RATIO = 1.5
 #: The iteration cap that fits the problem's size (:class:`SizeCap`, the default of
 #: :attr:`SolverOptions.max_iterations`): max(100, this many per unknown), at most :data:`MAX_SIZE_CAP`. Measured: a
 #: six-axis ``dh`` program (31 unknowns) from the nominal start takes 3-28 LM iterations on synthetic single-anchor
-#: campaigns (tests/test_real_data.py, l2, Huber, with and without priors); issue 23 reports 126 on its real
+#: campaigns (tests/estimation/test_real_data.py, l2, Huber, with and without priors); issue 23 reports 126 on its real
 #: single-anchor draw-wire data with a weak prior (~4 per unknown), 441-1734 without (towards implausible values).
 ITERATIONS_PER_UNKNOWN = 10
 MAX_SIZE_CAP = 2000

@@ -12,7 +12,7 @@ Diagram is built exactly as ``olti simulate`` builds it, then
 The hardware station is built on transports that are never opened
 (:func:`olti_drake.hardware.station.AddHardwareStation` with no ports), so no
 serial device is needed; the emulated one starts the emulator and closes it.
-``tests/test_diagrams.py`` keeps the committed wiring files equal to the code.
+``tests/report/test_diagrams.py`` keeps the committed wiring files equal to the code.
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ machine configuration and a truth without a scenario, :func:`AddMachine3DStation
 spline truth's volumetric parameters, the head centres and the dead paths are numeric Parameters of the
 Context, and the station converts with ``ToAutoDiffXd()``: a reading's derivative with respect to them is
 the Jacobian entry of :class:`~olti_drake.estimation.volumetric.VolumetricIdentification`
-(tests/test_drake_native_serial_machine.py).
+(tests/sim/test_drake_native_serial_machine.py).
 
 Units: mm, deg, µm, µrad in files and the API; SI on the Drake ports.
 """

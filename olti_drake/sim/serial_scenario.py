@@ -70,7 +70,7 @@ class SerialRobot:
 
 
 def _tracer_stations() -> list:
-    # Four heads around the robot at 1.3 m, below the base (as tests/test_serial_plan.py).
+    # Four heads around the robot at 1.3 m, below the base (as tests/model/test_serial_plan.py).
     return [[1300.0, 0.0, -300.0], [0.0, 1300.0, -300.0], [-1300.0, 0.0, -300.0], [0.0, -1300.0, -300.0]]
 
 

@@ -22,7 +22,7 @@ a chain (the model file's plant) and a truth without a scenario, :func:`AddSimul
 scenario's setup. What the identification estimates are numeric Parameters of the Context -- the map nodes
 (``ErrorMapJoint``), the location errors and tool offset, the stations and dead paths (the interferometer)
 -- and the station converts with ``ToAutoDiffXd()``: a reading's derivative with respect to them is the
-Jacobian entry of :class:`~olti_drake.model.serial.DistanceMeasurement` (tests/test_drake_native_serial_machine.py).
+Jacobian entry of :class:`~olti_drake.model.serial.DistanceMeasurement` (tests/sim/test_drake_native_serial_machine.py).
 
 What is decided before the run (:func:`prepare_serial`, open loop: the aim uses commands and estimates
 only): the plan (``serial_plan.generate_plan`` on the ESTIMATED stations) or, robot-mounted, the IK
