@@ -9,6 +9,7 @@ import argparse
 import shlex
 import os
 import sys
+import signal
 import time
 
 import olti_drake.cli.args as cliargs
@@ -913,6 +914,24 @@ def _empty_argument(parser, args):
     return None
 
 
+def _load_drake_with_sigint_held() -> None:
+    """Import pydrake with SIGINT held: a Ctrl-C inside its C++ initialization makes pydrake print its own
+    critical log line on stderr (spdlog, before Python sees the interrupt); held, the Ctrl-C arrives right after
+    the import as the KeyboardInterrupt that main turns into its one line. Only where signals can be held (the
+    main thread, POSIX) and pydrake is not loaded yet."""
+    import importlib
+    import threading
+
+    if ("pydrake" in sys.modules or not hasattr(signal, "pthread_sigmask")
+            or threading.current_thread() is not threading.main_thread()):
+        return
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        importlib.import_module("pydrake")
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_signed_values(sys.argv[1:] if argv is None else argv))
@@ -921,6 +940,7 @@ def main(argv=None) -> int:
         print(f"error: {empty}", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
+        _load_drake_with_sigint_held()
         code = args.func(args)
         sys.stdout.flush()               # a reader that went away is found here, not at exit
         return code

@@ -6,8 +6,6 @@ SIGKILL at seeded random moments and resumed has every planned reading exactly o
 logger LeafSystem) runs on every station; ``olti multilaterate`` and ``olti identify --model volumetric``
 read the run's campaign."""
 
-import contextlib
-import io
 import json
 import os
 import subprocess
@@ -19,13 +17,18 @@ import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
-from olti_drake.io.csvio import read_table
+from run_files import olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_3d.yaml")
 TOOLS = "0,0,100;80,0,100;0,80,140"
 COLUMNS = ("station", "target", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "tool", "displacement_mm", "valid")
 LOG = COLUMNS + ("plan_row", "step", "session", "reads", "rezeros")
+
+
+def _log(out):
+    return run_table(out, LOG)
+
 
 
 def _scenario(tmp_path, station="!Emulated {}", noise=False, grid="[3, 2, 2]", tools="[0, 2]", name="m3.yaml"):
@@ -39,23 +42,7 @@ def _scenario(tmp_path, station="!Emulated {}", noise=False, grid="[3, 2, 2]", t
     return str(path)
 
 
-def _table(out):
-    return read_table(os.path.join(out, "campaign.csv"), LOG)
 
-
-def _events(out):
-    with open(os.path.join(out, "events.jsonl"), encoding="utf-8") as f:
-        return [json.loads(line) for line in f]
-
-
-def _olti(*argv):
-    """The olti command in this process (its exit code, stdout, stderr)."""
-    from olti_drake.cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -157,10 +144,10 @@ def test_emulated_campaign_equals_the_simulated_diagram(tmp_path, reference):
     simulated station writes the diagram's readings; each head is zeroed once, at its run's first pose."""
     from olti_drake.hardware.runner import run
 
-    emu = _table(reference.out_dir)
+    emu = _log(reference.out_dir)
     sim_run = run(_scenario(tmp_path, "!Simulated {}"), str(tmp_path / "sim"), fsync=False)
     assert sim_run.complete and sim_run.planned == 120
-    sim, twin = _table(str(tmp_path / "sim")), _simulated_columns(_scenario(tmp_path, "!Simulated {}"))
+    sim, twin = _log(str(tmp_path / "sim")), _simulated_columns(_scenario(tmp_path, "!Simulated {}"))
     for k in ("station", "target", "tool", "valid", "step", "plan_row"):
         np.testing.assert_array_equal(emu[k], sim[k], err_msg=k)
     for k in COLUMNS:
@@ -169,7 +156,7 @@ def test_emulated_campaign_equals_the_simulated_diagram(tmp_path, reference):
     assert np.all(emu["valid"] == 1) and np.all(emu["reads"] == 1) and np.all(emu["rezeros"] == 0)
     np.testing.assert_array_equal(emu["step"], np.arange(120))
     np.testing.assert_array_equal(emu["step"], emu["station"] * 24 + emu["target"])
-    zeros = [e for e in _events(reference.out_dir) if e["kind"] == "zero"]
+    zeros = [e for e in run_events(reference.out_dir) if e["kind"] == "zero"]
     assert [e["reflector"] for e in zeros] == [0, 1, 2, 3, 4] and not any(e["again"] for e in zeros)
     assert all(len(e["command"]) == 3 and len(e["aim"]) == 2 for e in zeros)
     for out in (reference.out_dir, str(tmp_path / "sim")):
@@ -188,7 +175,7 @@ def test_noisy_emulated_readings_differ_from_the_simulated_by_the_budget_only(tm
     path = _scenario(tmp_path, noise=True)
     result = run(path, str(tmp_path / "emu"), fsync=False)
     assert result.complete and result.invalid == 0
-    emu, sim = _table(str(tmp_path / "emu")), _simulated_columns(path)
+    emu, sim = _log(str(tmp_path / "emu")), _simulated_columns(path)
     budget = load_machine3d_scenario(path).load_budget()
     sigma = np.hypot(budget.combined("reading"), budget.combined("pose")) * np.sqrt(2.0)
     d = emu["displacement_mm"] - sim["displacement_mm"]
@@ -225,7 +212,7 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
         assert 10 <= whole_lines() < 120
     result = run(scenario, out, resume=True, fsync=False)
     assert result.complete and result.session == 2 and result.on_disk == result.planned == 120
-    t, ref = _table(out), _table(reference.out_dir)
+    t, ref = _log(out), _log(reference.out_dir)
     order = np.argsort(t["step"])
     np.testing.assert_array_equal(t["step"][order], np.arange(120))    # every step once
     assert set(t["session"]) == {0, 1, 2}
@@ -234,7 +221,7 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
     for k in ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm"):
         np.testing.assert_allclose(t[k][order], ref[k], rtol=0, atol=1e-9, err_msg=k)
     np.testing.assert_allclose(t["displacement_mm"][order], ref["displacement_mm"], rtol=0, atol=1e-9)
-    events = _events(out)
+    events = run_events(out)
     for s in (1, 2):
         assert any(e["kind"] == "reapproach" and e["session"] == s for e in events)
         again = [e for e in events if e["kind"] == "zero" and e["session"] == s and e["again"]]
@@ -244,7 +231,7 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
     assert manifest["complete"] and manifest["readings_planned"] == 120 and len(manifest["sessions"]) == 3
     assert os.path.exists(os.path.join(out, "truth.json"))
     again = run(scenario, out, resume=True, fsync=False)   # nothing left: nothing taken, nothing written twice
-    assert again.taken == 0 and _table(out)["step"].size == 120
+    assert again.taken == 0 and _log(out)["step"].size == 120
 
 
 def test_beam_losses_and_line_faults_are_reread_and_rezeroed_with_the_head_aimed_as_at_its_zero(tmp_path,
@@ -255,11 +242,11 @@ def test_beam_losses_and_line_faults_are_reread_and_rezeroed_with_the_head_aimed
 
     out = str(tmp_path / "run")
     result = run(_scenario(tmp_path, "!Emulated {beam_loss: 0.3, nak_crc: 0.05}"), out, fsync=False)
-    t, ref = _table(out), _table(reference.out_dir)
+    t, ref = _log(out), _log(reference.out_dir)
     assert result.complete and np.array_equal(t["step"], ref["step"]) and np.all(t["valid"] == 1)
     np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
     assert np.any(t["reads"] > 1) and np.any(t["rezeros"] > 0)
-    events = _events(out)
+    events = run_events(out)
     first = {e["reflector"]: e for e in events if e["kind"] == "zero" and not e["again"]}
     again = [e for e in events if e["kind"] == "zero" and e["again"]]
     assert again and all(e["aim"] == first[e["reflector"]]["aim"] for e in again)
@@ -280,7 +267,7 @@ def test_simulated_campaign_stopped_and_resumed_equals_the_uninterrupted_one(tmp
         assert r.stopped == "test" and r.on_disk == stop_at
     r = run(path, out, resume=True, fsync=False)
     assert whole.complete and r.complete and r.start_step == 64
-    a, b = _table(out), _table(str(tmp_path / "whole"))
+    a, b = _log(out), _log(str(tmp_path / "whole"))
     np.testing.assert_array_equal(a["step"], b["step"])
     np.testing.assert_allclose(a["displacement_mm"], b["displacement_mm"], rtol=0, atol=1e-12)
     assert json.load(open(os.path.join(out, "truth.json"))) == json.load(open(os.path.join(tmp_path, "whole",
@@ -305,7 +292,7 @@ def test_hardware_station_on_the_machine_port_and_one_port_per_head(tmp_path, re
     finally:
         emu.stop()
     assert result.complete and result.on_disk == 120
-    t, ref = _table(out), _table(reference.out_dir)
+    t, ref = _log(out), _log(reference.out_dir)
     np.testing.assert_array_equal(t["step"], ref["step"])
     np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
     assert not os.path.exists(os.path.join(out, "truth.json"))
@@ -349,7 +336,7 @@ def test_an_extend_hook_runs_on_every_3d_station(tmp_path, station):
     assert result.complete and len(seen) == 1
     assert result.diagram.GetSubsystemByName("reading_logger").get_name() == seen[0].get_name()
     rows = np.array(seen[0].rows)
-    t = _table(str(tmp_path / "run"))
+    t = _log(str(tmp_path / "run"))
     assert len(rows) == 120
     np.testing.assert_array_equal(rows[:, 1], t["valid"])
     np.testing.assert_allclose(rows[:, 0] * 1e3, t["displacement_mm"], rtol=0, atol=1e-9)
@@ -369,13 +356,13 @@ def test_the_run_campaign_is_multilaterated_and_identified(tmp_path):
     assert result.complete and result.planned == 960
     c = load_machine_campaign(out / "campaign.csv")
     assert c.n_targets == 192 and len(c.station) == 960 - result.invalid
-    code, text, err = _olti("multilaterate", out / "campaign.csv", "--out", out / "ml.json")
+    code, text, err = olti_here("multilaterate", out / "campaign.csv", "--out", out / "ml.json")
     assert code == 0, err
     truth = json.load(open(out / "truth.json"))
     ml = json.load(open(out / "ml.json"))
     tools = np.array([[float(v) for v in t.split(",")] for t in TOOLS.split(";")])
     assert np.max(np.abs(np.array(ml["stations_mm"]) - (np.array(truth["stations_mm"]) - tools[0]))) < 0.05
-    code, text, err = _olti("identify", out / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm", TOOLS,
+    code, text, err = olti_here("identify", out / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm", TOOLS,
                             "--out", out / "vol.json")
     assert code == 0, err
     vol = json.load(open(out / "vol.json"))
@@ -394,16 +381,16 @@ def test_bad_station_and_options_are_one_line_and_write_nothing(tmp_path):
             ("!Emulated {}", ["--meshcat"], "--meshcat"),
             ("!Simulated {}", ["--resume"], "no campaign to resume")):
         out = tmp_path / "x"
-        code, _, err = _olti("run", _scenario(tmp_path, station), "--out", out, *extra)
+        code, _, err = olti_here("run", _scenario(tmp_path, station), "--out", out, *extra)
         assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (station, err)
         assert match in err and "Traceback" not in err, (station, err)
         assert not (out / "campaign.csv").exists()
     # a finished campaign is never written again: resume only
-    code, _, _ = _olti("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok", "--no-fsync")
+    code, _, _ = olti_here("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok", "--no-fsync")
     assert code == 0
     before = (tmp_path / "ok" / "campaign.csv").read_bytes()
-    code, _, err = _olti("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok")
+    code, _, err = olti_here("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok")
     assert code == 2 and "--resume" in err and (tmp_path / "ok" / "campaign.csv").read_bytes() == before
-    code, _, err = _olti("run", _scenario(tmp_path, "!Simulated {}", grid="[3, 3, 2]"), "--out", tmp_path / "ok",
+    code, _, err = olti_here("run", _scenario(tmp_path, "!Simulated {}", grid="[3, 3, 2]"), "--out", tmp_path / "ok",
                          "--resume")
     assert code == 2 and "command sequence differs" in err and (tmp_path / "ok" / "campaign.csv").read_bytes() == before

@@ -19,7 +19,7 @@ import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
-from olti_drake.io.csvio import read_table
+from run_files import olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_5axis.yaml")
@@ -29,6 +29,11 @@ COLUMNS = ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "a_cmd_deg", "c_cmd_deg", "dir_x"
            "tool", "station", "displacement_mm", "valid")
 LOG = COLUMNS + ("plan_row", "step", "session", "reads", "rezeros")
 N = 120   # 12 poses x 2 tools x 5 heads
+
+
+def _log(out):
+    return run_table(out, LOG)
+
 
 
 def _scenario(tmp_path, station="!Emulated {}", name="m5.yaml", extra="", noise=False):
@@ -42,23 +47,7 @@ def _scenario(tmp_path, station="!Emulated {}", name="m5.yaml", extra="", noise=
     return str(path)
 
 
-def _table(out):
-    return read_table(os.path.join(out, "campaign.csv"), LOG)
 
-
-def _events(out):
-    with open(os.path.join(out, "events.jsonl"), encoding="utf-8") as f:
-        return [json.loads(line) for line in f]
-
-
-def _olti(*argv):
-    """The olti command in this process (its exit code, stdout, stderr)."""
-    from olti_drake.cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -132,14 +121,14 @@ def test_emulated_run_equals_the_simulated_campaign(reference):
     within 3e-6 mm: the wire's 6 decimals of the rotary commands; one zero per head, at its first valid row (the
     policy's re-zeroings after a lost beam return there)."""
     result, (sim, truth), _ = reference
-    t = _table(result.out_dir)
+    t = _log(result.out_dir)
     np.testing.assert_array_equal(t["step"], np.arange(N))
     for k in COLUMNS[:10]:
         np.testing.assert_allclose(t[k], sim[k], rtol=0, atol=1e-9, err_msg=k)
     for k in ("tool", "station", "valid"):
         np.testing.assert_array_equal(t[k], sim[k], err_msg=k)
     assert 0 < np.sum(sim["valid"] == 0) < 10       # the campaign has lost beams (a table head's first row too)
-    events = [e for e in _events(result.out_dir) if e["kind"] == "zero"]
+    events = [e for e in run_events(result.out_dir) if e["kind"] == "zero"]
     zeros = {e["reflector"]: e for e in events if not e["again"]}
     assert sorted(zeros) == [0, 1, 2, 3, 4] and len(zeros) == sum(not e["again"] for e in events)
     lost = set(sim["station"][sim["valid"] == 0].astype(int).tolist())
@@ -183,14 +172,14 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
         assert 10 <= whole_lines() < N
     result = run(scenario, out, resume=True, fsync=False)
     assert result.complete and result.session == 2 and result.on_disk == result.planned == N
-    t, ref = _table(out), _table(reference[0].out_dir)
+    t, ref = _log(out), _log(reference[0].out_dir)
     order = np.argsort(t["step"])
     np.testing.assert_array_equal(t["step"][order], np.arange(N))    # every step once
     assert set(t["session"]) == {0, 1, 2}
     for k in ("tool", "station", "valid", "plan_row", "dir_a", "dir_c"):
         np.testing.assert_array_equal(t[k][order], ref[k], err_msg=k)
     np.testing.assert_allclose(t["displacement_mm"][order], ref["displacement_mm"], rtol=0, atol=1e-9)
-    events = _events(out)
+    events = run_events(out)
     for s in (1, 2):
         assert any(e["kind"] == "reapproach" and e["session"] == s for e in events)
         again = [e for e in events if e["kind"] == "zero" and e["session"] == s and e["again"]]
@@ -210,7 +199,7 @@ def test_noisy_emulated_readings_differ_from_the_simulated_by_the_budget_only(tm
     result = run(path, str(tmp_path / "emu"), fsync=False)
     doc = load_five_axis_scenario(path)
     sim = simulate_five_axis_campaign(doc)[0]
-    t = _table(str(tmp_path / "emu"))
+    t = _log(str(tmp_path / "emu"))
     assert result.complete
     budget = doc.load_budget()
     sigma = np.hypot(budget.combined("reading"), budget.combined("pose")) * np.sqrt(2.0)
@@ -240,7 +229,7 @@ def test_simulated_campaign_stopped_and_resumed_equals_the_uninterrupted_one(tmp
         assert r.stopped == "test" and r.on_disk == stop_at
     r = run(path, out, resume=True, fsync=False)
     assert whole.complete and r.complete and r.start_step == 64
-    a, b = _table(out), _table(str(tmp_path / "whole"))
+    a, b = _log(out), _log(str(tmp_path / "whole"))
     np.testing.assert_array_equal(a["step"], b["step"])
     np.testing.assert_allclose(a["displacement_mm"], b["displacement_mm"], rtol=0, atol=1e-12)
     sim = simulate_five_axis_campaign(load_five_axis_scenario(path))[0]
@@ -267,7 +256,7 @@ def test_hardware_scenario_against_an_emulator_started_on_its_own(tmp_path, refe
         emu.send_signal(signal.SIGTERM)
         emu.wait(20)
     assert emu.returncode == 0 and result.complete and result.on_disk == N
-    t, ref = _table(out), _table(reference[0].out_dir)
+    t, ref = _log(out), _log(reference[0].out_dir)
     np.testing.assert_array_equal(t["valid"], ref["valid"])
     np.testing.assert_allclose(t["displacement_mm"], ref["displacement_mm"], rtol=0, atol=1e-9)
     assert not os.path.exists(os.path.join(out, "truth.json"))
@@ -286,7 +275,7 @@ def test_the_run_campaign_identifies_as_the_simulated_one(tmp_path, reference):
     docs = []
     for csv in (os.path.join(result.out_dir, "campaign.csv"), tmp_path / "sim.csv"):
         out = tmp_path / f"r{len(docs)}.json"
-        code, _, err = _olti("identify", csv, "--machine", TRUNNION, "--model", "geometric", "--tool-offsets-mm",
+        code, _, err = olti_here("identify", csv, "--machine", TRUNNION, "--model", "geometric", "--tool-offsets-mm",
                              TOOLS, "--out", out)
         assert code == 0, err
         docs.append(json.load(open(out)))
@@ -332,7 +321,7 @@ def test_bad_stations_and_scenarios_are_one_line_and_write_nothing(tmp_path):
         for path, match in paths:
             out = tmp_path / "x"
             flags = ["--resume"] if "resume" in match else ["--meshcat"] if "meshcat" in match else []
-            code, _, err = _olti("run", path, "--out", out, *flags)
+            code, _, err = olti_here("run", path, "--out", out, *flags)
             assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (path, err)
             assert match in err and "Traceback" not in err, (path, err)
             assert not (out / "campaign.csv").exists()
@@ -343,8 +332,8 @@ def test_bad_stations_and_scenarios_are_one_line_and_write_nothing(tmp_path):
         assert emulator([_scenario(tmp_path), "--reflector", "1"]) == 2
     assert err.getvalue().startswith("error: ") and err.getvalue().count("\n") == 1
     assert "a five-axis scenario: --tool-frame and --reflector do not apply" in err.getvalue()
-    code, _, err = _olti("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok", "--no-fsync")
+    code, _, err = olti_here("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok", "--no-fsync")
     assert code == 0, err
-    code, _, err = _olti("run", _scenario(tmp_path, "!Simulated {}", extra="seed: 4\n"), "--out", tmp_path / "ok",
+    code, _, err = olti_here("run", _scenario(tmp_path, "!Simulated {}", extra="seed: 4\n"), "--out", tmp_path / "ok",
                          "--resume")
     assert code == 2 and "command sequence differs" in err
