@@ -463,12 +463,10 @@ class Machine5Result:
         """The model error (mm, k = 1) every predicted tool point shares, added in quadrature to the u the
         covariance gives: ``covariance.lack_of_fit_mm`` (0 when absent; the maps' representation between their
         nodes, :meth:`~olti_drake.estimation.five_axis.FiveAxisIdentification.representation`), read and checked
-        as a serial result's (:attr:`olti_drake.io.serial_io.SerialResult.lack_of_fit_mm`)."""
-        from types import SimpleNamespace
+        as a serial result's (:func:`olti_drake.io.serial_io.lack_of_fit_of`)."""
+        from olti_drake.io.serial_io import lack_of_fit_of
 
-        from olti_drake.io.serial_io import SerialResult
-
-        return SerialResult.lack_of_fit_mm.fget(SimpleNamespace(data=self.document))
+        return lack_of_fit_of(self.document)
 
 
 def load_machine5_result(path) -> Machine5Result:

@@ -505,6 +505,16 @@ def serial_truth_dict(truth, robot_file: str, *, grid_step_deg: float = 0.25, ra
     return out
 
 
+def lack_of_fit_of(document: dict) -> float:
+    """A result document's ``covariance.lack_of_fit_mm`` (mm, k = 1; 0 when absent), checked: a number >= 0,
+    else one line naming the key (every result kind that states one: serial robots, five-axis machines)."""
+    entry = document.get("covariance")
+    value = entry.get("lack_of_fit_mm", 0.0) if isinstance(entry, dict) else 0.0
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+        raise InputError(f"key 'covariance.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
+    return float(value)
+
+
 @dataclass(frozen=True, eq=False)
 class SerialResult:
     """A serial robot's result rebuilt: ``model`` (SerialPositionModel, its start vector = the
@@ -544,11 +554,7 @@ class SerialResult:
     def lack_of_fit_mm(self) -> float:
         """The fit's model error (mm, k = 1; ``covariance.lack_of_fit_mm``, 0 when absent) that every prediction
         shares, added in quadrature to the u the covariance gives (:meth:`LeastSquaresProgram.lack_of_fit`)."""
-        entry = self.data.get("covariance")
-        value = entry.get("lack_of_fit_mm", 0.0) if isinstance(entry, dict) else 0.0
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-            raise InputError(f"key 'covariance.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
-        return float(value)
+        return lack_of_fit_of(self.data)
 
     @property
     def covariance_note(self) -> str:
