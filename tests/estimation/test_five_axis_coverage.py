@@ -28,8 +28,9 @@ from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_errors import COMPONENTS, representation_bound
 from olti_drake.model.five_axis_plan import bk_paths, combine
 from olti_drake.model.five_axis_truth import synthetic_truth
-from tests.estimation.test_five_axis_identify import (NOISE_MM, SIX_TABLE_STATIONS, TRUNNION, command_columns, distance_campaign,
-                                           no_dropped_truth, random_commands)
+from tests.estimation.test_five_axis_identify import (NOISE_MM, SIX_TABLE_STATIONS, TRUNNION, command_columns,
+                                                      distance_campaign, no_dropped_truth, random_commands,
+                                                      rtest_campaign)
 
 #: The balls of the R-test campaign (workpiece frame, mm).
 BALLS = ((100.0, 0.0, 150.0), (-80.0, 80.0, 200.0), (0.0, -60.0, 220.0))
@@ -62,6 +63,8 @@ def bk_campaign(machine, truth, seed, balls=BALLS, steps=24):
 def campaign_columns(machine, truth, kind, seed):
     if kind == "distance":
         return distance_campaign(machine, truth, 150, seed, SIX_TABLE_STATIONS, "workpiece")
+    if kind == "k4":  # ISO 10791-6 K4-like paths: A swept down and back while C turns once, 4 nests
+        return rtest_campaign(machine, truth, seed)
     return bk_campaign(machine, truth, seed)
 
 
@@ -142,3 +145,14 @@ def test_unseen_tool_points_within_their_u(machine, case):
     p, u = tool_point_u(ident, fit, c, d)
     z = np.abs(p - truth.truth_positions(c, d)) / u
     assert np.mean(z > 3.0) <= 0.03 and np.median(z) >= 0.2, (np.mean(z > 3.0), np.median(z))
+
+
+def test_k4_paths_converge_and_cover_the_truth(machine, tmp_path):
+    """ISO 10791-6 K4-like R-test paths on the 30° grid: LM crawled there until its cap (refused as not
+    converged) before steps repeated in one direction were lengthened (calibration._extrapolate); now the fit
+    converges and the location errors and error motions are within their u (the u of these location errors is
+    larger than their errors, median z 0.14: stated in docs/five_axis.md, not asserted here)."""
+    ident, fit, truth = identified(machine, "k4", 2, tmp_path)
+    cov = coverage(ident, fit, truth)
+    assert len(cov["location"]) >= 6 and max(cov["location"].values()) < 3.0, cov["location"]
+    assert cov["map_beyond"].size >= 100 and np.mean(cov["map_beyond"]) <= 0.01
