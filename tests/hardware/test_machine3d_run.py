@@ -10,14 +10,13 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
-from run_files import olti_here, run_events, run_table
+from run_files import kill_twice, olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_3d.yaml")
@@ -193,23 +192,7 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
 
     rng = np.random.default_rng(22)
     scenario, out = _scenario(tmp_path), str(tmp_path / "run")
-    csv = os.path.join(out, "campaign.csv")
-
-    def whole_lines():              # readings on disk: complete lines after the 2 comments and the header
-        return open(csv, "rb").read().count(b"\n") - 3 if os.path.exists(csv) else 0
-
-    for extra in ([], ["--resume"]):
-        wanted = whole_lines() + int(rng.integers(10, 40))
-        proc = subprocess.Popen([sys.executable, "-m", "olti_drake.cli", "run", scenario, "--out", out, *extra],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None and whole_lines() < wanted:
-            time.sleep(0.002)
-        time.sleep(float(rng.uniform(0.0, 0.02)))      # anywhere in the next reading: a line may be cut short
-        proc.kill()                                    # SIGKILL: no clean-up of any kind
-        proc.wait(10)
-        assert proc.returncode == -9, "the run ended before it was killed"
-        assert 10 <= whole_lines() < 120
+    kill_twice(scenario, out, rng, 120, cut_s=0.02, cwd=ROOT)
     result = run(scenario, out, resume=True, fsync=False)
     assert result.complete and result.session == 2 and result.on_disk == result.planned == 120
     t, ref = _log(out), _log(reference.out_dir)

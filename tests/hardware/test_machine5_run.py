@@ -12,14 +12,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
-from run_files import olti_here, run_events, run_table
+from run_files import kill_twice, olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_5axis.yaml")
@@ -153,23 +152,7 @@ def test_killed_twice_at_random_moments_and_resumed_has_every_reading_once(tmp_p
 
     rng = np.random.default_rng(25)
     scenario, out = _scenario(tmp_path), str(tmp_path / "run")
-    csv = os.path.join(out, "campaign.csv")
-
-    def whole_lines():              # readings on disk: complete lines after the 2 comments and the header
-        return open(csv, "rb").read().count(b"\n") - 3 if os.path.exists(csv) else 0
-
-    for extra in ([], ["--resume"]):
-        wanted = whole_lines() + int(rng.integers(10, 40))
-        proc = subprocess.Popen([sys.executable, "-m", "olti_drake.cli", "run", scenario, "--out", out, *extra],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None and whole_lines() < wanted:
-            time.sleep(0.002)
-        time.sleep(float(rng.uniform(0.0, 0.01)))      # anywhere in the next reading
-        proc.kill()                                    # SIGKILL: no clean-up of any kind
-        proc.wait(10)
-        assert proc.returncode == -9, "the run ended before it was killed"
-        assert 10 <= whole_lines() < N
+    kill_twice(scenario, out, rng, N, cut_s=0.01, cwd=ROOT)
     result = run(scenario, out, resume=True, fsync=False)
     assert result.complete and result.session == 2 and result.on_disk == result.planned == N
     t, ref = _log(out), _log(reference[0].out_dir)
