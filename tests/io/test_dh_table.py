@@ -11,32 +11,16 @@ import pytest
 from olti_drake.cli.verbs import main
 from olti_drake.io.dh_table import dh_positions, read_dh_table
 from olti_drake.io.resources import PACKAGE_DIR
-from olti_drake.io.serial_io import load_serial_result, write_serial_campaign
+from olti_drake.io.serial_io import load_serial_result
 from olti_drake.io.ur_kinematics import _ranges
 from olti_drake.model.chain import load_serial_chain
-from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from ur5_results import UR5, identified_ur5
 
-UR5 = os.path.join(PACKAGE_DIR, "models", "ur5.urdf")
 
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    d = tmp_path_factory.mktemp("dh")
-    chain = load_serial_chain(UR5, "tool0")
-    truth = synthetic_truth(chain, seed=5, tool_offset_mm=(40.0, -25.0, 60.0))
-    camp = synthetic_campaign(truth, 200, seed=5, noise_mm=0.002)
-    write_serial_campaign(d / "points.csv", camp.commands, camp.dirs, points_mm=camp.points_mm)
-    poses = synthetic_campaign(truth, 3, seed=9)
-    cols = np.column_stack([truth.positions(poses.commands, poses.dirs), poses.commands, poses.dirs])
-    header = "x_mm,y_mm,z_mm," + ",".join(f"theta{i}_deg" for i in range(1, 7)) + "," + \
-        ",".join(f"dir{i}" for i in range(1, 7))
-    np.savetxt(d / "targets.csv", cols, delimiter=",", header=header, comments="", fmt="%.9g")
-    for model in ("dh", "errormap"):
-        assert main(["identify", str(d / "points.csv"), "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm",
-                     "40,-25,60", "--model", model, "--out", str(d / f"{model}.json")]) == 0
-        assert main(["compensate", str(d / f"{model}.json"), str(d / "targets.csv"), "--out", str(d / f"{model}.csv"),
-                     "--dh-out", str(d / f"{model}_dh.csv")]) == 0
-    return d
+    return identified_ur5(tmp_path_factory.mktemp("dh"), 5, 200, 9, 3, "--dh-out", "_dh.csv")
 
 
 def _poses(res, n=10_000, seed=1):

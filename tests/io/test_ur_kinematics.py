@@ -9,36 +9,16 @@ import os
 import numpy as np
 import pytest
 
-from olti_drake.cli.verbs import main
-from olti_drake.io.resources import PACKAGE_DIR
-from olti_drake.io.serial_io import load_serial_result, write_serial_campaign
+from olti_drake.io.serial_io import load_serial_result
 from olti_drake.io.ur_kinematics import UR_SEGMENTS, tool_points, urdf_with_origins
 from olti_drake.model.chain import load_serial_chain
-from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from ur5_results import UR5, identified_ur5
 
-UR5 = os.path.join(PACKAGE_DIR, "models", "ur5.urdf")
 
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    d = tmp_path_factory.mktemp("urk")
-    chain = load_serial_chain(UR5, "tool0")
-    truth = synthetic_truth(chain, seed=4, tool_offset_mm=(40.0, -25.0, 60.0))
-    camp = synthetic_campaign(truth, 250, seed=4, noise_mm=0.002)
-    write_serial_campaign(d / "points.csv", camp.commands, camp.dirs, points_mm=camp.points_mm)
-    poses = synthetic_campaign(truth, 5, seed=8)
-    cols = np.column_stack([truth.positions(poses.commands, poses.dirs), poses.commands, poses.dirs])
-    header = "x_mm,y_mm,z_mm," + ",".join(f"theta{i}_deg" for i in range(1, 7)) + "," + \
-        ",".join(f"dir{i}" for i in range(1, 7))
-    np.savetxt(d / "targets.csv", cols, delimiter=",", header=header, comments="", fmt="%.9g")
-    out = {}
-    for model in ("dh", "errormap"):
-        assert main(["identify", str(d / "points.csv"), "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm",
-                     "40,-25,60", "--model", model, "--out", str(d / f"{model}.json")]) == 0
-        assert main(["compensate", str(d / f"{model}.json"), str(d / "targets.csv"), "--out", str(d / f"{model}.csv"),
-                     "--ur-kinematics-out", str(d / f"{model}_kinematics.yaml")]) == 0
-        out[model] = d
-    return d
+    return identified_ur5(tmp_path_factory.mktemp("urk"), 4, 250, 8, 5, "--ur-kinematics-out", "_kinematics.yaml")
 
 
 def _read_back(path):
