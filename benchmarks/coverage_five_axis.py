@@ -37,10 +37,10 @@ from olti_drake.io.five_axis_io import read_five_axis_campaign, write_five_axis_
 from olti_drake.model.five_axis import FiveAxisMachine  # noqa: E402
 from olti_drake.model.five_axis_errors import representation_bound  # noqa: E402
 from olti_drake.model.five_axis_truth import synthetic_truth  # noqa: E402
-from tests.test_five_axis_identify import (SIX_TABLE_STATIONS, TABLE_STATIONS, TRUNNION,  # noqa: E402
+from tests.estimation.test_five_axis_identify import (SIX_TABLE_STATIONS, TABLE_STATIONS, TRUNNION,  # noqa: E402
                                            distance_campaign, no_dropped_truth, random_commands, rtest_campaign)
-from tests.test_five_axis_coverage import bk_campaign  # noqa: E402
-from tests.test_five_axis_uncertainty import mixed  # noqa: E402
+from tests.estimation.test_five_axis_coverage import bk_campaign  # noqa: E402
+from tests.estimation.test_five_axis_uncertainty import mixed  # noqa: E402
 
 
 def columns(machine, truth, kind: str, seed: int) -> dict:

@@ -1,8 +1,7 @@
 """What the hardware-run tests read back from a run directory (``olti run --out DIR``) and how they call the
-``olti`` command in-process: one copy for every station kind's run tests."""
+``olti`` command in-process (:func:`olti_here`, the suite's one in-process call, :func:`olti_calls.olti_in`): one
+copy for every station kind's run tests."""
 
-import contextlib
-import io
 import json
 import os
 import subprocess
@@ -10,6 +9,9 @@ import sys
 import time
 
 from olti_drake.io.csvio import read_table
+from olti_calls import olti_in
+
+olti_here = olti_in   # (exit code, stdout, stderr) of olti ARGV in this process
 
 
 def run_table(out, columns):
@@ -21,16 +23,6 @@ def run_events(out) -> list:
     """The run's ``events.jsonl``, one dict per event."""
     with open(os.path.join(out, "events.jsonl"), encoding="utf-8") as f:
         return [json.loads(line) for line in f]
-
-
-def olti_here(*argv):
-    """The olti command in this process: (exit code, stdout, stderr)."""
-    from olti_drake.cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 def readings_on_disk(out) -> int:

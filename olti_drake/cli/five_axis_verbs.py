@@ -97,11 +97,35 @@ def read_targets(path, machine):
             t["_line"])
 
 
+#: What ``--tables DIR`` alone writes on a five-axis result: the error-map tables of every kind's ``--tables``,
+#: here every identified value by ISO name, each error-motion node with its grid angle (``--cnc csv``; mm, µrad).
+TABLES_FORMAT = "csv"
+
+
+def export_files(args, machine):
+    """(format, the files it writes in ``--tables DIR``, their directories) of ``olti compensate`` on a five-axis
+    result: ``--cnc FORMAT`` (:data:`CNC_FORMATS`), or :data:`TABLES_FORMAT` with ``--tables`` alone; (None, [],
+    []) without ``--tables``. The names are the exporter's own (:func:`olti_drake.io.cnc.cnc_file_names`), so
+    that each is checked before any work."""
+    import os
+
+    from olti_drake.io.cnc import cnc_file_names
+
+    if not args.tables:
+        return None, [], []
+    fmt = CNC_FORMATS.get(args.cnc, args.cnc) if args.cnc else TABLES_FORMAT
+    files = [os.path.join(args.tables, *name.split("/")) for name in cnc_file_names(fmt, machine)]
+    return fmt, files, list(dict.fromkeys([args.tables] + [os.path.dirname(f) for f in files]))
+
+
 def compensate(args) -> int:
-    """``olti compensate R.json TARGETS.csv --out COMMANDS.csv [--cnc FORMAT --tables DIR]`` on a five-axis result:
-    the X, Y, Z and rotary commands that put the tool point on every target with its tool direction by the
-    identified model (:func:`olti_drake.model.five_axis_compensation.compensate`); ``--cnc``: the controller's
-    files of the identified model (:func:`olti_drake.io.cnc.export`) with what they cannot hold and their residual."""
+    """``olti compensate R.json TARGETS.csv --out COMMANDS.csv [--tables DIR [--cnc FORMAT]]`` on a five-axis
+    result: the X, Y, Z and rotary commands that put the tool point on every target with its tool direction by
+    the identified model (:func:`olti_drake.model.five_axis_compensation.compensate`); ``--tables DIR``: the
+    identified model's files (:func:`olti_drake.io.cnc.export`) with what they cannot hold and their residual,
+    in the format ``--cnc`` names (the controller's) or, alone, the error-map tables ``identified.csv``
+    (:data:`TABLES_FORMAT`). Every output, each of those files by name, is checked before any work: an existing
+    one is replaced only with ``--force``."""
     from olti_drake.cli.volumetric_verbs import _preflight
     from olti_drake.io.five_axis_io import load_machine5_result
     from olti_drake.model.five_axis_compensation import compensate as invert
@@ -109,16 +133,15 @@ def compensate(args) -> int:
     if args.outside == "clamp":
         raise ValueError("--outside clamp: a five-axis compensation refuses targets outside the travel (the error "
                          "motions are identified within it)")
-    if args.tables and not args.cnc:
-        raise ValueError("--tables DIR on a five-axis result goes with --cnc siemens|fanuc|heidenhain|linuxcnc|csv "
-                         "(the controller whose files it receives)")
     if args.cnc and not args.tables:
         raise ValueError(f"--cnc {args.cnc} needs --tables DIR (the directory its files are written to)")
-    _preflight(args, [args.out], [args.result, args.targets], dirs=[args.tables] if args.tables else [])
-    res = load_machine5_result(args.result)
+    res = load_machine5_result(args.result)  # (first: the files a format writes depend on the machine's axes)
     m = res.machine
+    fmt, files, out_dirs = export_files(args, m)
+    _preflight(args, [args.out] + files, [args.result, args.targets], dirs=out_dirs)
     pts, dirs, rot, approach, tool, lines = read_targets(args.targets, m)
     comp = invert(res.position_model, res.x, m, pts, dirs, rot, tool, approach, lines, str(args.targets))
+    report = _export(args, fmt, out_dirs, res, comp, tool) if fmt else None  # (first: a refusal leaves nothing)
     _write_commands(args, m, comp, tool)
     k = [m.axes.index(a) for a in m.rotary]
     step = np.abs(comp.commands - comp.nominal)
@@ -131,14 +154,37 @@ def compensate(args) -> int:
         print(f"note: {far.size} target(s) near the singular tool direction (along a rotary axis line), e.g. line "
               f"{lines[far[0]]}: the exact direction would need a large rotary move; the tool point is exact, the "
               f"direction within {1e6 * comp.direction_residual_rad.max():.3g} urad")
-    if args.cnc:
-        from olti_drake.io.cnc import export
-
-        report = export(CNC_FORMATS.get(args.cnc, args.cnc), m, res.errors,
-                        res.position_model(comp.commands[:1], None if comp.directions is None else
-                                           comp.directions[:1], tool[:1]).theta(res.x), args.tables)
+    if report is not None:
         print(report.describe())
     return 0
+
+
+def _export(args, fmt, out_dirs, res, comp, tool):
+    """:func:`olti_drake.io.cnc.export` of the identified model into ``--tables DIR`` (its ExportReport). Run
+    before COMMANDS.csv is written: a format that refuses the machine or a value (one line, before it writes its
+    files: the LinuxCNC module's table A on table C, FANUC's field) leaves nothing, not even the directories
+    ``out_dirs`` (:func:`export_files`) it made."""
+    import os
+
+    from olti_drake.io.cnc import export
+
+    made = set()
+    for d in out_dirs:  # (with their parents that do not exist yet)
+        d = os.path.abspath(d)
+        while not os.path.exists(d):
+            made.add(d)
+            d = os.path.dirname(d)
+    try:
+        return export(fmt, res.machine, res.errors, res.position_model(
+            comp.commands[:1], None if comp.directions is None else comp.directions[:1], tool[:1]).theta(res.x),
+            args.tables)
+    except Exception:
+        for d in sorted(made, key=len, reverse=True):  # (only what this run made, and only when empty)
+            try:
+                os.rmdir(d)
+            except OSError:
+                pass
+        raise
 
 
 def _write_commands(args, machine, comp, tool) -> None:

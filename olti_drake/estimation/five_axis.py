@@ -31,8 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.errors import InputError
-from olti_drake.estimation.calibration import (Calibration, SolverOptions, UnidentifiableError, smoothing_on,
-                                               station_starts)
+from olti_drake.estimation.calibration import Calibration, SolverOptions, smoothing_on, station_starts
 from olti_drake.model.five_axis_errors import FiveAxisErrors, FiveAxisPositionModel, separable
 from olti_drake.model.volumetric3d import MotionJacobian
 
@@ -187,10 +186,6 @@ def measurement(campaign, pm):
     rows = np.flatnonzero(campaign.kind == "distance")
     if rows.size:
         labels = np.unique(campaign.group[rows])
-        if labels.size < 4:
-            raise UnidentifiableError(f"{campaign.source}: {labels.size} station(s); 3D self-calibrating "
-                                      f"multilateration needs at least 4 (001 Eq. (4): N_j > 3)",
-                                      [f"P{j}_x_mm" for j in range(labels.size)])
         P, L0 = _stations(campaign, pm, rows, labels)
         parts.append(StationDistanceMeasurement(pm, rows, np.searchsorted(labels, campaign.group[rows]),
                                                 campaign.reading[rows, 0], P, L0, labels.size, dead_path="L0"))
@@ -230,6 +225,9 @@ class FiveAxisIdentification(Calibration):
     ``nest<n>_{x,y,z}_mm``, the tracker frames' ``frame<g>_…``."""
 
     rank_hint = "add stations, nests or commands spread over the rotary axes' travel"
+    #: The residuals beyond the readings' u are a model error every predicted tool point shares
+    #: (:meth:`Calibration.lack_of_fit`): a geometric fit of a machine whose axes have error motions.
+    predicts_lack_of_fit = True
     untouched_hint = "every station and nest needs readings of commands spread over the travel"
 
     def __init__(self, campaign, machine, options: FiveAxisOptions = None):
@@ -320,6 +318,13 @@ class FiveAxisIdentification(Calibration):
         out["held"] = list(self.position_model.held)
         return out
 
+    def default_budget(self):
+        """001 Table 4 (the readings' u the residuals are judged against, :meth:`Calibration.lack_of_fit`) unless
+        the options name a budget."""
+        from olti_drake.io.budget import default_budget
+
+        return default_budget("machine")
+
     def solve(self):
         """The fit (:meth:`Calibration.fit`: LM, the covariance and std of every parameter, k = 1)."""
         return self.fit()
@@ -339,13 +344,15 @@ class FiveAxisIdentification(Calibration):
             C, lack = self.representation(fit.x)
             fit.covariance = fit.covariance + C
             fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
-            fit.lack_of_fit_mm = float(np.hypot(fit.lack_of_fit_mm, lack))
+            # (the residuals' lack of fit and the representation measure one misfit, the maps' between their
+            # nodes, where the model has no other: the larger of the two, not their sum)
+            fit.lack_of_fit_mm = float(max(fit.lack_of_fit_mm, lack))
             fit.notes.append(f"map representation (JCGM 100 §3.4.1, §4.3: the maps are piecewise linear, the motions "
                              f"between their nodes need not be): per map segment a bubble error of u = 1/8 of the "
                              f"identified nodes' second difference (linear interpolation's error, h² f''/8), its "
                              f"effect on the estimate added to the covariance; its {1e3 * lack:.3g} um at the "
-                             f"readings (RMS) added in quadrature to every predicted tool point's u as the lack of "
-                             f"fit (docs/five_axis.md)")
+                             f"readings (RMS), or the residuals' lack of fit where larger, added in quadrature to "
+                             f"every predicted tool point's u as the lack of fit (docs/five_axis.md)")
         return fit
 
     def representation(self, x):

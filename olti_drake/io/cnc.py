@@ -446,6 +446,11 @@ def _total_tables(machine, error_model, x):
     return out
 
 
+def _heidenhain_table(L: str, c: str) -> str:
+    """The name of rotary axis L's table of component c (X, Y, Z, A, B, C): ``<L>_E<c><L>.COM``."""
+    return f"{L}_E{c}{L}.COM"
+
+
 def export_heidenhain(machine, error_model, x, path) -> ExportReport:
     """KinematicsComp-style tables in the directory ``path``: ``<L>_E<c><L>.COM`` for rotary axis L and component
     c (X, Y, Z radial/axial, mm; A, B, C tilt and angular positioning, degrees), rows ``NR AXISPOS FORWARD
@@ -458,7 +463,7 @@ def export_heidenhain(machine, error_model, x, path) -> ExportReport:
     paths = []
     for L, (grid, fwd, rev) in _total_tables(machine, error_model, x).items():
         for r, c in enumerate("XYZABC"):
-            name = f"{L}_E{c}{L}.COM"
+            name = _heidenhain_table(L, c)
             linear = c in LINEAR
             scale = 1.0 if linear else 1e-6 / DEG
             fmt = "{:.7f}" if linear else "{:.10f}"
@@ -483,7 +488,7 @@ def load_heidenhain(path, machine, error_model=None) -> TableKinematics:
     for L in machine.rotary:
         grid, fwd, rev = None, None, None
         for r, c in enumerate("XYZABC"):
-            f = Path(path) / f"{L}_E{c}{L}.COM"
+            f = Path(path) / _heidenhain_table(L, c)
             if not f.is_file():
                 continue
             rows = []
@@ -577,17 +582,39 @@ LOADERS = {"sinumerik": load_sinumerik, "fanuc": load_fanuc, "heidenhain": load_
            "linuxcnc": load_linuxcnc, "csv": load_csv}
 
 
-def export(fmt: str, machine, error_model, x, out_dir) -> ExportReport:
-    """``export_<fmt>`` into ``out_dir`` under the format's default name (for ``olti compensate --cnc FORMAT
-    --out DIR``): ``swivel_data.mpf``, ``tcp_parameters.txt``, ``kinematicscomp/``, ``xyzac-trt.hal`` (+ .ini),
-    ``identified.csv``."""
-    names = {"sinumerik": "swivel_data.mpf", "fanuc": "tcp_parameters.txt", "heidenhain": "kinematicscomp",
-             "linuxcnc": "xyzac-trt.hal", "csv": "identified.csv"}
+#: The name ``export`` gives each format's file (HEIDENHAIN: the directory of its tables) in the export directory.
+EXPORT_NAMES = {"sinumerik": "swivel_data.mpf", "fanuc": "tcp_parameters.txt", "heidenhain": "kinematicscomp",
+                "linuxcnc": "xyzac-trt.hal", "csv": "identified.csv"}
+
+
+def _check_format(fmt: str) -> None:
     if fmt not in EXPORTERS:
         raise InputError(f"--cnc: unknown format {fmt!r} (one of {', '.join(FORMATS)})")
+
+
+def cnc_file_names(fmt: str, machine) -> tuple:
+    """Every file :func:`export` of ``fmt`` writes for ``machine``, relative to its export directory (``/``
+    separated), so that a command can check them before any work: ``swivel_data.mpf``; ``tcp_parameters.txt``;
+    ``kinematicscomp/<L>_E<c><L>.COM`` for every rotary axis L and component c of X, Y, Z, A, B, C (12 on a
+    two-rotary-axis machine); ``xyzac-trt.hal`` and ``xyzac-trt.ini``; ``identified.csv``. Unknown ``fmt``: a
+    one-line InputError."""
+    _check_format(fmt)
+    name = EXPORT_NAMES[fmt]
+    if fmt == "heidenhain":
+        return tuple(f"{name}/{_heidenhain_table(L, c)}" for L in machine.rotary for c in "XYZABC")
+    if fmt == "linuxcnc":
+        return name, str(Path(name).with_suffix(".ini"))
+    return (name,)
+
+
+def export(fmt: str, machine, error_model, x, out_dir) -> ExportReport:
+    """``export_<fmt>`` into ``out_dir`` under the format's default name (:data:`EXPORT_NAMES`; for ``olti
+    compensate --cnc FORMAT --tables DIR``): ``swivel_data.mpf``, ``tcp_parameters.txt``, ``kinematicscomp/``,
+    ``xyzac-trt.hal`` (+ .ini), ``identified.csv``; every file it writes: :func:`cnc_file_names`."""
+    _check_format(fmt)
     os.makedirs(out_dir, exist_ok=True)
-    return EXPORTERS[fmt](machine, error_model, x, os.path.join(out_dir, names[fmt]))
+    return EXPORTERS[fmt](machine, error_model, x, os.path.join(out_dir, EXPORT_NAMES[fmt]))
 
 
-__all__ = ["FORMATS", "EXPORTERS", "LOADERS", "export", "ExportReport"] + \
+__all__ = ["FORMATS", "EXPORTERS", "LOADERS", "EXPORT_NAMES", "export", "cnc_file_names", "ExportReport"] + \
     [f"{k}_{f}" for k in ("export", "load") for f in FORMATS]

@@ -5,12 +5,9 @@ import subprocess
 import sys
 
 import pytest
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def _olti(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *args], capture_output=True, text=True, cwd=cwd)
 
 
 def test_help_does_not_import_pydrake():
@@ -25,14 +22,14 @@ def test_help_does_not_import_pydrake():
 @pytest.mark.parametrize("verb", ["demo", "simulate", "identify", "predict", "uncertainty", "design", "multilaterate",
                                   "compensate", "run", "report", "diagrams"])
 def test_every_verb_has_help(verb):
-    r = _olti(verb, "--help")
+    r = olti_sub(verb, "--help")
     assert r.returncode == 0 and "--out" in r.stdout
 
 
 def test_bad_scenario_is_one_line_error(tmp_path):
     bad = tmp_path / "s.yaml"
     bad.write_text("robot: {L1_mm: -1}\n")
-    r = _olti("simulate", str(bad), "--out", str(tmp_path / "o"))
+    r = olti_sub("simulate", str(bad), "--out", str(tmp_path / "o"))
     assert r.returncode == 2
     assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1 and "robot.L1_mm" in r.stderr
 
@@ -40,7 +37,7 @@ def test_bad_scenario_is_one_line_error(tmp_path):
 def test_bad_plan_file_is_one_line_error(tmp_path):
     (tmp_path / "plan.csv").write_text("theta1_deg,theta2_deg\n0,10\n5,oops\n")
     (tmp_path / "s.yaml").write_text("plan: !PlanFile {path: plan.csv}\n")
-    r = _olti("simulate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "o"))
+    r = olti_sub("simulate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert "plan.csv" in r.stderr and "3" in r.stderr and "theta2_deg" in r.stderr
 
@@ -51,13 +48,13 @@ def test_refuses_to_overwrite_an_input(tmp_path):
     save_plan(bidirectional_grid(-40, 0, 20, 40, 100, 30), tmp_path / "campaign.csv")
     (tmp_path / "s.yaml").write_text("plan: !PlanFile {path: campaign.csv}\n")
     before = (tmp_path / "campaign.csv").read_bytes()
-    r = _olti("simulate", str(tmp_path / "s.yaml"), "--out", str(tmp_path))
+    r = olti_sub("simulate", str(tmp_path / "s.yaml"), "--out", str(tmp_path))
     assert r.returncode == 2 and "overwrite" in r.stderr
     assert (tmp_path / "campaign.csv").read_bytes() == before
 
 
 def test_demo_writes_campaign_and_figures(tmp_path):
-    r = _olti("demo", "--out", str(tmp_path))
+    r = olti_sub("demo", "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
     assert "1056" in r.stdout
     for name in ("campaign.csv", "truth.json", "fig5_poses_reflectors.png", "fig6_truth_maps.png"):

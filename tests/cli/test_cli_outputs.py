@@ -18,25 +18,11 @@ import time
 import pytest
 
 from olti_drake.cli import main
+from olti_calls import olti_in, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
 REGIONS = os.path.join(ROOT, "data", "regions_paper000.yaml")
-
-
-def _olti(capsys, *argv):
-    """Run ``olti`` in process: (exit code, stdout, stderr)."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def _sub(*argv, **kw):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True,
-                          text=True, timeout=300, **kw)
 
 
 def _one_error_line(err: str):
@@ -99,7 +85,7 @@ def _snapshot(ws):
 
 def _check_refused(capsys, ws, argv, message, keep):
     before = _snapshot(ws)
-    code, out, err = _olti(capsys, *argv)
+    code, out, err = olti_in(*argv, capsys=capsys)
     assert code == 2, (code, out, err)
     _one_error_line(err)
     assert _fill([message], ws)[0] in err, err
@@ -173,12 +159,12 @@ def test_a_read_only_directory_is_one_line(capsys, ws):
 
 
 def test_force_replaces_a_result_atomically_and_names_the_written_file(capsys, ws):
-    code, out, err = _olti(capsys, "identify", CAMPAIGN, "--model", "dh", "--out", ws / "old.json", "--force")
+    code, out, err = olti_in("identify", CAMPAIGN, "--model", "dh", "--out", ws / "old.json", "--force", capsys=capsys)
     assert code == 0, err
     assert json.loads((ws / "old.json").read_text())["model"] == "dh"
     # --map without .png: the file written is the one named (matplotlib would have added ".png").
-    code, out, err = _olti(capsys, "uncertainty", ws / "res.json", CAMPAIGN, "--method", "linear", "--out",
-                           ws / "u.json", "--map", ws / "umap")
+    code, out, err = olti_in("uncertainty", ws / "res.json", CAMPAIGN, "--method", "linear", "--out",
+                             ws / "u.json", "--map", ws / "umap", capsys=capsys)
     assert code == 0, err
     assert f"wrote {ws / 'umap'}\n" in out and (ws / "umap").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (ws / "umap.png").exists()
@@ -224,7 +210,8 @@ def test_force_never_replaces_what_is_not_a_regular_file(capsys, ws):
         kinds["null"] = "a device"
     try:
         for name, what in kinds.items():
-            code, out, err = _olti(capsys, "identify", CAMPAIGN, "--model", "dh", "--out", ws / name, "--force")
+            code, out, err = olti_in("identify", CAMPAIGN, "--model", "dh", "--out", ws / name, "--force",
+                                     capsys=capsys)
             assert code == 2 and out == "", (name, out)
             _one_error_line(err)
             assert f"is {what}, not a regular file" in err, err
@@ -278,21 +265,21 @@ def test_oserror_and_interrupted_import_are_one_line(capsys, monkeypatch):
     for func, code, text in ((denied, 2, "error: /some/out.json: Permission denied\n"),
                              (interrupted_import, 130, "error: interrupted (olti predict)\n")):
         monkeypatch.setattr(cli, "build_parser", lambda f=func: dispatching_to(f))
-        assert _olti(capsys, *argv)[::2] == (code, text)
+        assert olti_in(*argv, capsys=capsys)[::2] == (code, text)
     monkeypatch.setattr(cli, "build_parser", lambda: dispatching_to(real_import_error))
     with pytest.raises(ImportError):            # a real import error is not taken for Ctrl-C
         main(list(argv))
 
 
 def test_argparse_errors_are_one_line_and_help_still_works():
-    r = _sub("identify", CAMPAIGN, "--model", "nonsense", "--out", "x.json")
+    r = olti_sub("identify", CAMPAIGN, "--model", "nonsense", "--out", "x.json")
     assert r.returncode == 2 and r.stdout == ""
     _one_error_line(r.stderr)
     assert "--model" in r.stderr and "nonsense" in r.stderr
-    r = _sub()
+    r = olti_sub()
     assert r.returncode == 2
     _one_error_line(r.stderr)
-    r = _sub("identify", "--help")
+    r = olti_sub("identify", "--help")
     assert r.returncode == 0 and r.stdout.startswith("usage: olti identify") and r.stderr == ""
 
 
@@ -329,7 +316,7 @@ def test_scenario_errors_name_the_field_inside_tagged_subtrees(tmp_path):
     for old, (new, message) in cases.items():
         assert old in text
         (tmp_path / "s.yaml").write_text(text.replace(old, new, 1).replace("../data/", os.path.join(ROOT, "data/")))
-        r = _sub("simulate", tmp_path / "s.yaml", "--out", tmp_path / "o")
+        r = olti_sub("simulate", tmp_path / "s.yaml", "--out", tmp_path / "o")
         assert r.returncode == 2, r.stderr
         _one_error_line(r.stderr)
         assert message in r.stderr and "robot: " not in r.stderr, r.stderr
@@ -338,7 +325,7 @@ def test_scenario_errors_name_the_field_inside_tagged_subtrees(tmp_path):
 def test_simulate_refuses_a_hardware_scenario_before_opening_a_port(tmp_path):
     (tmp_path / "hw.yaml").write_text("reflector_estimate: !ExactEstimate {}\nstation: !Hardware "
                                       f"{{robot_port: {tmp_path}/robot, counter_port: {tmp_path}/counter}}\n")
-    r = _sub("simulate", tmp_path / "hw.yaml", "--out", tmp_path / "o")
+    r = olti_sub("simulate", tmp_path / "hw.yaml", "--out", tmp_path / "o")
     assert r.returncode == 2
     _one_error_line(r.stderr)
     assert "runs the simulated station" in r.stderr and "olti run" in r.stderr
@@ -349,7 +336,7 @@ def test_demo_into_a_directory_with_a_campaign_is_refused_before_simulating(tmp_
     shutil.copy(CAMPAIGN, tmp_path / "campaign.csv")
     before = (tmp_path / "campaign.csv").read_bytes()
     t0 = time.perf_counter()
-    r = _sub("demo", "--out", tmp_path)
+    r = olti_sub("demo", "--out", tmp_path)
     assert r.returncode == 2 and r.stdout == ""
     _one_error_line(r.stderr)
     assert "holds measured data" in r.stderr and time.perf_counter() - t0 < 30
@@ -369,7 +356,7 @@ def test_demo_into_a_directory_with_a_campaign_is_refused_before_simulating(tmp_
 ], ids=lambda a: a[0])
 def test_a_directory_given_for_an_input_file_is_one_line(capsys, ws, argv):
     before = _snapshot(ws)
-    code, out, err = _olti(capsys, *_fill(argv, ws))
+    code, out, err = olti_in(*_fill(argv, ws), capsys=capsys)
     assert code == 2, (code, out, err)
     _one_error_line(err)
     assert f"{ws}/adir: " in err and "directory" in err.lower(), err

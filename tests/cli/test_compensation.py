@@ -20,6 +20,7 @@ from olti_drake.model.scara import ScaraModel, inverse_kinematics
 from olti_drake.io.result import write_result
 from olti_drake.model.scara import TrueRobot
 from olti_drake.sim.scenario import Scenario
+from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 COMBOS = np.array(comp.DIRECTION_COMBOS, dtype=float)
@@ -54,11 +55,6 @@ def _unseen_targets(model, seed=0):
     g1, g2 = model.map1.grid_deg, model.map2.grid_deg
     r1, r2 = (g1[0] + 1, g1[-1] - 1), (2.0, g2[-1] - 1)
     return v.grid_paths(325.0, 225.0, r1, r2), v.random_commands(300, seed, r1, r2)
-
-
-def _olti(*args):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT)
 
 
 def _write_targets(path, rows, header="x_mm,y_mm"):
@@ -168,12 +164,12 @@ def result_json(tmp_path_factory, noisy):
 
 def test_cli_rejects_unreachable_targets_with_line(tmp_path, result_json):
     t = _write_targets(tmp_path / "targets.csv", [(300, 100), (200, -300), (900, 0)])
-    r = _olti("compensate", result_json, t, "--out", tmp_path / "c.csv")
+    r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert r.stderr.startswith(f"error: {t}:5: ") and "reach" in r.stderr
     # Reachable, but the commands leave the identified J1 map [-140, 60] deg: refused, no extrapolation.
     t = _write_targets(tmp_path / "targets2.csv", [(300, 100), (-300, 300)])
-    r = _olti("compensate", result_json, t, "--out", tmp_path / "c.csv")
+    r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
     assert r.returncode == 2 and f"{t}:4: " in r.stderr and "J1" in r.stderr and "grid" in r.stderr
     assert not (tmp_path / "c.csv").exists()
 
@@ -182,10 +178,10 @@ def test_cli_end_to_end_predict_maps_back_to_targets(tmp_path, result_json, nois
     grid, rnd = _unseen_targets(noisy[1].model, seed=5)
     targets = _write_targets(tmp_path / "targets.csv", grid.xy_cmd_mm[:60])
     out, pred = tmp_path / "commands.csv", tmp_path / "pred.csv"
-    r = _olti("compensate", result_json, targets, "--out", out, "--tables", tmp_path / "tables")
+    r = olti_sub("compensate", result_json, targets, "--out", out, "--tables", tmp_path / "tables")
     assert r.returncode == 0, r.stderr
     assert "wrote" in r.stdout and "Newton" in r.stdout
-    r = _olti("predict", result_json, out, "--out", pred)
+    r = olti_sub("predict", result_json, out, "--out", pred)
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader(line for line in pred.read_text().splitlines() if not line.startswith("#")))
     xy = np.array([[float(row["x_mm"]), float(row["y_mm"])] for row in rows])
@@ -208,7 +204,7 @@ def test_cli_given_directions_are_kept(tmp_path, result_json, noisy):
     rows = [(x, y, int(a), int(b)) for (x, y), a, b in zip(rnd.xy_cmd_mm[:40], rnd.commands.dir1[:40],
                                                            rnd.commands.dir2[:40])]
     targets = _write_targets(tmp_path / "t.csv", rows, header="x_mm,y_mm,dir1,dir2")
-    r = _olti("compensate", result_json, targets, "--out", tmp_path / "c.csv")
+    r = olti_sub("compensate", result_json, targets, "--out", tmp_path / "c.csv")
     assert r.returncode == 0, r.stderr
     lines = [ln for ln in (tmp_path / "c.csv").read_text().splitlines() if not ln.startswith("#")]
     got = list(csv.DictReader(lines))
@@ -217,14 +213,14 @@ def test_cli_given_directions_are_kept(tmp_path, result_json, noisy):
 
 def test_cli_bad_inputs(tmp_path, result_json):
     t = _write_targets(tmp_path / "t.csv", [(300,), (200,)], header="x_mm")
-    r = _olti("compensate", result_json, t, "--out", tmp_path / "c.csv")
+    r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
     assert r.returncode == 2 and "'y_mm'" in r.stderr and r.stderr.count("\n") == 1
     t = _write_targets(tmp_path / "t2.csv", [(300, 100, 1), (200, 100, 0)], header="x_mm,y_mm,dir1")
-    r = _olti("compensate", result_json, t, "--out", tmp_path / "c.csv")
+    r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
     assert r.returncode == 2 and f"{t}:4: column 'dir1'" in r.stderr
     t = _write_targets(tmp_path / "t3.csv", [(300, 100)])
     before = t.read_text()
-    r = _olti("compensate", result_json, t, "--out", t)
+    r = olti_sub("compensate", result_json, t, "--out", t)
     assert r.returncode == 2 and "overwrite" in r.stderr and t.read_text() == before
 
 

@@ -6,8 +6,6 @@ Units: mm and degrees.
 """
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -16,11 +14,7 @@ from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
 from olti_drake.io.csvio import load_campaign, load_commands
 from olti_drake.io.result import load_result
 from olti_drake.sim.scenario import Scenario
-
-
-def olti(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd)
+from olti_calls import olti_sub
 
 
 def assert_one_line_error(r, *needles):
@@ -42,7 +36,7 @@ def work(tmp_path_factory):
     """A simulated campaign and its error-map identification via the CLI."""
     d = tmp_path_factory.mktemp("identify_cli")
     write_campaign(run_campaign(prepare(Scenario(seed=0))), str(d))
-    r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "result.json", cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "errormap", "--out", "result.json", cwd=d)
     assert r.returncode == 0, r.stderr
     return d, r
 
@@ -70,7 +64,7 @@ def test_reordered_commented_file_with_invalid_rows_gives_the_same_result(work):
             out.append("1e6,0,-1,20,0,1,40")
         out.append(line)
     (d / "reordered.csv").write_text("\n".join(out) + "\n", encoding="utf-8")
-    r = olti("identify", "reordered.csv", "--model", "errormap", "--out", "reordered.json", cwd=d)
+    r = olti_sub("identify", "reordered.csv", "--model", "errormap", "--out", "reordered.json", cwd=d)
     assert r.returncode == 0, r.stderr
     a = json.loads((d / "result.json").read_text())
     b = json.loads((d / "reordered.json").read_text())
@@ -147,7 +141,7 @@ def test_result_json_follows_formats_md(work):
 
 def test_dh_result_has_theta20_and_no_map(work):
     d, _ = work
-    r = olti("identify", "campaign.csv", "--model", "dh", "--out", "dh.json", cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "dh", "--out", "dh.json", cwd=d)
     assert r.returncode == 0, r.stderr
     assert "theta20" in r.stdout
     res = json.loads((d / "dh.json").read_text())
@@ -189,7 +183,7 @@ def test_predict_reproduces_the_model(work):
     d, _ = work
     rows = [(-35.5, 47.25, 1, -1), (0, 0, 1, 1), (60, 140, -1, -1), (-140, 0, 1, 1), (12.3, 99.9, -1, 1)]
     _write_commands(d / "cmd.csv", rows)
-    r = olti("predict", "result.json", "cmd.csv", "--out", "pred.csv", cwd=d)
+    r = olti_sub("predict", "result.json", "cmd.csv", "--out", "pred.csv", cwd=d)
     assert r.returncode == 0, r.stderr
     header, out = read_csv(d / "pred.csv")
     assert set(header) == {"theta1_deg", "theta2_deg", "dir1", "dir2", "x_mm", "y_mm"}
@@ -210,10 +204,10 @@ def test_predict_reproduces_the_model(work):
 def test_predict_outside_grid_is_refused_unless_clamped(work):
     d, _ = work
     _write_commands(d / "outside.csv", [(0, 40, 1, 1), (80.5, 20, 1, 1)])
-    r = olti("predict", "result.json", "outside.csv", "--out", "out.csv", cwd=d)
+    r = olti_sub("predict", "result.json", "outside.csv", "--out", "out.csv", cwd=d)
     assert_one_line_error(r, "80.5", "J1")
     assert not (d / "out.csv").exists()
-    r = olti("predict", "result.json", "outside.csv", "--out", "out.csv", "--outside", "clamp", cwd=d)
+    r = olti_sub("predict", "result.json", "outside.csv", "--out", "out.csv", "--outside", "clamp", cwd=d)
     assert r.returncode == 0, r.stderr
     header, out = read_csv(d / "out.csv")
     x = np.array([float(v[header.index("x_mm")]) for v in out])
@@ -241,7 +235,7 @@ def test_missing_column_names_column_and_file(work):
         return header[:k] + header[k + 1:], [r[:k] + r[k + 1:] for r in rows]
 
     name = _campaign_variant(d, "nodir2.csv", drop)
-    r = olti("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
+    r = olti_sub("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
     assert_one_line_error(r, "dir2", name)
     assert not (d / "o.json").exists()
 
@@ -255,7 +249,7 @@ def test_nan_in_valid_row_names_line_and_column(work):
         return header, rows
 
     name = _campaign_variant(d, "nan.csv", nan)
-    r = olti("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
+    r = olti_sub("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
     assert_one_line_error(r, f"{name}:11", "theta2_deg")
 
 
@@ -268,7 +262,7 @@ def test_reflector_with_two_readings(work):
         return header, [r for r in rows if r[k] != "2"] + two
 
     name = _campaign_variant(d, "two.csv", thin)
-    r = olti("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
+    r = olti_sub("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
     assert_one_line_error(r, "reflector 2", "2 valid reading")
 
 
@@ -280,28 +274,28 @@ def test_one_reflector_only(work):
         return header, [r for r in rows if r[k] == "0"]
 
     name = _campaign_variant(d, "one.csv", one)
-    r = olti("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
+    r = olti_sub("identify", name, "--model", "errormap", "--out", "o.json", cwd=d)
     assert_one_line_error(r, "reflector", "3")
 
 
 def test_map_node_never_visited(work):
     d, _ = work
-    r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "o.json", "--grid1-deg=-140:60:10", cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "errormap", "--out", "o.json", "--grid1-deg=-140:60:10", cwd=d)
     assert_one_line_error(r, "J1_forward_deg[1]", "not identifiable")
 
 
 @pytest.mark.parametrize("grid", ["-140:abc:20", "60:-140:20", "0,20,10", "-140:60:30"])
 def test_malformed_grid(work, grid):
     d, _ = work
-    r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "o.json", f"--grid1-deg={grid}", cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "errormap", "--out", "o.json", f"--grid1-deg={grid}", cwd=d)
     assert_one_line_error(r, "--grid1-deg")
 
 
 def test_negative_grid_value_as_separate_argument(work):
     """cli.md documents ``--grid1-deg START:STOP:STEP``; a J1 grid naturally starts negative."""
     d, _ = work
-    r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "neg.json", "--grid1-deg", "-140:60:20",
-             cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "errormap", "--out", "neg.json", "--grid1-deg", "-140:60:20",
+                 cwd=d)
     assert r.returncode == 0, r.stderr
     res = json.loads((d / "neg.json").read_text())
     assert res["error_map"]["J1"]["grid_deg"] == list(np.arange(-140.0, 61.0, 20.0))
@@ -313,7 +307,7 @@ def test_result_missing_L1(work):
     del res["L1_mm"]
     (d / "noL1.json").write_text(json.dumps(res), encoding="utf-8")
     _write_commands(d / "cmd_ok.csv", [(0, 40, 1, 1)])
-    r = olti("predict", "noL1.json", "cmd_ok.csv", "--out", "p.csv", cwd=d)
+    r = olti_sub("predict", "noL1.json", "cmd_ok.csv", "--out", "p.csv", cwd=d)
     assert_one_line_error(r, "L1_mm", "noL1.json")
 
 
@@ -348,7 +342,7 @@ def test_untrustworthy_fit_is_refused_one_line_no_file(work, case, args, needles
         _rewrite(d / "campaign.csv", d / campaign,
                  lambda f: dict(f, displacement_mm=f"{float(f['displacement_mm']) / 1000:.12f}"))
     out = d / f"refused_{case}.json"
-    r = olti("identify", campaign, "--model", "errormap", "--out", out.name, *args, cwd=d)
+    r = olti_sub("identify", campaign, "--model", "errormap", "--out", out.name, *args, cwd=d)
     assert_one_line_error(r, *needles)
     assert not out.exists()
 
@@ -372,8 +366,8 @@ def test_residual_far_above_the_budget_is_a_stated_warning(work):
     # A budget of 1 um on the reading: the 15.6 um residual is ~15x what it predicts.
     (d / "tight.yaml").write_text("name: tight\ncontributors:\n- {symbol: u1, value: 1.0, unit: um, "
                                   "k: 1, acts_on: reading}\n", encoding="utf-8")
-    r = olti("identify", "campaign.csv", "--model", "errormap", "--out", "tight.json", "--budget", "tight.yaml",
-             cwd=d)
+    r = olti_sub("identify", "campaign.csv", "--model", "errormap", "--out", "tight.json", "--budget", "tight.yaml",
+                 cwd=d)
     assert r.returncode == 0, r.stderr
     tight = json.loads((d / "tight.json").read_text())
     ratio = res["residual_rms_mm"] / 1e-3
@@ -394,7 +388,7 @@ def test_campaign_glued_twice_is_refused_naming_both_lines(work):
     first_data = next(i for i, l in enumerate(lines) if l and not l.startswith("#")) + 2  # 1-based, after header
     glued = d / "glued.csv"
     glued.write_text(text + "\n".join(",".join(r) for r in rows) + "\n", encoding="utf-8")
-    r = olti("identify", glued.name, "--model", "errormap", "--out", "glued.json", cwd=d)
+    r = olti_sub("identify", glued.name, "--model", "errormap", "--out", "glued.json", cwd=d)
     assert_one_line_error(r, f"glued.csv:{len(lines) + 1}: row identical in every column to line {first_data}")
     assert not (d / "glued.json").exists()
     # A repeated pose with a different reading is a new reading, not a copy.
@@ -419,14 +413,14 @@ def test_uncertainty_refuses_another_campaign_and_notes_an_old_result(work):
         return f
 
     _rewrite(d / "campaign.csv", d / "other.csv", nudge)
-    r = olti("uncertainty", "result.json", "other.csv", "--method", "linear", "--out", "u_other.json", cwd=d)
+    r = olti_sub("uncertainty", "result.json", "other.csv", "--method", "linear", "--out", "u_other.json", cwd=d)
     assert_one_line_error(r, "other.csv: not the campaign result.json was identified from",
                           f"{res['n_readings']} valid readings", res["campaign"]["sha256"][:12])
     assert not (d / "u_other.json").exists()
     # A result written before the digest existed: accepted, with a stated note.
     old = {k: v for k, v in res.items() if k != "campaign"}
     (d / "old.json").write_text(json.dumps(old), encoding="utf-8")
-    r = olti("uncertainty", "old.json", "campaign.csv", "--method", "linear", "--out", "u_old.json", cwd=d)
+    r = olti_sub("uncertainty", "old.json", "campaign.csv", "--method", "linear", "--out", "u_old.json", cwd=d)
     assert r.returncode == 0, r.stderr
     assert "carries no campaign digest" in r.stdout
     assert any("carries no campaign digest" in n for n in json.loads((d / "u_old.json").read_text())["notes"])

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +14,7 @@ import pytest
 
 from olti_drake.io.serial_io import load_robot, serial_truth_dict, write_serial_campaign
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -24,16 +23,6 @@ TOOL_ARG = "--tool-offset-mm=40,-25,60"
 RANGES = np.array([[-100.0, 80.0], [-170.0, -10.0], [-120.0, 120.0], [-90.0, 90.0], [-60.0, 150.0],
                    [-180.0, 180.0]])
 NOISE_MM = 0.0005
-
-
-def olti(*args, expect=0):
-    out = subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300)
-    assert out.returncode == expect, out.stdout + out.stderr
-    if expect == 2:
-        assert "Traceback" not in out.stderr and out.stderr.startswith("error: ")
-        assert len(out.stderr.strip().splitlines()) == 1, out.stderr
-    return out
 
 
 def write_distance(path, camp, dirs=True):
@@ -67,8 +56,8 @@ def files(tmp_path_factory, truth):
 @pytest.fixture(scope="module")
 def errormap_result(files):
     d, _, _ = files
-    out = olti("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG,
-               "--model", "errormap", "--grid-step-deg", 10, "--out", d / "result.json")
+    out = olti_sub("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG,
+                   "--model", "errormap", "--grid-step-deg", 10, "--out", d / "result.json", expect=0)
     return d / "result.json", out.stdout
 
 
@@ -107,8 +96,8 @@ def arm7(tmp_path_factory):
     truth = synthetic_truth(chain, seed=7, tool_offset_mm=(20.0, 10.0, 30.0))
     camp = synthetic_campaign(truth, 80, seed=8, noise_mm=NOISE_MM, directions=False)
     write_distance(d / "c.csv", camp, dirs=False)
-    olti("identify", d / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
-         "--tool-offset-mm=20,10,30", "--model", "dh", "--out", d / "r.json")
+    olti_sub("identify", d / "c.csv", "--robot", DATA / "arm7_floating.urdf", "--tool-frame", "tcp",
+             "--tool-offset-mm=20,10,30", "--model", "dh", "--out", d / "r.json", expect=0)
     return d, chain
 
 
@@ -132,8 +121,8 @@ def test_missing_meshes_are_noted_once_and_identified(tmp_path):
     truth = synthetic_truth(chain, seed=2, tool_offset_mm=(10.0, 5.0, 0.0))
     camp = synthetic_campaign(truth, 40, seed=3, noise_mm=NOISE_MM, directions=False)
     write_distance(tmp_path / "c.csv", camp, dirs=False)
-    out = olti("identify", tmp_path / "c.csv", "--robot", DATA / "missing_mesh.urdf", "--tool-frame", "tool",
-               "--tool-offset-mm=10,5,0", "--model", "dh", "--out", tmp_path / "r.json").stdout
+    out = olti_sub("identify", tmp_path / "c.csv", "--robot", DATA / "missing_mesh.urdf", "--tool-frame", "tool",
+                   "--tool-offset-mm=10,5,0", "--model", "dh", "--out", tmp_path / "r.json", expect=0).stdout
     assert out.count("mesh file(s) cannot be found") == 1
     res = json.loads((tmp_path / "r.json").read_text())
     assert sum("cannot be found" in n for n in res["notes"]) == 1 and res["robot"]["joints"] == ["j1", "j2"]
@@ -144,8 +133,8 @@ def test_point_campaign_identifies_the_tracker_frame(tmp_path, truth):
     gauge holds J1's location errors at 0, which moves the frame by their size only)."""
     camp = synthetic_campaign(truth, 120, seed=9, ranges_deg=RANGES, noise_mm=NOISE_MM)
     write_serial_campaign(tmp_path / "p.csv", camp.commands, camp.dirs, points_mm=camp.points_mm)
-    olti("identify", tmp_path / "p.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG, "--model",
-         "errormap", "--grid-step-deg", 30, "--out", tmp_path / "r.json")
+    olti_sub("identify", tmp_path / "p.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG, "--model",
+             "errormap", "--grid-step-deg", 30, "--out", tmp_path / "r.json", expect=0)
     res = json.loads((tmp_path / "r.json").read_text())
     frame = res["tracker_frame"]
     assert np.abs(np.array(frame["rotation_deg"]) - truth.frame[3:]).max() < 0.05
@@ -162,16 +151,16 @@ def test_one_station_without_directions_refused_by_name_then_regularized(tmp_pat
     args = ["identify", tmp_path / "c.csv", "--robot", "ur5", "--tool-frame", "tool0", TOOL_ARG, "--model",
             "errormap", "--grid-step-deg", 30, "--out", tmp_path / "r.json"]
     # The default smoothness prior holds the maps straight where the readings cannot shape them, and says so.
-    olti(*args)
+    olti_sub(*args, expect=0)
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["smoothing"]["method"] == "restricted maximum likelihood"
     assert any("the prior outweighs the readings at" in n for n in res["notes"])
     (tmp_path / "r.json").unlink()
     args += ["--smoothing", "off"]
-    err = olti(*args, expect=2).stderr
+    err = olti_sub(*args, expect=2).stderr
     assert "not identifiable: shoulder_lift_joint_dx_mm" in err and "--regularize" in err
     assert not (tmp_path / "r.json").exists()
-    olti(*args, "--regularize")
+    olti_sub(*args, "--regularize", expect=0)
     res = json.loads((tmp_path / "r.json").read_text())
     assert any(n.startswith("regularized: the readings cannot identify") and "sigma 1 mm or 1 deg" in n
                for n in res["notes"])
@@ -205,7 +194,7 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path, files):
          "a simulation truth, not an identified result"),
     ]
     for args, expect in cases:
-        err = olti(*args, *(base if args[0] == "identify" else base[2:]), expect=2).stderr
+        err = olti_sub(*args, *(base if args[0] == "identify" else base[2:]), expect=2).stderr
         assert expect in err, (args, err)
         assert not out.exists()
 
@@ -233,8 +222,8 @@ def test_predict_cross_validates_on_held_out_readings(errormap_result, files, ur
     d, _, held = files
     result, _ = errormap_result
     rms = json.loads(result.read_text())["residual_rms_mm"]
-    olti("predict", result, d / "held_out.csv", "--out", d / "pred.csv")
-    olti("predict", d / "truth.json", d / "held_out.csv", "--out", d / "pred_truth.csv")
+    olti_sub("predict", result, d / "held_out.csv", "--out", d / "pred.csv", expect=0)
+    olti_sub("predict", d / "truth.json", d / "held_out.csv", "--out", d / "pred_truth.csv", expect=0)
     pred, true = _read_csv(d / "pred.csv"), _read_csv(d / "pred_truth.csv")
     assert np.abs(pred["theta6_deg"] - held.distance_commands[:, 5]).max() < 1e-9
     assert np.array_equal(pred["dir3"], held.distance_dirs[:, 2])
@@ -253,9 +242,9 @@ def test_predict_cross_validates_on_held_out_readings(errormap_result, files, ur
     row[1] = "150"  # theta1 beyond the identified grid
     text[k] = ",".join(row)
     (d / "outside.csv").write_text("\n".join(text) + "\n")
-    err = olti("predict", result, d / "outside.csv", "--out", d / "p2.csv", expect=2).stderr
+    err = olti_sub("predict", result, d / "outside.csv", "--out", d / "p2.csv", expect=2).stderr
     assert f"outside.csv:{k + 1}:" in err and "--outside clamp" in err and not (d / "p2.csv").exists()
-    olti("predict", result, d / "outside.csv", "--out", d / "p2.csv", "--outside", "clamp")
+    olti_sub("predict", result, d / "outside.csv", "--out", d / "p2.csv", "--outside", "clamp", expect=0)
 
 
 def _targets(path, chain, commands, dirs=None, tool=TOOL, shift=None):
@@ -286,8 +275,8 @@ def test_compensate_puts_the_true_tool_point_on_the_targets(errormap_result, fil
     ranges[2] = (30.0, 120.0)
     camp = synthetic_campaign(truth, 30, seed=11, ranges_deg=ranges - np.array([-15.0, 15.0]))
     targets = _targets(d / "targets.csv", ur5, camp.commands, camp.dirs)
-    olti("compensate", result, d / "targets.csv", "--out", d / "commands.csv", "--tables", d / "tables",
-         "--urdf-out", d / "identified.urdf")
+    olti_sub("compensate", result, d / "targets.csv", "--out", d / "commands.csv", "--tables", d / "tables",
+             "--urdf-out", d / "identified.urdf", expect=0)
     c = _read_csv(d / "commands.csv")
     cmd = np.column_stack([c[f"theta{i}_deg"] for i in range(1, 7)])
     dirs = np.column_stack([c[f"dir{i}"] for i in range(1, 7)])
@@ -308,7 +297,7 @@ def test_compensate_puts_the_true_tool_point_on_the_targets(errormap_result, fil
     assert np.abs(p_drake - model.chain.positions(cmd, model.chain_parameters(model.start_vector()))).max() < 1e-6
     # out of reach: refused, naming the line
     _targets(d / "far.csv", ur5, camp.commands[:3], camp.dirs[:3], shift=np.array([0.0, 0.0, 5000.0]))
-    err = olti("compensate", result, d / "far.csv", "--out", d / "far_cmd.csv", expect=2).stderr
+    err = olti_sub("compensate", result, d / "far.csv", "--out", d / "far_cmd.csv", expect=2).stderr
     assert "far.csv:2: target" in err and "cannot be reached" in err and not (d / "far_cmd.csv").exists()
 
 
@@ -322,8 +311,8 @@ def test_compensate_seven_joints_keeps_the_nominal_null_space_choice(arm7):
     tmp_path, chain = arm7
     poses = chain.random_angles(10, seed=21) * 0.5
     _targets(tmp_path / "t.csv", chain, poses, tool=(20.0, 10.0, 30.0))
-    olti("compensate", tmp_path / "r.json", tmp_path / "t.csv", "--out", tmp_path / "cmd.csv", "--urdf-out",
-         tmp_path / "arm7_identified.urdf")
+    olti_sub("compensate", tmp_path / "r.json", tmp_path / "t.csv", "--out", tmp_path / "cmd.csv", "--urdf-out",
+             tmp_path / "arm7_identified.urdf", expect=0)
     c = _read_csv(tmp_path / "cmd.csv")
     cmd = np.column_stack([c[f"theta{i}_deg"] for i in range(1, 8)])
     moved = np.abs(cmd - poses).max(axis=1)

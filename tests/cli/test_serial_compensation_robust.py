@@ -9,8 +9,6 @@ wrist singularity (q5 within 1 deg of 0 or 180, five exactly at 0), the elbow up
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,17 +17,10 @@ import pytest
 from olti_drake.io.csvio import write_table
 from olti_drake.io.serial_io import load_robot
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 TOOL = (40.0, -25.0, 60.0)
-
-
-def olti(*args, expect=0):
-    out = subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300)
-    assert out.returncode == expect, out.stdout + out.stderr
-    assert "Traceback" not in out.stderr
-    return out
 
 
 def read_csv(path):
@@ -85,8 +76,8 @@ def setup(tmp_path_factory):
     dirs = rng.choice([-1.0, 1.0], size=program.shape)
     wanted = chain.positions(program, chain.nominal_parameters(TOOL))  # where the program means the tool point
     write_targets(d / "program.csv", wanted, program, dirs)
-    run = olti("compensate", d / "result.json", d / "program.csv", "--out", d / "commands.csv",
-               "--cartesian-out", d / "cartesian.csv", "--ros2-control-out", d / "offsets.yaml")
+    run = olti_sub("compensate", d / "result.json", d / "program.csv", "--out", d / "commands.csv",
+                   "--cartesian-out", d / "cartesian.csv", "--ros2-control-out", d / "offsets.yaml", expect=0)
     return d, chain, truth, program, dirs, wanted, run
 
 
@@ -129,7 +120,7 @@ def test_an_unreachable_target_is_flagged_by_its_line_and_the_others_are_written
     beyond[0, 2] = 181.0
     want[11] = model.chain.positions(beyond, model.chain_parameters(model.start_vector()))[0]
     write_targets(d / "mixed.csv", want, nominal, dirs[:20])
-    run = olti("compensate", d / "result.json", d / "mixed.csv", "--out", d / "mixed_cmd.csv", expect=3)
+    run = olti_sub("compensate", d / "result.json", d / "mixed.csv", "--out", d / "mixed_cmd.csv", expect=3)
     c = read_csv(d / "mixed_cmd.csv")
     status = c["status"]
     assert status[3] == status[7] == 1 and status[11] == 2  # unreachable, joint_limit
@@ -148,7 +139,7 @@ def test_an_unreachable_target_is_flagged_by_its_line_and_the_others_are_written
     assert np.abs(cmd[ok] - full_cmd[ok]).max() < 1e-9 and np.abs(cmd[~ok] - nominal[~ok]).max() < 1e-9
     # nothing to write: refused as before, one line
     write_targets(d / "far.csv", want[[3, 7]], nominal[[3, 7]], dirs[[3, 7]])
-    err = olti("compensate", d / "result.json", d / "far.csv", "--out", d / "far_cmd.csv", expect=2).stderr
+    err = olti_sub("compensate", d / "result.json", d / "far.csv", "--out", d / "far_cmd.csv", expect=2).stderr
     assert err.startswith("error: ") and len(err.strip().splitlines()) == 1 and "far.csv:2: target" in err
     assert not (d / "far_cmd.csv").exists()
 

@@ -10,8 +10,6 @@ identification propagates), seeded.
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -22,6 +20,7 @@ from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import ReadingErrors
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, motion_names, motion_unit,
                                            synthetic_truth, tool_positions)
+from olti_calls import olti_in, olti_sub
 
 NOMINAL_TOOLS = ((0.0, 0.0, 100.0), (150.0, 0.0, 100.0), (0.0, 150.0, 140.0))
 TOOL_ERRORS = ((0.0, 0.0, 0.0), (0.05, -0.03, 0.02), (-0.02, 0.04, 0.03))
@@ -60,15 +59,6 @@ def write_campaign(cfg, truth, k, path, n, seed):
     i, j = np.repeat(np.arange(len(cmd)), len(STATIONS)), np.tile(np.arange(len(STATIONS)), len(cmd))
     write_machine_campaign({"station": j, "target": i, "x_cmd_mm": cmd[i, 0], "y_cmd_mm": cmd[i, 1],
                             "z_cmd_mm": cmd[i, 2], "tool": tool[i], "displacement_mm": reading.ravel()}, path)
-
-
-def _olti(capsys, *argv):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:   # argparse: the one-line usage error, exit 2
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _table(path):
@@ -161,8 +151,8 @@ def test_one_tool_campaign_names_the_angular_motions_it_cannot_separate(identifi
     for name, (err, u, _) in normalized_errors(doc, truth).items():
         if name in motion_names("X") + motion_names("Y") and name not in held:
             assert np.all(err <= 3 * u + b[name] + 1e-12), name
-    code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
-                           tools_option(1), "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
+                             tools_option(1), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0 and err == ""
     for name in held:
         assert f"note: {name} held at 0" in out
@@ -175,7 +165,8 @@ def test_predict_reproduces_the_truth_within_its_uncertainty(identified, tmp_pat
     tool = rng.integers(0, 3, 60)
     lines = ["x_cmd_mm,y_cmd_mm,z_cmd_mm,tool"] + [f"{x:.6f},{y:.6f},{z:.6f},{m}" for (x, y, z), m in zip(c, tool)]
     (tmp_path / "points.csv").write_text("\n".join(lines) + "\n")
-    code, out, err = _olti(capsys, "predict", d / "result.json", tmp_path / "points.csv", "--out", tmp_path / "p.csv")
+    code, out, err = olti_in("predict", d / "result.json", tmp_path / "points.csv", "--out", tmp_path / "p.csv",
+                             capsys=capsys)
     assert code == 0, err
     t = _table(tmp_path / "p.csv")
     p = np.column_stack([t["x_mm"], t["y_mm"], t["z_mm"]])
@@ -187,12 +178,13 @@ def test_predict_reproduces_the_truth_within_its_uncertainty(identified, tmp_pat
     assert np.abs(true - nominal).max() > 10 * u.max()  # the prediction is not the nominal machine
     # outside the identified travel: refused naming the line, or motions held at the ends with --outside clamp
     (tmp_path / "out.csv").write_text("x_cmd_mm,y_cmd_mm,z_cmd_mm\n10,20,30\n410,0,0\n")
-    code, out, err = _olti(capsys, "predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv")
+    code, out, err = olti_in("predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv",
+                             capsys=capsys)
     assert code == 2 and "out.csv" in err and "line 3" in err and "X travel" in err and "--outside clamp" in err
     _one_error_line(err)
     assert not (tmp_path / "o.csv").exists()
-    code, out, err = _olti(capsys, "predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv",
-                           "--outside", "clamp")
+    code, out, err = olti_in("predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv",
+                             "--outside", "clamp", capsys=capsys)
     assert code == 0
 
 
@@ -205,8 +197,8 @@ def test_compensated_commands_put_the_truth_tool_point_on_the_targets(identified
     wanted = rng.uniform([5, 5, 5], [395, 295, 245], (50, 3)) + np.array(NOMINAL_TOOLS)[tool]
     lines = ["x_mm,y_mm,z_mm,tool"] + [f"{x:.6f},{y:.6f},{z:.6f},{m}" for (x, y, z), m in zip(wanted, tool)]
     (tmp_path / "wanted.csv").write_text("\n".join(lines) + "\n")
-    code, out, err = _olti(capsys, "compensate", d / "result.json", tmp_path / "wanted.csv", "--out",
-                           tmp_path / "commands.csv")
+    code, out, err = olti_in("compensate", d / "result.json", tmp_path / "wanted.csv", "--out",
+                             tmp_path / "commands.csv", capsys=capsys)
     assert code == 0, err
     t = _table(tmp_path / "commands.csv")
     q = np.column_stack([t["x_cmd_mm"], t["y_cmd_mm"], t["z_cmd_mm"]])
@@ -219,8 +211,9 @@ def test_compensated_commands_put_the_truth_tool_point_on_the_targets(identified
 def test_tables_carry_the_iso_names_one_row_per_position(identified, tmp_path, capsys):
     d, cfg, truth, doc = identified[3]
     (tmp_path / "w.csv").write_text("x_mm,y_mm,z_mm\n100,100,200\n")
-    code, out, err = _olti(capsys, "compensate", d / "result.json", tmp_path / "w.csv", "--out", tmp_path / "c.csv",
-                           "--tables", tmp_path / "tables", "--pitch-mm", "10", "--grid-pitch-mm", "100")
+    code, out, err = olti_in("compensate", d / "result.json", tmp_path / "w.csv", "--out", tmp_path / "c.csv",
+                             "--tables", tmp_path / "tables", "--pitch-mm", "10", "--grid-pitch-mm", "100",
+                             capsys=capsys)
     assert code == 0, err
     assert sorted(os.listdir(tmp_path / "tables")) == ["axis_X.csv", "axis_Y.csv", "axis_Z.csv", "grid_tool0.csv",
                                                       "grid_tool1.csv", "grid_tool2.csv"]
@@ -234,40 +227,35 @@ def test_tables_carry_the_iso_names_one_row_per_position(identified, tmp_path, c
     assert g.dtype.names == ("x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "dx_mm", "dy_mm", "dz_mm") and len(g) == 5 * 4 * 4
 
 
-def _sub(*argv):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True,
-                          timeout=300)
-
-
 def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
     d, cfg, truth, doc = identified[3]
     flat = tmp_path / "flat.csv"     # a 2D machine campaign: no z_cmd_mm
     flat.write_text("station,target,x_cmd_mm,y_cmd_mm,displacement_mm\n" + "".join(
         f"{j},{i},{10 * i},{5 * i % 7},{0.1 * i + j}\n" for i in range(8) for j in range(4)))
-    r = _sub("identify", flat, "--model", "volumetric", "--out", tmp_path / "r.json")
+    r = olti_sub("identify", flat, "--model", "volumetric", "--out", tmp_path / "r.json")
     assert r.returncode == 2 and "z_cmd_mm" in r.stderr and "flat.csv" in r.stderr
     _one_error_line(r.stderr)
     for bad in ("1,2;3,4,5", "a,b,c", "0,0,nan"):
-        code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
-                               bad, "--out", tmp_path / "r.json")
+        code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
+                                 bad, "--out", tmp_path / "r.json", capsys=capsys)
         assert code == 2 and "--tool-offsets-mm" in err, err
         _one_error_line(err)
     for offsets, count in ((tools_option(2), "2 offset(s)"), (tools_option(3) + ";1,1,1", "4 offset(s)")):
-        code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
-                               offsets, "--out", tmp_path / "r.json")
+        code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
+                                 offsets, "--out", tmp_path / "r.json", capsys=capsys)
         assert code == 2 and "--tool-offsets-mm" in err and count in err and "0..2" in err
         _one_error_line(err)
     # --tool-offsets-mm is optional (cli.md): the 3D multilateration's estimate starts the same fit
-    code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--out",
-                           tmp_path / "auto.json")
+    code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--out",
+                             tmp_path / "auto.json", capsys=capsys)
     assert code == 0, err
     auto = json.loads((tmp_path / "auto.json").read_text())
     assert auto["residual_rms_mm"] == pytest.approx(doc["residual_rms_mm"], rel=1e-3)
     a, b = np.asarray(auto["tool_offsets_mm"]), np.asarray(doc["tool_offsets_mm"])
     assert np.allclose(a - a[0], b - b[0], atol=1e-3)  # relative to tool 0, whose offset is the gauge's origin
     assert any("3D multilateration" in n for n in auto.get("notes", []))
-    code, out, err = _olti(capsys, "identify", d / "campaign.csv", "--model", "volumetric", "--grid1-deg", "0:10:5",
-                           "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--grid1-deg", "0:10:5",
+                             "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "--grid1-deg" in err
     assert not (tmp_path / "r.json").exists()
     # a damaged result: one line naming the file and the key
@@ -275,17 +263,19 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
     broken["uncertainty"] = dict(doc["uncertainty"], covariance=[[1.0]])
     (tmp_path / "broken.json").write_text(json.dumps(broken))
     (tmp_path / "p.csv").write_text("x_cmd_mm,y_cmd_mm,z_cmd_mm\n1,2,3\n")
-    code, out, err = _olti(capsys, "predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv")
+    code, out, err = olti_in("predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv",
+                             capsys=capsys)
     assert code == 2 and "broken.json" in err and "uncertainty.covariance" in err
     _one_error_line(err)
     # olti report renders a volumetric result (tests/report/test_volumetric_report.py); olti uncertainty refuses it
     for verb in (["uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear"],):
-        code, out, err = _olti(capsys, *verb, "--out", tmp_path / "u")
+        code, out, err = olti_in(*verb, "--out", tmp_path / "u", capsys=capsys)
         assert code == 2 and ("olti-volumetric/1" in err or "volumetric result" in err), err
         _one_error_line(err)
     del broken["stations_mm"]
     (tmp_path / "broken.json").write_text(json.dumps(broken))
-    code, out, err = _olti(capsys, "predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv")
+    code, out, err = olti_in("predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv",
+                             capsys=capsys)
     assert code == 2 and "'stations_mm'" in err
 
 
@@ -308,8 +298,8 @@ def test_a_campaign_at_one_z_refuses_z_by_name(identified, tmp_path, capsys):
     k = header.index("z_cmd_mm")
     rows = [",".join(f if c != k else "120.000000" for c, f in enumerate(line.split(","))) for line in text[2:]]
     (tmp_path / "flat_z.csv").write_text("\n".join(text[1:2] + rows) + "\n")
-    code, out, err = _olti(capsys, "identify", tmp_path / "flat_z.csv", "--model", "volumetric", "--tool-offsets-mm",
-                           tools_option(1), "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", tmp_path / "flat_z.csv", "--model", "volumetric", "--tool-offsets-mm",
+                             tools_option(1), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "E_ZZ" in err and "z = 120" in err
     _one_error_line(err)
 
@@ -330,8 +320,8 @@ def test_the_simulated_pan_tilt_campaign_is_identified_with_the_default_knots(tm
     spacing from the grid (9, 8, 7 positions: 125 mm), every motion within 3 u of the truth (u from the
     001 Table 4 budget, conservative here: the simulated readings scatter less than it predicts)."""
     cfg, truth = _pan_tilt_campaign(tmp_path / "campaign.csv", (9, 8, 7))
-    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
-                           "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                             "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["representation"]["knot_spacing_mm"] == 125.0 and not doc["held_motions"] and not doc["warnings"]
@@ -344,11 +334,12 @@ def test_too_few_positions_for_the_spline_are_refused_naming_the_axis(tmp_path, 
     """3 z positions cannot carry a cubic spline (4 coefficients): refused naming Z and its motions -- not
     mistaken for a tool-geometry blind spot (nothing is held at 0); too fine knots likewise."""
     _pan_tilt_campaign(tmp_path / "campaign.csv", (5, 4, 3))
-    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
-                           "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                             "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "Z is commanded at 3 distinct positions" in err and "E_ZZ" in err and "held" not in err
     _one_error_line(err)
-    code, out, err = _olti(capsys, "identify", tmp_path / "campaign.csv", "--model", "volumetric",
-                           "--tool-offsets-mm", tools_option(3), "--knot-spacing-mm", "40", "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", tmp_path / "campaign.csv", "--model", "volumetric",
+                             "--tool-offsets-mm", tools_option(3), "--knot-spacing-mm", "40", "--out",
+                             tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "X is commanded at 5 distinct positions" in err and "--knot-spacing-mm" in err
     assert not (tmp_path / "r.json").exists()

@@ -12,6 +12,7 @@ from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.model.chain import gravity_torques, load_serial_chain
 from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
                                      synthetic_truth)
+from olti_calls import olti_sub
 
 TOOL = (40.0, -25.0, 60.0)
 RANGES = np.array([[-90, 90], [-170, -10], [-120, 120], [-90, 90], [-60, 150], [-180, 180]], float)
@@ -135,8 +136,6 @@ def test_cli_compliance_and_drift(chain, tmp_path):
     and drift parameters, olti predict reproduces the readings (drift included) within a few µm, olti report
     shows the drift; --drift without time_s is one line naming the column."""
     import json
-    import subprocess
-    import sys
 
     from olti_drake.io.serial_io import write_serial_campaign
 
@@ -151,28 +150,25 @@ def test_cli_compliance_and_drift(chain, tmp_path):
     write_serial_campaign(path, camp.distance_commands, camp.distance_dirs, station=camp.station,
                           displacement_mm=readings, extra={"time_s": time_s})
 
-    def olti(*args):
-        return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True, text=True)
-
-    run = olti("identify", path, "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm", "40,-25,60",
-               "--model", "errormap", "--compliance", "--drift", "--out", tmp_path / "r.json")
+    run = olti_sub("identify", path, "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm", "40,-25,60",
+                   "--model", "errormap", "--compliance", "--drift", "--out", tmp_path / "r.json")
     assert run.returncode == 0, run.stderr
     res = json.loads((tmp_path / "r.json").read_text())
     assert "elbow_joint_compliance_deg_per_Nm" in res and len(res["drift_mm_per_h"]) == 4
     assert np.allclose(res["drift_mm_per_h"], v, atol=3 * np.asarray(res["uncertainty"]["drift_mm_per_h"]) + 1e-4)
-    run = olti("predict", tmp_path / "r.json", path, "--out", tmp_path / "p.csv")
+    run = olti_sub("predict", tmp_path / "r.json", path, "--out", tmp_path / "p.csv")
     assert run.returncode == 0, run.stderr
     lines = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if not ln.startswith("#")]
     head = lines[0].split(",")
     rows = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]])
     miss = rows[:, head.index("predicted_displacement_mm")] - rows[:, head.index("displacement_mm")]
     assert np.sqrt(np.mean(miss ** 2)) < 3 * res["residual_rms_mm"] + 1e-4
-    run = olti("report", tmp_path / "r.json", "--out", tmp_path / "rep")
+    run = olti_sub("report", tmp_path / "r.json", "--out", tmp_path / "rep")
     assert run.returncode == 0, run.stderr
     assert "dead-path drift 3" in (tmp_path / "rep" / "report.html").read_text()
     plain = tmp_path / "plain.csv"
     write_serial_campaign(plain, camp.distance_commands, camp.distance_dirs, station=camp.station,
                           displacement_mm=readings)
-    run = olti("identify", plain, "--robot", "ur5", "--tool-frame", "tool0", "--model", "dh", "--drift",
-               "--out", tmp_path / "r2.json")
+    run = olti_sub("identify", plain, "--robot", "ur5", "--tool-frame", "tool0", "--model", "dh", "--drift",
+                   "--out", tmp_path / "r2.json")
     assert run.returncode == 2 and "'time_s'" in run.stderr and len(run.stderr.strip().splitlines()) == 1

@@ -9,8 +9,6 @@ candidate and workspace grids keep the file fast.
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -23,6 +21,7 @@ from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import ScaraModel, forward_kinematics
 from olti_drake.io.result import _values
 from olti_drake.sim.scenario import Scenario
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 REGIONS = os.path.join(ROOT, "data", "regions_paper000.yaml")
@@ -256,18 +255,13 @@ def test_dh_model_layout_cost(paper):
 
 
 # -- the command ------------------------------------------------------------------------------------
-def olti(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd)
-
-
 def test_cli_design(tmp_path, paper):
     model, _, _, _, P = paper
     result = {"format": "olti-result/1", "model": "errormap"}
     result.update(_values(model, P, np.zeros(3)))
     (tmp_path / "result.json").write_text(json.dumps(result))
-    r = olti("design", "result.json", "--regions", REGIONS, "--step-mm", 150, "--workspace-step-mm", 100,
-             "--starts", 1, "--out", "design.json", cwd=tmp_path)
+    r = olti_sub("design", "result.json", "--regions", REGIONS, "--step-mm", 150, "--workspace-step-mm", 100,
+                 "--starts", 1, "--out", "design.json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     print(r.stdout)
     for needle in ("current (result)", "designed (3 refl.)", "improvement (max u", "designed positions (mm)",
@@ -283,8 +277,8 @@ def test_cli_design(tmp_path, paper):
 
     # Bad regions: one line naming the field; never overwrite an input.
     (tmp_path / "bad.yaml").write_text("regions:\n  - {x_mm: [900, 650], y_mm: [0, 1]}\n")
-    r = olti("design", "result.json", "--regions", "bad.yaml", "--out", "d2.json", cwd=tmp_path)
+    r = olti_sub("design", "result.json", "--regions", "bad.yaml", "--out", "d2.json", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1
     assert "regions[0].x_mm" in r.stderr
-    r = olti("design", "result.json", "--regions", REGIONS, "--out", "result.json", cwd=tmp_path)
+    r = olti_sub("design", "result.json", "--regions", REGIONS, "--out", "result.json", cwd=tmp_path)
     assert r.returncode == 2 and "overwrite an input" in r.stderr

@@ -17,6 +17,7 @@ from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_errors import FiveAxisPositionModel
 from olti_drake.model.five_axis_truth import synthetic_truth
 from olti_drake.model.propagation import predicted_std
+from olti_calls import olti_sub
 
 TRUNNION = str(files("olti_drake") / "models" / "trunnion_ac.urdf")
 NOISE_MM = 0.001
@@ -195,13 +196,6 @@ def test_what_the_campaign_cannot_separate_is_named_in_the_notes(distance_fit, t
 
 
 # ----------------------------------------------------------------------------------------------- (d) the CLI
-def run_cli(*argv):
-    import subprocess
-    import sys
-
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True)
-
-
 @pytest.fixture(scope="module")
 def small_campaign(machine, truth, tmp_path_factory):
     path = tmp_path_factory.mktemp("s") / "small.csv"
@@ -214,8 +208,8 @@ def test_cli_identify_then_predict_round_trip(machine, small_campaign, tmp_path)
     campaign = small_campaign[0]
     ident, fit = identify(machine, campaign, model="geometric")
     out, points, pred = tmp_path / "r.json", tmp_path / "points.csv", tmp_path / "p.csv"
-    r = run_cli("identify", campaign, "--machine", TRUNNION, "--workpiece-frame", "workpiece", "--tool-frame", "tool",
-                "--model", "geometric", "--out", out)
+    r = olti_sub("identify", campaign, "--machine", TRUNNION, "--workpiece-frame", "workpiece", "--tool-frame", "tool",
+                 "--model", "geometric", "--out", out)
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
     assert doc["format"] == "olti-machine5/1" and doc["kind"] == "machine5"
@@ -223,7 +217,7 @@ def test_cli_identify_then_predict_round_trip(machine, small_campaign, tmp_path)
         assert doc["location_errors"][n] == pytest.approx(v, abs=1e-9)
     c, d = random_commands(machine, 15, 11)
     write_five_axis_campaign(points, command_columns(machine, c, d))
-    r = run_cli("predict", out, points, "--out", pred)
+    r = olti_sub("predict", out, points, "--out", pred)
     assert r.returncode == 0, r.stderr
     from olti_drake.io.csvio import read_table
 
@@ -235,19 +229,23 @@ def test_cli_identify_then_predict_round_trip(machine, small_campaign, tmp_path)
     k = pm.n_params
     p0, J = pm.jacobian(fit.x[:k])
     np.testing.assert_allclose(p, p0, atol=1e-8)
-    np.testing.assert_allclose(u, predicted_std(J.tocsr(), fit.covariance[:k, :k], dim=3), rtol=1e-5, atol=1e-9)
+    # (the geometric model leaves the truth's error motions out: the residuals' lack of fit beyond the 001
+    # budget's reading u is in every predicted point's u, and in the result)
+    assert fit.lack_of_fit_mm > 0.0 and doc["covariance"]["lack_of_fit_mm"] == pytest.approx(fit.lack_of_fit_mm)
+    u_cov = predicted_std(J.tocsr(), fit.covariance[:k, :k], dim=3)
+    np.testing.assert_allclose(u, np.sqrt(u_cov ** 2 + fit.lack_of_fit_mm ** 2), rtol=1e-5, atol=1e-9)
     res = load_machine5_result(out)
     assert res.names == pm.names and res.covariance.shape == (k, k)
 
 
 def test_cli_refuses_mismatched_options(tmp_path, small_campaign):
     campaign = small_campaign[0]
-    r = run_cli("identify", campaign, "--model", "geometric", "--out", tmp_path / "r.json")
+    r = olti_sub("identify", campaign, "--model", "geometric", "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "--machine" in r.stderr and "Traceback" not in r.stderr
-    r = run_cli("identify", campaign, "--machine", TRUNNION, "--model", "volumetric", "--out", tmp_path / "r.json")
+    r = olti_sub("identify", campaign, "--machine", TRUNNION, "--model", "volumetric", "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "geometric or errormap" in r.stderr and "Traceback" not in r.stderr
-    r = run_cli("identify", campaign, "--machine", TRUNNION, "--model", "errormap", "--knot-spacing-mm", "50",
-                "--out", tmp_path / "r.json")
+    r = olti_sub("identify", campaign, "--machine", TRUNNION, "--model", "errormap", "--knot-spacing-mm", "50",
+                 "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "--knot-spacing-mm" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -276,7 +274,7 @@ def test_bad_campaigns_are_refused_in_one_line(machine, tmp_path, header, row, e
     assert expect in msg and str(path) in msg and "\n" not in msg, msg
     if row:
         assert f"{path}:2:" in msg or f"{path}:1:" in msg, msg
-    r = run_cli("identify", path, "--machine", TRUNNION, "--model", "geometric", "--out", tmp_path / "r.json")
+    r = olti_sub("identify", path, "--machine", TRUNNION, "--model", "geometric", "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "Traceback" not in r.stderr and expect in r.stderr, r.stderr
 
 

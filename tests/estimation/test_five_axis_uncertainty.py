@@ -8,32 +8,25 @@ import json
 import numpy as np
 import pytest
 
-from olti_drake.cli import main
 from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_truth import synthetic_truth
 from tests.estimation.test_five_axis_identify import (SIX_TABLE_STATIONS, TABLE_STATIONS, TRUNNION, distance_campaign,
                                            no_dropped_truth, rtest_campaign, write_five_axis_campaign)
+from olti_calls import olti_in
 
 MACHINE = ("--machine", TRUNNION, "--workpiece-frame", "workpiece", "--tool-frame", "tool")
-
-
-def olti(*argv) -> int:
-    try:
-        return main([str(a) for a in argv])
-    except SystemExit as e:
-        return e.code
 
 
 def identified(folder, cols, *options):
     """(campaign, result) paths: ``cols`` written and identified by ``olti identify --machine``."""
     campaign, result = folder / "campaign.csv", folder / "result.json"
     write_five_axis_campaign(campaign, cols)
-    assert olti("identify", campaign, *MACHINE, *options, "--out", result) == 0
+    olti_in("identify", campaign, *MACHINE, *options, "--out", result, expect=0)
     return campaign, result
 
 
 def uncertainty(result, campaign, out, *options) -> dict:
-    assert olti("uncertainty", result, campaign, *options, "--out", out) == 0
+    olti_in("uncertainty", result, campaign, *options, "--out", out, expect=0)
     return json.loads(out.read_text())
 
 
@@ -143,13 +136,14 @@ def test_refusals_are_one_line(small_case, tmp_path, capsys):
     (ca, ra), (cb, rb) = small_case
     # another campaign than the result's
     write_five_axis_campaign(tmp_path / "cut.csv", {k: v[:-4] for k, v in _columns(ca).items()})
-    assert olti("uncertainty", ra, tmp_path / "cut.csv", "--method", "linear", "--out", tmp_path / "u.json") != 0
-    err = capsys.readouterr().err
+    code, _, err = olti_in("uncertainty", ra, tmp_path / "cut.csv", "--method", "linear", "--out", tmp_path / "u.json",
+                           capsys=capsys)
+    assert code != 0
     assert err.count("\n") == 1 and "not the campaign" in err and "Traceback" not in err, err
     for figure in ("--map", "--maps"):  # (the robots' figures: a five-axis result's are the report's)
-        assert olti("uncertainty", ra, ca, "--method", "linear", figure, tmp_path / "m.png", "--out",
-                    tmp_path / "u.json") != 0
-        err = capsys.readouterr().err
+        code, _, err = olti_in("uncertainty", ra, ca, "--method", "linear", figure, tmp_path / "m.png", "--out",
+                               tmp_path / "u.json", capsys=capsys)
+        assert code != 0
         assert err.count("\n") == 1 and figure in err and "olti report" in err, err
     assert not (tmp_path / "u.json").exists()
 

@@ -14,7 +14,7 @@ from olti_drake.estimation.multilateration import Multilateration, Multilaterati
 from olti_drake.io.budget import default_budget
 from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import ReadingErrors
-from tests.cli.test_cli_outputs import _olti
+from olti_calls import olti_in
 
 STATIONS = np.array([[-300, -200, 0], [700, -250, 50], [600, 600, 300], [-200, 500, 400], [200, 150, 900.]])
 DEAD_PATHS = np.array([0.3, 1.2, -0.4, 2.0, 0.7])
@@ -99,11 +99,11 @@ def test_degenerate_design_spaces_are_refused_by_name(solved):
 
 def test_olti_design_on_a_3d_multilateration_result(tmp_path, capsys):
     write_machine_campaign(campaign_columns(), tmp_path / "c.csv")
-    code, out, err = _olti(capsys, "multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json")
+    code, out, err = olti_in("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     (tmp_path / "r.yaml").write_text(REGIONS)
-    code, out, err = _olti(capsys, "design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations", 5,
-                           "--step-mm", 300, "--starts", 1, "--max-sweeps", 1, "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations", 5,
+                           "--step-mm", 300, "--starts", 1, "--max-sweeps", 1, "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "d.json").read_text())
     assert doc["format"] == "olti-design/1" and len(doc["stations_mm"]) == 5 and doc["criterion"] == "max"
@@ -111,25 +111,25 @@ def test_olti_design_on_a_3d_multilateration_result(tmp_path, capsys):
     assert "current (result)" in out and "designed (5 stations)" in out
     # coplanar candidates: one error line naming the regions file, nothing written
     (tmp_path / "flat.yaml").write_text("regions:\n  - {x_mm: [-400, 800], y_mm: [-400, 600], z_mm: 0}\n")
-    code, out, err = _olti(capsys, "design", tmp_path / "r.json", "--regions", tmp_path / "flat.yaml", "--stations",
-                           5, "--step-mm", 300, "--out", tmp_path / "d2.json")
+    code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "flat.yaml", "--stations",
+                           5, "--step-mm", 300, "--out", tmp_path / "d2.json", capsys=capsys)
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "flat.yaml" in err
     assert "one plane" in err and not (tmp_path / "d2.json").exists()
-    code, out, err = _olti(capsys, "design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations",
-                           3, "--step-mm", 300, "--out", tmp_path / "d3.json")
+    code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations",
+                           3, "--step-mm", 300, "--out", tmp_path / "d3.json", capsys=capsys)
     assert code == 2 and "at least 4 stations" in err and err.count("\n") == 1
 
 
 def test_a_bad_or_2d_machine_result_is_refused_in_one_line(tmp_path, capsys):
     (tmp_path / "r.yaml").write_text(REGIONS)
     (tmp_path / "bad.json").write_text(json.dumps({"format": "olti-multilateration/1", "gauge": "g"}))
-    code, out, err = _olti(capsys, "design", tmp_path / "bad.json", "--regions", tmp_path / "r.yaml",
-                           "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", tmp_path / "bad.json", "--regions", tmp_path / "r.yaml",
+                           "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 2 and "bad.json" in err and "'targets_mm'" in err and err.count("\n") == 1
     flat = {"format": "olti-multilateration/1", "gauge": "g", "targets_mm": [[0, 0], [1, 0], [0, 1]],
             "stations_mm": [[5, 5]], "dead_paths_mm": [0]}
     (tmp_path / "two.json").write_text(json.dumps(flat))
-    code, out, err = _olti(capsys, "design", tmp_path / "two.json", "--regions", tmp_path / "r.yaml",
-                           "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", tmp_path / "two.json", "--regions", tmp_path / "r.yaml",
+                           "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 2 and "two.json" in err and "2D" in err and err.count("\n") == 1
     assert not (tmp_path / "d.json").exists()

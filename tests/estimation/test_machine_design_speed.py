@@ -16,7 +16,7 @@ from olti_drake.estimation.machine_design import (DEFAULT_CANDIDATES, LayoutCost
                                                   evaluate_machine_layout)
 from olti_drake.estimation.serial_design import candidate_points, load_boxes
 from olti_drake.io.csvio import write_machine_campaign
-from tests.cli.test_cli_outputs import _olti
+from olti_calls import olti_in
 from tests.estimation.test_machine_design import REGIONS, _info, campaign_columns, solved  # noqa: F401 (a fixture)
 
 
@@ -46,11 +46,11 @@ def test_the_default_design_of_a_3d_result_finishes(tmp_path, capsys):
     """olti design with its defaults (no --step-mm, 3 starts, 5 sweeps) on a 3D multilateration result returns,
     with a candidate step from the regions' size."""
     write_machine_campaign(campaign_columns(), tmp_path / "c.csv")
-    code, out, err = _olti(capsys, "multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json")
+    code, out, err = olti_in("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     (tmp_path / "r.yaml").write_text(REGIONS)
-    code, out, err = _olti(capsys, "design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml",
-                           "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml",
+                           "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "d.json").read_text())
     assert len(doc["stations_mm"]) == 5 and np.isfinite(doc["designed"]["cost_mm"])
@@ -82,10 +82,10 @@ def test_an_absurd_run_time_or_memory_is_refused_before_any_work(solved, tmp_pat
         check_design_time(360, 200_000, 5, 3, 5)
     check_design_time(360, DEFAULT_CANDIDATES, 5, 3, 5)  # the defaults pass
     write_machine_campaign(campaign_columns(), tmp_path / "c.csv")
-    code, out, err = _olti(capsys, "multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json")
+    code, out, err = olti_in("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     (tmp_path / "r.yaml").write_text(REGIONS)
-    code, out, err = _olti(capsys, "design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--step-mm", 8,
-                           "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--step-mm", 8,
+                           "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "--step-mm" in err, err
     assert not (tmp_path / "d.json").exists()

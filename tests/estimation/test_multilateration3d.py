@@ -9,6 +9,7 @@ from olti_drake.estimation.calibration import UnidentifiableError
 from olti_drake.estimation.multilateration import load_machine_campaign, machine_campaign
 from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaign_3d
+from olti_calls import olti_sub
 
 
 @pytest.fixture(scope="module")
@@ -224,20 +225,13 @@ def test_3d_jacobian_is_sparse_one_target_one_station_per_reading(campaign3d):
     np.testing.assert_allclose((ml.residuals(x)[0] - r) / 1e-6, J[:, k].toarray().ravel(), atol=1e-5)
 
 
-def _olti(*argv):
-    import subprocess
-    import sys
-
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True)
-
-
 def test_cli_multilaterate_and_uncertainty_in_3d(tmp_path, campaign3d):
     import json
 
     cols, truth = campaign3d
     camp = tmp_path / "c3.csv"
     write_machine_campaign(cols, camp)
-    out = _olti("multilaterate", camp, "--out", tmp_path / "r.json")
+    out = olti_sub("multilaterate", camp, "--out", tmp_path / "r.json")
     assert out.returncode == 0, out.stderr
     assert "3D" in out.stdout and "station 4: (" in out.stdout
     res = json.loads((tmp_path / "r.json").read_text())
@@ -249,14 +243,14 @@ def test_cli_multilaterate_and_uncertainty_in_3d(tmp_path, campaign3d):
 
     T = align_to_commands(np.asarray(truth["targets_mm"]), np.asarray(res["commands_mm"]))
     assert np.mean(np.abs(np.asarray(res["targets_mm"]) - T) < 3 * np.asarray(res["uncertainty"]["targets_mm"])) >= 0.99
-    lin = _olti("uncertainty", tmp_path / "r.json", camp, "--method", "linear", "--out", tmp_path / "u.json",
-                "--map", tmp_path / "u.png")
+    lin = olti_sub("uncertainty", tmp_path / "r.json", camp, "--method", "linear", "--out", tmp_path / "u.json",
+                   "--map", tmp_path / "u.png")
     assert lin.returncode == 0, lin.stderr
     u = json.loads((tmp_path / "u.json").read_text())
     np.testing.assert_allclose(u["targets_mm"], res["uncertainty"]["targets_mm"], rtol=1e-6)
     assert (tmp_path / "u.png").stat().st_size > 10_000
-    mc = _olti("uncertainty", tmp_path / "r.json", camp, "--method", "mc", "--trials", "200", "--seed", "1",
-               "--out", tmp_path / "m.json")
+    mc = olti_sub("uncertainty", tmp_path / "r.json", camp, "--method", "mc", "--trials", "200", "--seed", "1",
+                  "--out", tmp_path / "m.json")
     assert mc.returncode == 0, mc.stderr
     ratio = np.asarray(json.loads((tmp_path / "m.json").read_text())["targets_mm"]) / np.asarray(u["targets_mm"])
     assert 0.75 < np.median(ratio) < 1.25  # Monte Carlo agrees with the linear propagation (200 trials)
@@ -267,7 +261,7 @@ def test_cli_3d_options_are_checked_against_the_campaign(tmp_path, campaign3d):
     write_machine_campaign(campaign3d[0], camp)
     for extra, says in ((["--gauge", "first-two"], "--gauge first-two: a 3D campaign"),
                         (["--stations-mm", "0,0;1,1;2,2;3,3;4,4"], "--stations-mm: .* 3 coordinates")):
-        out = _olti("multilaterate", camp, "--out", tmp_path / "r.json", *extra)
+        out = olti_sub("multilaterate", camp, "--out", tmp_path / "r.json", *extra)
         assert out.returncode == 2 and not (tmp_path / "r.json").exists()
         assert len(out.stderr.strip().splitlines()) == 1 and out.stderr.startswith("error: ")
         import re
@@ -294,7 +288,7 @@ def test_3d_result_reads_back_and_is_reported(tmp_path, campaign3d):
     with pytest.raises(InputError, match="r.json: key 'stations_mm'"):
         load_result(path)
     path.write_text(json.dumps(res.to_dict()))
-    out = _olti("report", path, "--campaign", camp, "--out", tmp_path / "rep")
+    out = olti_sub("report", path, "--campaign", camp, "--out", tmp_path / "rep")
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "rep" / "report.html").stat().st_size > 10_000
     # The campaign digest covers the z commands and tools: a campaign that differs only there is refused.

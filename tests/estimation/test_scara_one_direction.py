@@ -8,8 +8,6 @@ directions -- while a bidirectional result refuses them. Units: mm and degrees.
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,14 +16,10 @@ from olti_drake.errors import InputError
 from olti_drake.estimation.identification import ONE_DIRECTIONAL_NOTE, IdentificationOptions, identify
 from olti_drake.io.csvio import load_campaign, load_commands
 from olti_drake.io.result import load_result, write_result
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
-
-
-def olti(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd)
 
 
 def drop_columns(src, dst, drop=("dir1", "dir2")):
@@ -111,12 +105,12 @@ def test_bidirectional_result_unchanged_in_format(fits, tmp_path):
 
 def test_cli_identify_and_predict_without_directions(campaigns):
     d = campaigns[0]
-    r = olti("identify", "nodir.csv", "--model", "errormap", "--out", "one.json", cwd=d)
+    r = olti_sub("identify", "nodir.csv", "--model", "errormap", "--out", "one.json", cwd=d)
     assert r.returncode == 0, r.stderr
-    r = olti("identify", CAMPAIGN, "--model", "errormap", "--out", "both.json", cwd=d)
+    r = olti_sub("identify", CAMPAIGN, "--model", "errormap", "--out", "both.json", cwd=d)
     assert r.returncode == 0, r.stderr
     (d / "cmd.csv").write_text("theta1_deg,theta2_deg\n0,20\n-40,60\n")
-    r = olti("predict", "one.json", "cmd.csv", "--out", "pred.csv", cwd=d)
+    r = olti_sub("predict", "one.json", "cmd.csv", "--out", "pred.csv", cwd=d)
     assert r.returncode == 0, r.stderr
     header = [l for l in open(d / "pred.csv").read().splitlines() if not l.startswith("#")][0].split(",")
     assert header == ["theta1_deg", "theta2_deg", "x_mm", "y_mm"]
@@ -126,26 +120,26 @@ def test_cli_identify_and_predict_without_directions(campaigns):
         l.startswith("#") for l in open(d / "pred.csv").read().splitlines()), ndmin=2)
     np.testing.assert_allclose(rows[:, 2:], model.positions(cmd), atol=1e-6)
     # the bidirectional result needs the directions: refused in one line, by name
-    r = olti("predict", "both.json", "cmd.csv", "--out", "pred2.csv", cwd=d)
+    r = olti_sub("predict", "both.json", "cmd.csv", "--out", "pred2.csv", cwd=d)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
     assert "dir1" in r.stderr and "bidirectional" in r.stderr
     # a one-directional result also takes commands with directions (ignored)
     (d / "cmd2.csv").write_text("theta1_deg,theta2_deg,dir1,dir2\n0,20,1,-1\n-40,60,-1,1\n")
-    r = olti("predict", "one.json", "cmd2.csv", "--out", "pred3.csv", cwd=d)
+    r = olti_sub("predict", "one.json", "cmd2.csv", "--out", "pred3.csv", cwd=d)
     assert r.returncode == 0, r.stderr
 
 
 def test_cli_identify_dh_without_directions(campaigns):
     d = campaigns[0]
-    r = olti("identify", "nodir.csv", "--model", "dh", "--out", "dh.json", cwd=d)
+    r = olti_sub("identify", "nodir.csv", "--model", "dh", "--out", "dh.json", cwd=d)
     assert r.returncode == 0, r.stderr
     assert "bidirectional" not in json.load(open(d / "dh.json"))
 
 
 def test_report_of_a_one_directional_result(campaigns):
     d = campaigns[0]
-    r = olti("identify", "nodir.csv", "--model", "errormap", "--out", "rep.json", cwd=d)
+    r = olti_sub("identify", "nodir.csv", "--model", "errormap", "--out", "rep.json", cwd=d)
     assert r.returncode == 0, r.stderr
-    r = olti("report", "rep.json", "--campaign", "nodir.csv", "--out", "rep", cwd=d)
+    r = olti_sub("report", "rep.json", "--campaign", "nodir.csv", "--out", "rep", cwd=d)
     assert r.returncode == 0, r.stderr
     assert (d / "rep" / "report.html").exists()

@@ -17,6 +17,7 @@ from olti_drake.estimation.serial_plan import readable
 from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign, synthetic_truth
+from olti_calls import olti_sub
 
 TOOL = (40.0, -25.0, 60.0)
 U_READING = 0.002
@@ -48,8 +49,7 @@ def _design_cli(result, regions_text, tmp_path, *options):
     """``olti design`` of ``result`` on a regions file of ``regions_text``: (the run, its document or None)."""
     regions, out = tmp_path / "regions.yaml", tmp_path / "design.json"
     regions.write_text(regions_text)
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "design", str(result), "--regions", str(regions),
-                          *options, "--out", str(out), "--force"], capture_output=True, text=True)
+    run = olti_sub("design", result, "--regions", regions, *options, "--out", out, "--force")
     return run, (json.loads(out.read_text()) if run.returncode == 0 else None)
 
 

@@ -3,8 +3,6 @@ the workspace (3D map as slices)."""
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,13 +11,10 @@ from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.io.serial_io import write_serial_campaign
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from olti_calls import olti_sub
 
 TOOL = (40.0, -25.0, 60.0)
 RANGES = np.array([[-90.0, 90.0]] * 6)
-
-
-def olti(*args):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True, text=True)
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +25,8 @@ def identified(tmp_path_factory):
     camp = synthetic_campaign(truth, 150, seed=4, ranges_deg=RANGES, noise_mm=0.001)
     write_serial_campaign(d / "campaign.csv", camp.distance_commands, camp.distance_dirs, station=camp.station,
                           displacement_mm=camp.displacement_mm)
-    run = olti("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm",
-               "40,-25,60", "--model", "errormap", "--grid-step-deg", "45", "--out", d / "result.json")
+    run = olti_sub("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm",
+                   "40,-25,60", "--model", "errormap", "--grid-step-deg", "45", "--out", d / "result.json")
     assert run.returncode == 0, run.stderr
     return d
 
@@ -41,8 +36,8 @@ def test_linear_uncertainty_of_every_parameter_and_the_workspace(identified, tmp
     predicted tool point's U over the workspace is stated and drawn; the tool-point u equals sqrt(diag(J C J^T))
     from the written per-parameter covariance (computed here densely)."""
     d = identified
-    run = olti("uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear", "--map", tmp_path / "m.png",
-               "--workspace-poses", "50", "--out", tmp_path / "u.json")
+    run = olti_sub("uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear", "--map",
+                   tmp_path / "m.png", "--workspace-poses", "50", "--out", tmp_path / "u.json")
     assert run.returncode == 0, run.stderr
     unc = json.loads((tmp_path / "u.json").read_text())
     res = json.loads((d / "result.json").read_text())
@@ -79,8 +74,8 @@ def test_the_wrong_campaign_is_refused(identified, tmp_path):
     d = identified
     lines = (d / "campaign.csv").read_text().splitlines()
     (tmp_path / "other.csv").write_text("\n".join(lines[:-3]) + "\n")
-    run = olti("uncertainty", d / "result.json", tmp_path / "other.csv", "--method", "linear", "--out",
-               tmp_path / "u.json")
+    run = olti_sub("uncertainty", d / "result.json", tmp_path / "other.csv", "--method", "linear", "--out",
+                   tmp_path / "u.json")
     assert run.returncode == 2 and "not the campaign" in run.stderr and "Traceback" not in run.stderr
     assert not (tmp_path / "u.json").exists()
 
@@ -90,8 +85,8 @@ def test_without_tool_offset_the_model_is_rebuilt_around_the_fitted_tool_point(i
     fitted tool point is off the axis, so the model is rebuilt around it: the same result as with the offset
     given (residual and tool offset), and a note says so."""
     d = identified
-    run = olti("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--model", "errormap",
-               "--grid-step-deg", "45", "--out", tmp_path / "r.json")
+    run = olti_sub("identify", d / "campaign.csv", "--robot", "ur5", "--tool-frame", "tool0", "--model", "errormap",
+                   "--grid-step-deg", "45", "--out", tmp_path / "r.json")
     assert run.returncode == 0, run.stderr
     a = json.loads((tmp_path / "r.json").read_text())
     b = json.loads((d / "result.json").read_text())
@@ -108,8 +103,8 @@ def test_monte_carlo_agrees_with_the_linear_propagation(identified, tmp_path):
     outs = {}
     for method, extra in (("linear", []), ("mc", ["--trials", "300", "--seed", "3"])):
         outs[method] = tmp_path / f"{method}.json"
-        run = olti("uncertainty", d / "result.json", d / "campaign.csv", "--method", method, *extra,
-                   "--workspace-poses", "60", "--out", outs[method])
+        run = olti_sub("uncertainty", d / "result.json", d / "campaign.csv", "--method", method, *extra,
+                       "--workspace-poses", "60", "--out", outs[method])
         assert run.returncode == 0, run.stderr
     lin, mc = (json.loads(outs[m].read_text()) for m in ("linear", "mc"))
     a, b = np.array(mc["parameters"]["std"]), np.array(lin["parameters"]["std"])
@@ -118,6 +113,6 @@ def test_monte_carlo_agrees_with_the_linear_propagation(identified, tmp_path):
                                                                                           ratio.max())
     assert mc["workspace"]["expanded_um_mean"] == pytest.approx(lin["workspace"]["expanded_um_mean"], rel=0.1)
     again = tmp_path / "again.json"
-    assert olti("uncertainty", d / "result.json", d / "campaign.csv", "--method", "mc", "--trials", "300", "--seed",
-                "3", "--workspace-poses", "60", "--out", again).returncode == 0
+    assert olti_sub("uncertainty", d / "result.json", d / "campaign.csv", "--method", "mc", "--trials", "300", "--seed",
+                    "3", "--workspace-poses", "60", "--out", again).returncode == 0
     assert json.loads(again.read_text())["parameters"] == mc["parameters"]

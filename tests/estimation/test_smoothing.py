@@ -15,6 +15,7 @@ from olti_drake.io.serial_io import SerialCampaign, load_robot
 from olti_drake.model.errormap import ErrorMap
 from olti_drake.model.propagation import predicted_std
 from olti_drake.model.serial import DistanceMeasurement, synthetic_campaign, synthetic_truth
+from olti_calls import olti_sub
 
 NOISE_MM = 0.002
 TOOL = (40.0, -25.0, 60.0)
@@ -254,23 +255,16 @@ def test_the_scara_takes_the_prior_when_asked_and_its_uncertainty_re_adds_it(tmp
     both ways): stated in the result, and ``olti uncertainty`` propagates the same estimator -- a heavy stated
     weight narrows the maps' u against the same result stripped of its prior."""
     import json
-    import subprocess
-    import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
     campaign = root / "data" / "paper000" / "campaign.csv"
 
-    def olti(*args):
-        out = subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True,
-                             text=True, cwd=root, timeout=300)
-        assert out.returncode == 0, out.stderr
-        return out
-
-    olti("identify", campaign, "--model", "errormap", "--smoothing", "auto", "--out", tmp_path / "auto.json")
+    olti_sub("identify", campaign, "--model", "errormap", "--smoothing", "auto", "--out", tmp_path / "auto.json",
+             expect=0)
     auto = json.loads((tmp_path / "auto.json").read_text())["smoothing"]
     assert auto["method"] == "restricted maximum likelihood" and auto["weight"] > 0
-    olti("identify", campaign, "--model", "errormap", "--smoothing", "1e9", "--out", tmp_path / "r.json")
+    olti_sub("identify", campaign, "--model", "errormap", "--smoothing", "1e9", "--out", tmp_path / "r.json", expect=0)
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["smoothing"]["method"] == "given" and res["smoothing"]["weight"] == 1e9
     stripped = dict(res)
@@ -278,8 +272,8 @@ def test_the_scara_takes_the_prior_when_asked_and_its_uncertainty_re_adds_it(tmp
     (tmp_path / "stripped.json").write_text(json.dumps(stripped))
 
     def u(result):
-        olti("uncertainty", tmp_path / result, campaign, "--method", "linear", "--out", tmp_path / f"u_{result}",
-             "--force")
+        olti_sub("uncertainty", tmp_path / result, campaign, "--method", "linear", "--out", tmp_path / f"u_{result}",
+                 "--force", expect=0)
         return np.median(json.loads((tmp_path / f"u_{result}").read_text())["error_map"]["J2"]["forward_deg"])
 
     assert u("r.json") < 0.85 * u("stripped.json")

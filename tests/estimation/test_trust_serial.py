@@ -6,6 +6,8 @@ the cause, nothing written; old results without the digest still load, with a no
 
 from __future__ import annotations
 
+import functools
+
 import json
 import shutil
 import types
@@ -17,7 +19,9 @@ import pytest
 from olti_drake.errors import InputError
 from olti_drake.io.serial_io import load_robot, serial_truth_dict, write_serial_campaign
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
-from tests.cli.test_serial_cli import olti  # (the CLI in a subprocess: exit code, one error line)
+from olti_calls import olti_sub
+
+olti = functools.partial(olti_sub, expect=0)  # (the CLI in a subprocess: exit 0 unless told, one error line)
 
 ROOT = Path(__file__).resolve().parents[2]
 TOOL = (40.0, -25.0, 60.0)

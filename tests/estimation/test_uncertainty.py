@@ -10,8 +10,6 @@ Units: mm and degrees.
 import dataclasses
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -25,6 +23,7 @@ from olti_drake.sim.scenario import Scenario
 from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, draw_by_content, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.report.validation import campaign_data, random_commands
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: Independent campaigns and Monte Carlo trials of the key test.
@@ -221,10 +220,6 @@ def files(setup, tmp_path_factory):
     return d, csv, result
 
 
-def _olti(*args):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *args], capture_output=True, text=True, cwd=ROOT)
-
-
 def _same_layout(a, b, path=""):
     """Same keys and shapes (recursively) in a and b."""
     assert set(a) == set(b), (path, sorted(a), sorted(b))
@@ -321,7 +316,8 @@ def test_cli_map_figures(files, capsys):
 def test_cli_bad_input_is_one_line_exit_2(files, tmp_path):
     d, csv, result = files
     missing = str(tmp_path / "no_budget.yaml")
-    r = _olti("uncertainty", result, csv, "--method", "linear", "--budget", missing, "--out", str(tmp_path / "u.json"))
+    r = olti_sub("uncertainty", result, csv, "--method", "linear", "--budget", missing, "--out",
+                 str(tmp_path / "u.json"))
     assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1
     assert missing in r.stderr and not (tmp_path / "u.json").exists()
 
@@ -333,7 +329,7 @@ def test_cli_bad_input_is_one_line_exit_2(files, tmp_path):
     bad.write_text("contributors:\n- {symbol: u1, value: 1.0, unit: um, acts_on: reading, distribution: gauss}\n")
     assert main(["uncertainty", result, csv, "--method", "mc", "--budget", str(bad), "--out",
                  str(tmp_path / "u.json")]) == 2
-    r = _olti("uncertainty", result, csv, "--method", "mc", "--trials", "1", "--out", str(tmp_path / "u.json"))
+    r = olti_sub("uncertainty", result, csv, "--method", "mc", "--trials", "1", "--out", str(tmp_path / "u.json"))
     assert r.returncode == 2 and "--trials" in r.stderr and "Traceback" not in r.stderr  # refused by argparse
 
 

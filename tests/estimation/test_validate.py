@@ -14,13 +14,13 @@ import json
 import numpy as np
 import pytest
 
-from olti_drake.cli.verbs import main
 from olti_drake.errors import InputError
 from olti_drake.estimation.serial_identification import SerialIdentificationOptions, identify_serial
 from olti_drake.estimation.validation import (cross_validate, fit_solution, fold_of_rows, parse_models,
                                               predict_rows, recommend)
 from olti_drake.io.serial_io import SerialCampaign, load_robot, write_serial_campaign
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from olti_calls import olti_in
 
 TOOL = (40.0, -25.0, 60.0)
 NOISE_MM = 0.0005
@@ -165,15 +165,6 @@ def test_an_identification_does_not_depend_on_the_order_of_the_rows(chain, truth
 
 
 # -- the command line ----------------------------------------------------------------------------------------------
-def olti(capsys, *argv):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:  # (argparse's usage errors)
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def one_line_error(code, err, *needles):
     assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err
@@ -188,7 +179,7 @@ def test_the_command_line_writes_cv_json_and_refuses_bad_input_in_one_line(tmp_p
                           displacement_mm=camp.displacement_mm)
     robot = ("--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm=40,-25,60")
     out = tmp_path / "cv.json"
-    code, text, err = olti(capsys, "validate", path, *robot, "--folds", "3", "--models", "dh", "--out", out)
+    code, text, err = olti_in("validate", path, *robot, "--folds", "3", "--models", "dh", "--out", out, capsys=capsys)
     assert code == 0, err
     assert "recommended: dh" in text and f"wrote {out}" in text
     cv = json.loads(out.read_text())
@@ -199,13 +190,14 @@ def test_the_command_line_writes_cv_json_and_refuses_bad_input_in_one_line(tmp_p
     for argv, needles in ((("--folds", "1"), ("--folds", ">= 2")), (("--folds", "31"), ("30 distinct poses",)),
                           (("--models", "dh,nope"), ("unknown model 'nope'",)),
                           (("--models", "drift"), ("time_s",))):
-        one_line_error(*olti(capsys, "validate", path, *robot, *argv, "--out", bad)[::2], *needles)
-    one_line_error(*olti(capsys, "validate", path, "--out", bad)[::2], "SCARA campaign", "--robot")
-    one_line_error(*olti(capsys, "identify", path, "--model", "dh", "--cv", "3", "--out", bad)[::2], "--cv needs --robot")
+        one_line_error(*olti_in("validate", path, *robot, *argv, "--out", bad, capsys=capsys)[::2], *needles)
+    one_line_error(*olti_in("validate", path, "--out", bad, capsys=capsys)[::2], "SCARA campaign", "--robot")
+    one_line_error(*olti_in("identify", path, "--model", "dh", "--cv", "3", "--out", bad, capsys=capsys)[::2],
+                   "--cv needs --robot")
     assert not bad.exists()
     # olti identify --cv K: the validation printed, then the model asked identified and written as usual
     result = tmp_path / "result.json"
-    code, text, err = olti(capsys, "identify", path, *robot, "--model", "dh", "--cv", "3", "--out", result)
+    code, text, err = olti_in("identify", path, *robot, "--model", "dh", "--cv", "3", "--out", result, capsys=capsys)
     assert code == 0, err
     assert text.index("3-fold cross-validation by pose") < text.index("model dh of") and "recommended:" in text
     assert json.loads(result.read_text())["kind"] == "serial"

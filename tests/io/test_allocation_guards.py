@@ -6,15 +6,15 @@ Every command runs in a subprocess under an 8 GB address-space limit and a timeo
 ends as a test failure (MemoryError, timeout), never as the OOM killer taking the machine.
 """
 
+import functools
 import os
 import resource
-import subprocess
-import sys
 
 import pytest
 
 from olti_drake.errors import InputError
 from olti_drake.limits import MAX_ARRAY_BYTES, check_allocation
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SCARA = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -27,9 +27,8 @@ def _limit():
     resource.setrlimit(resource.RLIMIT_AS, (AS_LIMIT, AS_LIMIT))
 
 
-def olti(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout, preexec_fn=_limit)
+# The shared subprocess call, under the address-space limit and a 120 s timeout (a call may give its own).
+olti = functools.partial(olti_sub, timeout=120, preexec_fn=_limit)
 
 
 def refused(r, *words):

@@ -14,7 +14,7 @@ import os
 import numpy as np
 import pytest
 
-from olti_drake.cli import main
+from olti_calls import olti_in
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DATA = os.path.join(ROOT, "data")
@@ -36,19 +36,10 @@ def result(tmp_path_factory):
     return str(path), json.loads(path.read_text())
 
 
-def run(argv, capsys):
-    """(exit status, stderr) of ``olti argv`` in-process; argparse's refusal is its SystemExit."""
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    return rc, capsys.readouterr().err
-
-
 def assert_refused(argv, capsys, needles, out, solver_words=False):
     """Exit 2, exactly one ``error:`` line naming every needle, no traceback, the output not written;
     unless ``solver_words``, no solver's words (the input was refused before it reached one)."""
-    rc, err = run(argv, capsys)
+    rc, _, err = olti_in(*argv, capsys=capsys)
     assert rc == 2, (rc, err)
     lines = [l for l in err.splitlines() if "error:" in l]
     assert len(lines) == 1 and "Traceback" not in err, err
@@ -216,7 +207,7 @@ def test_a_truth_given_as_result_is_refused_where_an_identification_is_described
 def test_a_truth_is_a_model_for_predict(tmp_path, capsys):
     """Where only the model is used, truth.json (the result format) predicts the true positions."""
     out = tmp_path / "pred.csv"
-    rc, err = run(["predict", os.path.join(DATA, "paper000", "truth.json"), CAMPAIGN, "--out", out], capsys)
+    rc, _, err = olti_in("predict", os.path.join(DATA, "paper000", "truth.json"), CAMPAIGN, "--out", out, capsys=capsys)
     assert rc == 0 and out.exists(), err
 
 

@@ -26,6 +26,7 @@ from numeric_files import json_differences
 from olti_drake.cli.verbs import build_parser, main
 from olti_drake.errors import InputError
 from olti_drake.io.documents import read_result, result_kind, with_kind
+from olti_calls import olti_in
 
 ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "olti_drake"
@@ -38,16 +39,6 @@ MACHINE_REGIONS = ("regions:\n  - {x_mm: [-400, -200], y_mm: [-300, 600], z_mm: 
                    "  - {x_mm: [600, 800], y_mm: [-300, 600], z_mm: [0, 400]}\n"
                    "  - {x_mm: [0, 400], y_mm: [-400, -300], z_mm: [0, 400]}\n")
 FLOOR_REGIONS = "regions:\n  - {x_mm: [-1500, 1500], y_mm: [-1500, 1500], z_mm: -400}\n"
-
-
-def olti(capsys, *argv):
-    """(exit code, stdout, stderr) of ``olti ARGV`` in this process."""
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:  # argparse's usage error
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def one_line_error(code, err, *needles):
@@ -150,19 +141,19 @@ def test_an_unknown_kind_or_format_is_refused_in_one_line_naming_the_file(doc, n
     for argv in (["predict", bad, PAPER, "--out", out], ["compensate", bad, PAPER, "--out", out],
                  ["uncertainty", bad, PAPER, "--method", "linear", "--out", out],
                  ["design", bad, "--regions", SCARA_REGIONS, "--out", out], ["report", bad, "--out", out]):
-        code, _, err = olti(capsys, *argv)
+        code, _, err = olti_in(*argv, capsys=capsys)
         one_line_error(code, err, bad, *needles)
         assert not out.exists()
 
 
 def test_a_verb_refuses_a_kind_it_does_not_take_naming_file_kind_and_what_it_takes(results, capsys, tmp_path):
     ml, vol = results["multilateration"][0], results["volumetric"][0]
-    code, _, err = olti(capsys, "predict", ml, PAPER, "--out", tmp_path / "p.csv")
+    code, _, err = olti_in("predict", ml, PAPER, "--out", tmp_path / "p.csv", capsys=capsys)
     one_line_error(code, err, ml, "multilateration result", "'format' 'olti-multilateration/1'",
                    "olti predict takes SCARA, serial-robot, volumetric and five-axis machine results")
-    code, _, err = olti(capsys, "compensate", ml, PAPER, "--out", tmp_path / "p.csv")
+    code, _, err = olti_in("compensate", ml, PAPER, "--out", tmp_path / "p.csv", capsys=capsys)
     one_line_error(code, err, ml, "olti compensate takes")
-    code, _, err = olti(capsys, "uncertainty", vol, PAPER, "--method", "linear", "--out", tmp_path / "u.json")
+    code, _, err = olti_in("uncertainty", vol, PAPER, "--method", "linear", "--out", tmp_path / "u.json", capsys=capsys)
     one_line_error(code, err, vol, "a volumetric result carries its linear uncertainties")
 
 
@@ -244,7 +235,7 @@ def test_an_old_result_file_loads_in_every_verb_with_the_same_outputs(kind, resu
     assert "kind" not in json.loads(old.read_text()) and read_result(old)[0] == kind
     for d, result in ((new_dir, new), (old_dir, old)):
         for verb, rest in _inputs(kind, campaigns, d).items():
-            code, _, err = olti(capsys, verb, result, *rest, "--out", _output(verb, d))
+            code, _, err = olti_in(verb, result, *rest, "--out", _output(verb, d), capsys=capsys)
             assert code == 0, (kind, verb, err)
     for verb in _inputs(kind, campaigns, new_dir):
         a, b = _comparable(_output(verb, new_dir), new_dir), _comparable(_output(verb, old_dir), old_dir)
@@ -303,8 +294,8 @@ def test_identify_through_calibration_problem_gives_todays_result(kind, results,
 def test_multilaterate_budget_residuals_takes_the_residual_variance(campaigns, tmp_path, capsys):
     from olti_drake.estimation.multilateration import MultilaterationOptions, load_machine_campaign, multilaterate
 
-    code, _, err = olti(capsys, "multilaterate", campaigns["multilateration"], "--budget", "residuals", "--out",
-                        tmp_path / "r.json")
+    code, _, err = olti_in("multilaterate", campaigns["multilateration"], "--budget", "residuals", "--out",
+                           tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     mine = json.loads((tmp_path / "r.json").read_text())
     today = json.loads(json.dumps(multilaterate(load_machine_campaign(campaigns["multilateration"]),
@@ -340,7 +331,7 @@ def test_the_option_table_names_real_options_and_their_defaults_as_not_given():
                                                                     "not --model volumetric"]),
 ])
 def test_an_option_for_another_kind_is_refused_in_one_line(argv, needles, tmp_path, capsys):
-    code, _, err = olti(capsys, *argv, "--out", tmp_path / "r.json")
+    code, _, err = olti_in(*argv, "--out", tmp_path / "r.json", capsys=capsys)
     one_line_error(code, err, *needles)
     assert not (tmp_path / "r.json").exists()
 
@@ -358,7 +349,7 @@ def test_options_for_another_result_kind_are_refused_by_the_table(results, campa
             (["design", vol, "--regions", SCARA_REGIONS, "--plan", PAPER], "--plan applies to robots"),
             (["design", scara, "--regions", SCARA_REGIONS, "--workspace-poses", "20"],
              "--workspace-poses applies to robots from a model file")):
-        code, _, err = olti(capsys, *argv, "--out", out)
+        code, _, err = olti_in(*argv, "--out", out, capsys=capsys)
         one_line_error(code, err, needle)
         assert not out.exists()
 

@@ -4,8 +4,6 @@ compensated through a model identified from a simulated campaign (truth outside 
 motions with backlash, location errors, linear-axis errors), and ``olti compensate ... --cnc`` with its refusals."""
 
 import json
-import subprocess
-import sys
 from importlib.resources import files
 
 import numpy as np
@@ -22,6 +20,7 @@ from olti_drake.model.propagation import predicted_std
 from tests.io.test_cnc_exports import truth_vector
 from tests.estimation.test_five_axis_identify import (SIX_TABLE_STATIONS, TABLE_STATIONS, distance_campaign, identify,
                                      no_dropped_truth)
+from olti_calls import olti_sub
 
 MODELS = files("olti_drake") / "models"
 TRUNNION = str(MODELS / "trunnion_ac.urdf")
@@ -181,10 +180,6 @@ def test_compensated_bk_deviations_are_covered_by_the_stated_u(machine, identifi
 
 
 # ----------------------------------------------------------------------------------------------- the CLI
-def run_cli(*argv):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True)
-
-
 @pytest.fixture(scope="module")
 def result_file(machine, tmp_path_factory):
     """A small geometric identification written as an olti-machine5/1 result (bidirectional campaign)."""
@@ -209,7 +204,7 @@ def test_cli_compensate_with_cnc_csv(machine, result_file, tmp_path):
     rows = [list(np.round(p, 6)) + list(np.round(u, 9)) + [0] for p, u in zip(pts, dirs)]
     targets = write_targets(tmp_path / "t.csv", "x_mm,y_mm,z_mm,i,j,k,tool", rows)
     out, tables = tmp_path / "cmd.csv", tmp_path / "cnc"
-    r = run_cli("compensate", result_file, targets, "--out", out, "--cnc", "csv", "--tables", tables)
+    r = olti_sub("compensate", result_file, targets, "--out", out, "--cnc", "csv", "--tables", tables)
     assert r.returncode == 0, r.stderr
     assert "compensated 8 targets" in r.stdout and "cannot hold" in r.stdout and "residual" in r.stdout, r.stdout
     assert (tables / "identified.csv").is_file()
@@ -220,7 +215,7 @@ def test_cli_compensate_with_cnc_csv(machine, result_file, tmp_path):
     p, d, _, _ = res.position_model(cmd, None, t["tool"].astype(int)).command_jacobian(res.x)
     assert np.abs(p - pts).max() < 1e-4 and fc._angle(d, dirs).max() < 1e-6  # (commands written to 1e-6)
     np.testing.assert_allclose(np.column_stack([t[k] for k in ("x_mm", "y_mm", "z_mm")]), pts, atol=1e-6)
-    r = run_cli("compensate", result_file, targets, "--out", targets)
+    r = olti_sub("compensate", result_file, targets, "--out", targets)
     assert r.returncode != 0 and "input" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 

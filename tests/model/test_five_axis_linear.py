@@ -25,6 +25,7 @@ from olti_drake.model.five_axis_truth import synthetic_truth
 from olti_drake.model.volumetric3d import MachineConfig, tool_positions
 from olti_drake.model.volumetric3d import synthetic_truth as linear_truth
 from tests.estimation.test_five_axis_identify import distance_campaign, no_dropped_truth
+from olti_calls import olti_in
 
 MODELS = files("olti_drake") / "models"
 SWIVEL = str(MODELS / "swivel_head_bc.urdf")
@@ -74,18 +75,6 @@ def test_relocated_motions_derivative_is_their_slope():
 @pytest.fixture(scope="module")
 def swivel():
     return FiveAxisMachine.from_file(SWIVEL)
-
-
-def olti(capsys, *argv):
-    """(exit code, stdout, stderr) of the command line run in this process."""
-    from olti_drake.cli.verbs import main
-
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as e:  # (argparse's usage error)
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def identified_linear(machine, directory, seed=7, knot_spacing_mm=200.0, n=150):
@@ -213,11 +202,11 @@ def test_the_result_carries_the_linear_axes_into_predictions(swivel, thin_campai
 
 def test_what_does_not_fit_is_refused_in_one_line(swivel, thin_campaign, volumetric_result, tmp_path, capsys):
     path, vol_path = thin_campaign[0], volumetric_result[0]
-    code, _, err = olti(capsys, "identify", path, "--machine", SWIVEL, "--model", "geometric", "--linear",
-                        thin_campaign[2], "--out", tmp_path / "r.json")
+    code, _, err = olti_in("identify", path, "--machine", SWIVEL, "--model", "geometric", "--linear",
+                           thin_campaign[2], "--out", tmp_path / "r.json", capsys=capsys)
     assert code != 0 and "'format' must be 'olti-volumetric/1'" in err and err.count("\n") == 1, err
-    code, _, err = olti(capsys, "identify", path, "--model", "volumetric", "--linear", vol_path, "--out",
-                        tmp_path / "v.json")
+    code, _, err = olti_in("identify", path, "--model", "volumetric", "--linear", vol_path, "--out",
+                           tmp_path / "v.json", capsys=capsys)
     assert code != 0 and "--linear" in err and "--machine" in err and err.count("\n") == 1, err
     beyond = commands(swivel, 5, 10)
     beyond[2, 0] = 450.0  # (the volumetric travel of X: the machine's, [-400, 400] mm)

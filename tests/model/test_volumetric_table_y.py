@@ -18,7 +18,8 @@ from scipy.spatial.transform import Rotation
 from olti_drake.errors import InputError
 from olti_drake.model.volumetric3d import (AXES, COMPONENTS, TOPOLOGIES, URAD, MachineConfig, VolumetricModel,
                                            chain_state, command_jacobian, synthetic_truth, tool_positions)
-from tests.model.test_five_axis_linear import SWIVEL, TOOLS, TRUNNION, commands, identified_linear, olti
+from olti_calls import olti_in
+from tests.model.test_five_axis_linear import SWIVEL, TOOLS, TRUNNION, commands, identified_linear
 
 TABLE_Y = dict(zip(("tool_chain", "work_chain"), TOPOLOGIES["table-y"]))
 TRAVEL = {"X": (-300.0, 300.0), "Y": (-250.0, 250.0), "Z": (0.0, 450.0)}  # (the trunnion's)
@@ -193,8 +194,8 @@ def test_a_result_of_another_topology_is_refused_in_one_line(trunnion_result, tm
 
     swivel = FiveAxisMachine.from_file(SWIVEL)
     write_five_axis_campaign(tmp_path / "c.csv", distance_campaign(swivel, five_truth(swivel, seed=1), 6, 1))
-    code, out, err = olti(capsys, "identify", tmp_path / "c.csv", "--machine", SWIVEL, "--model", "geometric",
-                          "--linear", trunnion_result[0], "--out", tmp_path / "r.json")
+    code, out, err = olti_in("identify", tmp_path / "c.csv", "--machine", SWIVEL, "--model", "geometric",
+                          "--linear", trunnion_result[0], "--out", tmp_path / "r.json", capsys=capsys)
     assert code != 0 and err.startswith("error: --linear ") and err.count("\n") == 1, err
     assert ("tool_chain ['X', 'Z'], work_chain ['Y'] (--topology table-y)" in err
             and "tool_chain ['X', 'Y', 'Z'], work_chain [] (--topology serial)" in err), err
@@ -217,9 +218,9 @@ def test_olti_identify_takes_the_table_y_result_for_the_trunnion(trunnion, trunn
     truth.linear = RelocatedMotions(trunnion_result[1], carriage_offsets(trunnion))
     write_five_axis_campaign(tmp_path / "c.csv", distance_campaign(trunnion, truth, 40, 3, TABLE_STATIONS,
                                                                    "workpiece"))
-    code, _, err = olti(capsys, "identify", tmp_path / "c.csv", "--machine", TRUNNION, "--workpiece-frame",
+    code, _, err = olti_in("identify", tmp_path / "c.csv", "--machine", TRUNNION, "--workpiece-frame",
                         "workpiece", "--tool-frame", "tool", "--model", "geometric", "--linear", trunnion_result[0],
-                        "--out", tmp_path / "r.json")
+                        "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
     res = load_machine5_result(tmp_path / "r.json")
     assert res.document["linear_from"]["sha256"] == file_sha256(trunnion_result[0])

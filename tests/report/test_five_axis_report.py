@@ -12,7 +12,8 @@ import pytest
 from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_truth import synthetic_truth
 from tests.estimation.test_five_axis_identify import SIX_TABLE_STATIONS, TRUNNION, distance_campaign, no_dropped_truth
-from tests.estimation.test_five_axis_uncertainty import MACHINE, identified, olti, uncertainty
+from olti_calls import olti_in
+from tests.estimation.test_five_axis_uncertainty import MACHINE, identified, uncertainty
 
 
 class Rows(HTMLParser):
@@ -50,9 +51,8 @@ def case(tmp_path_factory):
     unc = folder / "unc.json"
     uncertainty(result, campaign, unc, "--method", "linear", "--k", "2")
     out = folder / "page"
-    code = olti("report", result, unc, "--campaign", campaign, "--out", out,
-                "--tolerance", "dispersion=0.05,modification_mm=0.001,modification_urad=1000")
-    assert code == 0
+    olti_in("report", result, unc, "--campaign", campaign, "--out", out,
+            "--tolerance", "dispersion=0.05,modification_mm=0.001,modification_urad=1000", expect=0)
     html = (out / "report.html").read_text()
     parser = Rows()
     parser.feed(html)
@@ -105,12 +105,12 @@ def test_uncertainty_file_of_another_result_is_refused_in_one_line(case, capsys)
     folder, doc, _, _, _, result, unc, _ = case
     other = dict(doc, location_errors={**doc["location_errors"], "E_X0C_mm": doc["location_errors"]["E_X0C_mm"] + 1e-3})
     (folder / "other.json").write_text(json.dumps(other))
-    assert olti("report", folder / "other.json", unc, "--out", folder / "refused") != 0
-    err = capsys.readouterr().err
+    code, _, err = olti_in("report", folder / "other.json", unc, "--out", folder / "refused")
+    assert code != 0
     assert err.count("\n") == 1 and "another result" in err and "Traceback" not in err, err
     assert not (folder / "refused" / "report.html").exists()
-    assert olti("report", result, "--tolerance", "AP_P=0.1", "--out", folder / "refused") != 0
-    err = capsys.readouterr().err
+    code, _, err = olti_in("report", result, "--tolerance", "AP_P=0.1", "--out", folder / "refused")
+    assert code != 0
     assert err.count("\n") == 1 and "dispersion" in err and "modification_mm" in err, err
 
 
@@ -125,7 +125,7 @@ def test_bk_check_paths_before_and_after_compensation_or_not_computed(case, monk
     from olti_drake.report.five_axis_report import _bk_section
 
     folder, *_, campaign = case
-    assert olti("identify", campaign, *MACHINE, "--model", "geometric", "--out", folder / "geometric.json") == 0
+    olti_in("identify", campaign, *MACHINE, "--model", "geometric", "--out", folder / "geometric.json", expect=0)
     res = load_machine5_result(folder / "geometric.json")
     page = ui.Page(tmp_path)
     check = _bk_section(page, res, 2.0)

@@ -4,8 +4,6 @@ statistics per joint, residuals, geometric parameters and identifiability notes.
 import json
 import os
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -17,6 +15,7 @@ from olti_drake.io.serial_io import serial_result_dict, serial_truth_dict, write
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import (DistanceMeasurement, build_position_model, find_gauge, synthetic_campaign,
                                      synthetic_truth)
+from olti_calls import olti_sub
 
 RANGES = np.array([[-90.0, 90.0]] * 6)
 TOOL = (40.0, -25.0, 60.0)
@@ -47,15 +46,11 @@ def identified(tmp_path_factory):
     return _identify(str(tmp_path_factory.mktemp("ur5")))
 
 
-def _report(*args):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", "report", *args], capture_output=True, text=True)
-
-
 def test_report_shows_every_joint_parameter_and_residual(identified, tmp_path):
     paths, chain, fit = identified
     out = tmp_path / "rep"
-    run = _report(paths["result.json"], "--campaign", paths["campaign.csv"], "--truth", paths["truth.json"],
-                  "--out", str(out))
+    run = olti_sub("report", paths["result.json"], "--campaign", paths["campaign.csv"], "--truth", paths["truth.json"],
+                   "--out", str(out))
     assert run.returncode == 0, run.stderr
     page = (out / "report.html").read_text()
     raw = json.loads(open(paths["result.json"]).read())
@@ -79,7 +74,7 @@ def test_report_shows_every_joint_parameter_and_residual(identified, tmp_path):
 
 def test_one_directional_result_says_it_has_no_reversal(tmp_path):
     paths, chain, _ = _identify(str(tmp_path / "one"), directions=False)
-    run = _report(paths["result.json"], "--out", str(tmp_path / "rep"))
+    run = olti_sub("report", paths["result.json"], "--out", str(tmp_path / "rep"))
     assert run.returncode == 0, run.stderr
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "One-directional map(s)" in page and "no reversal" in page
@@ -94,7 +89,7 @@ def test_another_campaign_or_a_mismatched_uncertainty_is_refused_in_one_line(ide
     body = [ln for ln in lines if not ln.startswith("#")][1:]
     station_col = head.split(",").index("station")
     short.write_text("\n".join([head] + [ln for ln in body if ln.split(",")[station_col] != "3"]) + "\n")
-    run = _report(paths["result.json"], "--campaign", str(short), "--out", str(tmp_path / "a"))
+    run = olti_sub("report", paths["result.json"], "--campaign", str(short), "--out", str(tmp_path / "a"))
     assert run.returncode == 2 and "not the campaign of this result" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
     raw = json.loads(open(paths["result.json"]).read())
@@ -102,5 +97,5 @@ def test_another_campaign_or_a_mismatched_uncertainty_is_refused_in_one_line(ide
     unc["tool_offset_mm"] = [1.0, 2.0]
     bad = tmp_path / "unc.json"
     bad.write_text(json.dumps(unc))
-    run = _report(paths["result.json"], str(bad), "--out", str(tmp_path / "b"))
+    run = olti_sub("report", paths["result.json"], str(bad), "--out", str(tmp_path / "b"))
     assert run.returncode == 2 and "tool_offset_mm" in run.stderr and "Traceback" not in run.stderr

@@ -15,7 +15,8 @@ from olti_drake.io.volumetric_io import load_volumetric_result
 from olti_drake.model.volumetric3d import ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, synthetic_truth
 from olti_drake.report.volumetric_report import grid_pitch_mm, volumetric_figures
 
-from tests.cli.test_volumetric_cli import DEAD_PATHS, STATIONS, _olti, write_campaign
+from olti_calls import olti_in
+from tests.cli.test_volumetric_cli import DEAD_PATHS, STATIONS, write_campaign
 from tests.cli.test_volumetric_cli import NOMINAL_TOOLS as TOOLS
 
 
@@ -48,8 +49,8 @@ def _text(path):
 
 def test_report_shows_every_motion_squareness_and_the_volumetric_figures(identified, tmp_path, capsys):
     d = identified[3]
-    code, out, err = _olti(capsys, "report", d / "result.json", "--campaign", d / "campaign.csv", "--out",
-                           tmp_path / "rep")
+    code, out, err = olti_in("report", d / "result.json", "--campaign", d / "campaign.csv", "--out",
+                           tmp_path / "rep", capsys=capsys)
     assert code == 0, err
     page = _text(tmp_path / "rep" / "report.html")
     doc = json.loads((d / "result.json").read_text())
@@ -92,7 +93,7 @@ def test_report_shows_every_motion_squareness_and_the_volumetric_figures(identif
 
 def test_one_tool_report_names_the_held_motions_and_why(identified, tmp_path, capsys):
     d = identified[1]
-    code, out, err = _olti(capsys, "report", d / "result.json", "--out", tmp_path / "rep")
+    code, out, err = olti_in("report", d / "result.json", "--out", tmp_path / "rep", capsys=capsys)
     assert code == 0, err
     page = " ".join(_text(tmp_path / "rep" / "report.html").split())
     held = json.loads((d / "result.json").read_text())["held_motions"]
@@ -105,16 +106,16 @@ def test_one_tool_report_names_the_held_motions_and_why(identified, tmp_path, ca
 
 def test_bad_input_is_one_error_line(identified, tmp_path, capsys):
     d3, d1 = identified[3], identified[1]
-    code, out, err = _olti(capsys, "report", d3 / "result.json", "--campaign", d1 / "campaign.csv", "--out",
-                           tmp_path / "a")
+    code, out, err = olti_in("report", d3 / "result.json", "--campaign", d1 / "campaign.csv", "--out",
+                           tmp_path / "a", capsys=capsys)
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "campaign.csv" in err
     (tmp_path / "u.json").write_text("{}")
-    code, out, err = _olti(capsys, "report", d3 / "result.json", tmp_path / "u.json", "--out", tmp_path / "b")
+    code, out, err = olti_in("report", d3 / "result.json", tmp_path / "u.json", "--out", tmp_path / "b", capsys=capsys)
     assert code == 2 and "u.json" in err and "volumetric" in err and err.count("\n") == 1
     doc = json.loads((d3 / "result.json").read_text())
     del doc["uncertainty"]["covariance"]
     (tmp_path / "bad.json").write_text(json.dumps(doc))
-    code, out, err = _olti(capsys, "report", tmp_path / "bad.json", "--out", tmp_path / "c")
+    code, out, err = olti_in("report", tmp_path / "bad.json", "--out", tmp_path / "c", capsys=capsys)
     assert code == 2 and "bad.json" in err and "covariance" in err and err.count("\n") == 1
     assert not any((tmp_path / x).exists() for x in "abc")
 
@@ -128,10 +129,10 @@ def test_a_3d_multilateration_result_is_reported_with_z(tmp_path, capsys):
     D = np.linalg.norm(T[i] - STATIONS[j], axis=1)
     write_machine_campaign({"station": j, "target": i, "x_cmd_mm": g[i, 0], "y_cmd_mm": g[i, 1],
                             "z_cmd_mm": g[i, 2], "displacement_mm": D - DEAD_PATHS[j]}, tmp_path / "c.csv")
-    code, out, err = _olti(capsys, "multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json")
+    code, out, err = olti_in("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 0, err
-    code, out, err = _olti(capsys, "report", tmp_path / "r.json", "--campaign", tmp_path / "c.csv", "--out",
-                           tmp_path / "rep")
+    code, out, err = olti_in("report", tmp_path / "r.json", "--campaign", tmp_path / "c.csv", "--out",
+                           tmp_path / "rep", capsys=capsys)
     assert code == 0, err
     page = " ".join(_text(tmp_path / "rep" / "report.html").split())
     res = json.loads((tmp_path / "r.json").read_text())
@@ -150,8 +151,8 @@ def test_olti_design_on_a_volumetric_result(identified, tmp_path, capsys):
     d = identified[3]
     (tmp_path / "r.yaml").write_text("regions:\n  - {x_mm: [-400, -200], y_mm: [-300, 600], z_mm: [0, 400]}\n"
                                      "  - {x_mm: [600, 800], y_mm: [-300, 600], z_mm: [0, 900]}\n")
-    code, out, err = _olti(capsys, "design", d / "result.json", "--regions", tmp_path / "r.yaml", "--step-mm", 300,
-                           "--starts", 1, "--max-sweeps", 1, "--out", tmp_path / "d.json")
+    code, out, err = olti_in("design", d / "result.json", "--regions", tmp_path / "r.yaml", "--step-mm", 300,
+                           "--starts", 1, "--max-sweeps", 1, "--out", tmp_path / "d.json", capsys=capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "d.json").read_text())
     assert "81 targets" in doc["targets"] and len(doc["stations_mm"]) == 5 and len(doc["u_targets_mm"]) == 81

@@ -3,12 +3,11 @@
 import dataclasses
 import filecmp
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from numeric_files import assert_same_numbers
+from olti_calls import olti_sub
 
 from olti_drake.sim.campaign import campaign_commands, prepare, run_campaign
 from olti_drake.model.instrument import InterferometerOptions
@@ -104,16 +103,11 @@ def test_search_estimate_is_close_to_truth():
     assert np.all(err < 1.0) and np.all(err > 0)
 
 
-def _simulate(out, *args):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", "simulate", "--out", str(out), *args],
-                          capture_output=True, text=True, cwd=ROOT)
-
-
 def test_same_seed_same_campaign_byte_for_byte(tmp_path):
     # Same machine, same run: same bytes (the shipped files, written elsewhere, are compared by number below).
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     for out, seed in ((a, "7"), (b, "7"), (c, "8")):
-        r = _simulate(out, "--seed", seed)
+        r = olti_sub("simulate", "--out", out, "--seed", seed)
         assert r.returncode == 0, r.stderr
     assert filecmp.cmp(a / "campaign.csv", b / "campaign.csv", shallow=False)
     assert filecmp.cmp(a / "truth.json", b / "truth.json", shallow=False)
@@ -123,7 +117,7 @@ def test_same_seed_same_campaign_byte_for_byte(tmp_path):
 def test_shipped_paper_campaign_is_reproduced(tmp_path):
     # The shipped files were written on another CPU: the same numbers, not the same bytes
     # (the Eq. (2) search estimates in truth.json differ in their last bits with the BLAS kernels).
-    r = _simulate(tmp_path)
+    r = olti_sub("simulate", "--out", tmp_path)
     assert r.returncode == 0, r.stderr
     for name in ("campaign.csv", "truth.json"):
         assert_same_numbers(tmp_path / name, os.path.join(ROOT, "data", "paper000", name))

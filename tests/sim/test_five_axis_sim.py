@@ -6,8 +6,6 @@ the plans approach every rotary axis from both directions, the R-test reads trut
 import copy
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,16 +16,11 @@ from olti_drake.model import five_axis_plan as fp
 from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.sim import five_axis_station as fs
 from olti_drake.sim.serial_scenario import scenario_kind
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_5axis.yaml")
 SMALL = "{tracking: {poses: 8}, rtest: {steps: 4}}"
-
-
-def _olti(*argv):
-    env = dict(os.environ, PYTHONPATH=ROOT)
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True,
-                          env=env, cwd=ROOT)
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +160,7 @@ def test_simulate_end_to_end_deterministic_by_seed(tmp_path, machine):
 
     out = {}
     for name, seed in (("a", 0), ("b", 0), ("c", 5)):
-        r = _olti("simulate", YAML, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
+        r = olti_sub("simulate", YAML, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
         assert r.returncode == 0, r.stderr
         out[name] = [(tmp_path / name / f).read_bytes() for f in ("campaign.csv", "truth.json")]
     assert out["a"] == out["b"] and out["a"][0] != out["c"][0]
@@ -177,7 +170,7 @@ def test_simulate_end_to_end_deterministic_by_seed(tmp_path, machine):
     truth = json.loads(out["a"][1])
     assert set(truth["location_errors"]) >= {"E_X0C_mm", "E_A0C_urad", "E_Y0A_mm"}
     assert truth["error_motions"]["E_CC"]["unit"] == "urad" and len(truth["station_frames"]) == 5
-    r = _olti("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "a")  # never replaces a campaign
+    r = olti_sub("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "a")  # never replaces a campaign
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1
 
 
@@ -198,7 +191,7 @@ def test_bad_fields_are_refused_in_one_line(text, field):
 
 
 def test_olti_run_refuses_a_five_axis_scenario(tmp_path):
-    r = _olti("run", YAML, "--out", tmp_path / "r")
+    r = olti_sub("run", YAML, "--out", tmp_path / "r")
     assert r.returncode != 0 and "five-axis" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 

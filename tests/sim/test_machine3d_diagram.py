@@ -5,8 +5,6 @@ volumetric` take, deterministically."""
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -17,17 +15,12 @@ from olti_drake.model.machine import Machine3DScenario, simulate_machine_campaig
 from olti_drake.model.volumetric3d import MachineConfig
 from olti_drake.sim.machine3d_station import (is_machine3d_scenario, load_machine3d_scenario,
                                               run_machine3d_campaign)
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 YAML = os.path.join(ROOT, "diagrams", "machine_3d.yaml")
 TOOLS = ((0.0, 0.0, 100.0), (80.0, 0.0, 100.0), (0.0, 80.0, 140.0))
 SMALL = "{grid: [3, 3, 2], tools: [0, 2]}"
-
-
-def _olti(*argv):
-    env = dict(os.environ, PYTHONPATH=ROOT)
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, argv)], capture_output=True, text=True,
-                          env=env, cwd=ROOT)
 
 
 def _scenario(chains=(("X", "Y", "Z"), ()), **options):
@@ -69,19 +62,19 @@ def test_noisy_readings_differ_from_the_twin_by_the_budget_only():
 def test_simulate_same_seed_same_bytes(tmp_path):
     outs = []
     for name, seed in (("a", 7), ("b", 7), ("c", 8)):
-        r = _olti("simulate", YAML, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
+        r = olti_sub("simulate", YAML, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
         assert r.returncode == 0, r.stderr
         outs.append([(tmp_path / name / f).read_bytes() for f in ("campaign.csv", "truth.json")])
     assert outs[0] == outs[1]
     assert outs[0][0] != outs[2][0]
     # measurements are never replaced
-    r = _olti("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "a")
+    r = olti_sub("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "a")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "campaign.csv" in r.stderr
 
 
 def test_shipped_scenario_is_multilaterated_and_identified(tmp_path):
     """`olti simulate diagrams/machine_3d.yaml` -> multilaterate -> identify --model volumetric, against the truth."""
-    r = _olti("simulate", YAML, "--out", tmp_path)
+    r = olti_sub("simulate", YAML, "--out", tmp_path)
     assert r.returncode == 0, r.stderr
     truth = json.loads((tmp_path / "truth.json").read_text())
     header = [line for line in (tmp_path / "campaign.csv").read_text().splitlines() if not line.startswith("#")][0]
@@ -89,14 +82,14 @@ def test_shipped_scenario_is_multilaterated_and_identified(tmp_path):
     heads = np.array(truth["stations_mm"])
     assert truth["tool_offsets_mm"] == [list(t) for t in TOOLS] and truth["n_readings"] > 0.9 * 360 * 5
 
-    r = _olti("multilaterate", tmp_path / "campaign.csv", "--out", tmp_path / "ml.json")
+    r = olti_sub("multilaterate", tmp_path / "campaign.csv", "--out", tmp_path / "ml.json")
     assert r.returncode == 0, r.stderr
     ml = json.loads((tmp_path / "ml.json").read_text())
     # its frame best fits the commands plus the tool offsets relative to tool 0
     assert np.max(np.abs(np.array(ml["stations_mm"]) - (heads - TOOLS[0]))) < 0.03
 
-    r = _olti("identify", tmp_path / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
-              ";".join(",".join(f"{v:g}" for v in t) for t in TOOLS), "--out", tmp_path / "vol.json")
+    r = olti_sub("identify", tmp_path / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
+                 ";".join(",".join(f"{v:g}" for v in t) for t in TOOLS), "--out", tmp_path / "vol.json")
     assert r.returncode == 0, r.stderr
     vol = json.loads((tmp_path / "vol.json").read_text())
     assert vol["format"] == "olti-volumetric/1" and vol["converged"]
@@ -123,11 +116,11 @@ def test_scenario_detection_and_bad_fields(tmp_path):
                        ("{interferometer: {acceptance_mm: -1}}", "acceptance_mm"), ("{period_s: 0}", "period_s")):
         with pytest.raises(InputError, match=name):
             load_machine3d_scenario(YAML, None, text).scenario(f"scenario {YAML}")
-    r = _olti("simulate", named, "--scenario", "small", "--out", tmp_path / "n")
+    r = olti_sub("simulate", named, "--scenario", "small", "--out", tmp_path / "n")
     assert r.returncode == 0 and "90 readings" in r.stdout, r.stderr
     for text, name in (("{grid: [1, 4, 4]}", "grid"), ("{gird: [4, 4, 4]}", "gird"), ("{seed: x}", "machine_3d.yaml"),
                        ("{budget: nope.yaml}", "nope.yaml")):
-        r = _olti("simulate", YAML, "--scenario-text", text, "--out", tmp_path / "x")
+        r = olti_sub("simulate", YAML, "--scenario-text", text, "--out", tmp_path / "x")
         assert r.returncode == 2 and r.stderr.startswith("error: ") and name in r.stderr, (text, r.stderr)
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
         assert not (tmp_path / "x" / "campaign.csv").exists()
@@ -139,9 +132,9 @@ def test_olti_run_on_the_simulated_station_writes_what_olti_simulate_writes(tmp_
     simulate` writes, in the same columns, followed by the run-log columns."""
     from olti_drake.io.csvio import read_table
 
-    r = _olti("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "r", "--no-fsync")
+    r = olti_sub("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "r", "--no-fsync")
     assert r.returncode == 0 and "180 of 180 planned readings" in r.stdout, r.stderr
-    r = _olti("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "s")
+    r = olti_sub("simulate", YAML, "--scenario-text", SMALL, "--out", tmp_path / "s")
     assert r.returncode == 0, r.stderr
     cols = ("station", "target", "x_cmd_mm", "y_cmd_mm", "z_cmd_mm", "tool", "displacement_mm", "valid")
     run, sim = (read_table(tmp_path / d / "campaign.csv", cols) for d in ("r", "s"))
@@ -151,5 +144,5 @@ def test_olti_run_on_the_simulated_station_writes_what_olti_simulate_writes(tmp_
     assert header.startswith(",".join(cols) + ",plan_row,step,session,status,reads,rezeros,time_utc,elapsed_s")
     assert json.loads((tmp_path / "r" / "truth.json").read_text()) == json.loads((tmp_path / "s" / "truth.json")
                                                                                  .read_text())
-    r = _olti("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "m", "--meshcat")
+    r = olti_sub("run", YAML, "--scenario-text", SMALL, "--out", tmp_path / "m", "--meshcat")
     assert r.returncode == 2 and r.stderr.startswith("error: --meshcat") and r.stderr.count("\n") == 1, r.stderr

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +17,7 @@ import pytest
 from olti_drake.errors import InputError
 from olti_drake.sim import serial_station as ss
 from olti_drake.sim.serial_scenario import SerialScenario, load_serial_scenario, scenario_kind
+from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 SIX_AXIS = ROOT / "diagrams" / "six_axis.yaml"
@@ -31,12 +30,6 @@ MOUNTED_EXACT = ("{interferometer: {noise: false, quantization: false}, "
 
 def _setup(text, path=SIX_AXIS, name=None):
     return ss.prepare_serial(load_serial_scenario(path, name, text))
-
-
-def _olti(*args, cwd=None):
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", *map(str, args)], capture_output=True,
-                          text=True, env=env, cwd=cwd, timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +81,7 @@ def test_scenario_problems_found_with_the_robot_are_named(text, words):
 def test_simulate_refuses_bad_six_axis_input_in_one_line(tmp_path):
     """A scenario problem found with the robot is one `error:` line naming the scenario, exit 2, no output."""
     for extra in (["--scenario-text", "{robot: {tool_frame: nope}}"],):
-        r = _olti("simulate", SIX_AXIS, *extra, "--out", tmp_path / "x")
+        r = olti_sub("simulate", SIX_AXIS, *extra, "--out", tmp_path / "x")
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: "), r.stderr
         assert "six_axis.yaml" in r.stderr and not (tmp_path / "x").exists()
 
@@ -100,7 +93,7 @@ def test_simulate_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     directory holding a campaign is refused before any work."""
     outs = {}
     for name, seed in (("a", 4), ("b", 4), ("c", 5)):
-        r = _olti("simulate", SIX_AXIS, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
+        r = olti_sub("simulate", SIX_AXIS, "--scenario-text", SMALL, "--seed", seed, "--out", tmp_path / name)
         assert r.returncode == 0, r.stderr
         assert "floor tracers" in r.stdout and "wrote" in r.stdout
         outs[name] = [(tmp_path / name / f).read_bytes() for f in ("campaign.csv", "truth.json")]
@@ -109,7 +102,7 @@ def test_simulate_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     lines = [ln.split(",") for ln in outs["a"][0].decode().splitlines() if not ln.startswith("#")]
     assert lines[0] == (["station"] + [f"theta{i}_deg" for i in range(1, 7)] + [f"dir{i}" for i in range(1, 7)]
                         + ["displacement_mm", "valid"])
-    r = _olti("simulate", SIX_AXIS, "--scenario-text", SMALL, "--out", tmp_path / "a")
+    r = olti_sub("simulate", SIX_AXIS, "--scenario-text", SMALL, "--out", tmp_path / "a")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "campaign.csv" in r.stderr
     assert (tmp_path / "a" / "campaign.csv").read_bytes() == outs["a"][0]
 
