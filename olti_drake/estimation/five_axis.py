@@ -165,7 +165,17 @@ def error_model(machine, campaign, options: FiveAxisOptions, linear=None) -> Fiv
                          f"0..{campaign.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     return FiveAxisErrors(machine, location=True, motions=options.model == "errormap", pitch_deg=options.pitch_deg,
                           bidirectional=campaign.directions is not None, linear=linear, tool_offsets_mm=tools,
-                          identify_tool_offsets=len(tools) > 1)
+                          identify_tool_offsets=len(tools) > 1, one_way=one_way(machine, campaign))
+
+
+def one_way(machine, campaign) -> dict:
+    """{rotary letter: its one sign} of the axes every valid row of ``campaign`` approaches from the same side (an
+    R-test path turning C one way): no reading tells their branches apart (:class:`FiveAxisErrors` ``one_way``)."""
+    d = campaign.directions
+    if d is None or not len(d):
+        return {}
+    d = np.asarray(d, float)
+    return {L: float(d[0, k]) for k, L in enumerate(machine.rotary) if np.all(d[:, k] == d[0, k])}
 
 
 def _stations(campaign, pm, rows, labels):

@@ -187,16 +187,20 @@ class FiveAxisErrors:
             or None (perfect linear axes).
         tool_offsets_mm: tool m's point in the tool frame (mm); ``identify_tool_offsets``: the errors of tools
             1, 2, … are parameters (tool 0 is the reference).
+        one_way: {rotary letter: +1 or −1} the axes a campaign approaches from one direction only (an R-test path
+            turning C one way): their reverse branches are tied to the forward ones in the gauge
+            (:meth:`FiveAxisPositionModel.gauge_constraints`), the backlash no reading separates.
     """
 
     def __init__(self, machine: FiveAxisMachine, location: bool = True, axial: bool = False, motions: bool = True,
                  pitch_deg: float = 15.0, bidirectional: bool = True, linear=None, knot_spacing_mm: float = 50.0,
-                 tool_offsets_mm=((0.0, 0.0, 0.0),), identify_tool_offsets: bool = False):
+                 tool_offsets_mm=((0.0, 0.0, 0.0),), identify_tool_offsets: bool = False, one_way=None):
         if tuple(machine.linear) != tuple(LINEAR) and linear is not None:
             raise InputError(f"machine model {machine.path}: linear-axis errors need the axes X, Y and Z, it has "
                              f"{', '.join(machine.linear) or 'none'}")
         self.machine, self.location, self.axial, self.with_motions = machine, bool(location), bool(axial), bool(motions)
         self.bidirectional = bool(bidirectional)
+        self.one_way = {L: float(v) for L, v in (one_way or {}).items()} if self.bidirectional else {}
         self.tools = np.asarray(tool_offsets_mm, float).reshape(-1, 3)
         if not np.all(np.isfinite(self.tools)):
             raise InputError(f"tool_offsets_mm: not finite: {self.tools.tolist()}")
@@ -613,6 +617,26 @@ class FiveAxisPositionModel:
                 name = f"E_{COMPONENTS[int(np.argmax(np.abs(patterns[0, :, j])))]}{L}"
                 if np.any(row[self.free_cols]):  # (a held motion needs no gauge)
                     out.append(GaugeConstraint(name, row[self.free_cols], 0.0, text))
+        return tuple(out) + self._one_way_ties()
+
+    def _one_way_ties(self) -> Tuple[GaugeConstraint, ...]:
+        """reverse[i] = forward[i] of every motion node of the axes the campaign approaches one way only
+        (:attr:`FiveAxisErrors.one_way`): no reading tells the branches apart there, and an unread branch would
+        otherwise take its whole motion out of what the campaign separates (:func:`separable`)."""
+        em, out = self.errors, []
+        for L, sign in em.one_way.items():
+            side = "forward (+)" if sign > 0 else "reverse (-)"
+            for c in COMPONENTS:
+                if (L, c) not in em.maps:
+                    continue
+                s, n = em.slices[f"E_{c}{L}"], em.maps[(L, c)].emap.n_nodes
+                for i in range(n):
+                    row = np.zeros(em.n_params)
+                    row[s.start + i], row[s.start + n + i] = 1.0, -1.0
+                    if np.any(row[self.free_cols]):
+                        out.append(GaugeConstraint(f"E_{c}{L}", row[self.free_cols], 0.0,
+                                                   f"{L} approached {side} only: E_{c}{L} reverse = forward "
+                                                   f"(its backlash not separable)"))
         return tuple(out)
 
     def gauge(self, n_total: Optional[int] = None) -> Gauge:
@@ -621,8 +645,10 @@ class FiveAxisPositionModel:
         n = self.n_params if n_total is None else int(n_total)
         cons = tuple(GaugeConstraint(c.name, np.concatenate([c.row, np.zeros(n - self.n_params)]), c.value, c.text)
                      for c in self.gauge_constraints())
+        one_way = "".join(f"; {L} approached one way only: its reverse branches = the forward ones"
+                          for L in self.errors.one_way)
         return Gauge(cons, 0, "error motions: mean 0 and no rotating first harmonic per rotary axis "
-                              "(docs/five_axis.md)", n)
+                              f"(docs/five_axis.md){one_way}", n)
 
     # ------------------------------------------------------------------ results
     def layout(self, v, uncertainty: bool = False) -> dict:
