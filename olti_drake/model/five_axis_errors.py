@@ -200,7 +200,8 @@ class FiveAxisErrors:
                              f"{', '.join(machine.linear) or 'none'}")
         self.machine, self.location, self.axial, self.with_motions = machine, bool(location), bool(axial), bool(motions)
         self.bidirectional = bool(bidirectional)
-        self.one_way = {L: float(v) for L, v in (one_way or {}).items()} if self.bidirectional else {}
+        self.one_way = ({L: float(v) for L, v in (one_way or {}).items()}  # (no maps: no branches to tie)
+                        if self.bidirectional and self.with_motions else {})
         self.tools = np.asarray(tool_offsets_mm, float).reshape(-1, 3)
         if not np.all(np.isfinite(self.tools)):
             raise InputError(f"tool_offsets_mm: not finite: {self.tools.tolist()}")
