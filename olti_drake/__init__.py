@@ -23,6 +23,7 @@ __version__ = "0.1.0"
 _PUBLIC = {
     "calibration_problem": "olti_drake.estimation.problem",
     "CalibrationProblem": "olti_drake.estimation.problem",
+    "Identification": "olti_drake.estimation.identified",
     "Identifier": "olti_drake.estimation.identification",
     "IdentificationOptions": "olti_drake.estimation.identification",
     "identify": "olti_drake.estimation.identification",

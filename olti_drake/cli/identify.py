@@ -5,7 +5,8 @@ campaign CSV -> :func:`olti_drake.calibration_problem` (the options of the comma
 -> ``problem.fit()`` (the default LM) -> the result document (``format`` and ``kind``, formats.md) -> written ->
 the summary printed. The kind is asked once (:func:`olti_drake.estimation.problem.kind_of`); the options that do
 not apply to it are refused by the one table (:mod:`olti_drake.cli.kinds`); what differs by kind is only how the
-command line spells its options, the document and the summary (:data:`ROUTES`). Units: mm and degrees.
+command line spells its options and the summary (:data:`ROUTES`); the document is the kind's own writer's
+(``Identification.document``). Units: mm and degrees.
 """
 
 import os
@@ -39,12 +40,6 @@ def _scara_options(args) -> dict:
     if args.fix_reflectors and args.reflectors_mm is None:
         raise ValueError("--fix-reflectors needs --reflectors-mm")
     return o
-
-
-def _scara_document(ident, problem, args) -> dict:
-    from olti_drake.io.result import result_dict
-
-    return result_dict(ident)
 
 
 def _scara_summary(ident, doc, problem) -> str:
@@ -85,16 +80,6 @@ def _serial_notes(problem) -> None:
         print(f"note: {note}", flush=True)
 
 
-def _serial_document(ident, problem, args) -> dict:
-    from olti_drake.io.serial_io import robot_reference, serial_result_dict
-
-    chain = _chain(problem)
-    digest = problem.campaign.digest()  # (its valid readings)
-    return serial_result_dict(kind=args.model, robot_file=robot_reference(args.robot, args.out),
-                              measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
-                              campaign_digest=digest, notes=list(chain.notes) + ident.notes, program=problem.program)
-
-
 def _serial_summary(ident, doc, problem) -> str:
     from olti_drake.estimation.serial_identification import summary
 
@@ -125,10 +110,6 @@ def _multilateration_options(args) -> dict:
                 **_solver_options(args))
 
 
-def _multilateration_document(res, problem, args) -> dict:
-    return res.to_dict()
-
-
 def _multilateration_summary(res, doc, problem) -> str:
     from olti_drake.cli.machine_verbs import summary
 
@@ -156,16 +137,6 @@ def _machine5_options(args) -> dict:
                 **_solver_options(args))
 
 
-def _machine5_document(fit, problem, args) -> dict:
-    from olti_drake.io.five_axis_io import machine5_result_dict
-
-    out_dir = os.path.dirname(os.path.abspath(os.fspath(args.out)))
-    linear = getattr(args, "linear", None)
-    linear = os.path.relpath(os.path.abspath(linear), out_dir) if linear else None
-    return machine5_result_dict(problem.program, fit, os.path.relpath(os.path.abspath(args.machine), out_dir),
-                                linear_reference=linear)
-
-
 def _machine5_summary(fit, doc, problem) -> str:
     from olti_drake.cli.five_axis_verbs import summary
 
@@ -182,11 +153,11 @@ def _machine5_before(problem) -> None:
 class Route:
     """How one calibration kind spells its part of the route: ``check(args)`` (the command line alone, before the
     outputs are checked), ``options(args)`` (calibration_problem's options), ``inputs(args)`` (files never to be
-    written), ``before(problem)`` (said before the fit), ``document(result, problem, args)``,
-    ``summary(result, document, problem)``."""
+    written), ``before(problem)`` (said before the fit), ``summary(result, document, problem)`` (``result`` the
+    kind's own). The document is the kind's own writer's (``Identification.document``, estimation.problem.KINDS),
+    the same a Python user's ``fit.write(path)`` writes."""
 
     options: Callable
-    document: Callable
     summary: Callable
     inputs: Callable = lambda args: [args.campaign, args.budget]
     check: Callable = lambda args: None
@@ -195,12 +166,12 @@ class Route:
 
 #: The part of the route each calibration kind spells its own (estimation.problem.KINDS' names).
 ROUTES = {
-    "scara": Route(_scara_options, _scara_document, _scara_summary),
-    "serial": Route(_serial_options, _serial_document, _serial_summary, check=_serial_check, before=_serial_notes,
+    "scara": Route(_scara_options, _scara_summary),
+    "serial": Route(_serial_options, _serial_summary, check=_serial_check, before=_serial_notes,
                     inputs=lambda args: [args.campaign, args.budget, _robot_input(args.robot)]),
-    "multilateration": Route(_multilateration_options, _multilateration_document, _multilateration_summary),
-    "volumetric": Route(_volumetric_options, _multilateration_document, _volumetric_summary),
-    "machine5": Route(_machine5_options, _machine5_document, _machine5_summary, before=_machine5_before,
+    "multilateration": Route(_multilateration_options, _multilateration_summary),
+    "volumetric": Route(_volumetric_options, _volumetric_summary),
+    "machine5": Route(_machine5_options, _machine5_summary, before=_machine5_before,
                       inputs=lambda args: [args.campaign, args.budget, args.machine, getattr(args, "linear", None)]),
 }
 
@@ -228,9 +199,9 @@ def identify(args, model: str) -> int:
     preflight([args.out], [i for i in route.inputs(args) if i], force=getattr(args, "force", False))
     problem = _problem(kind, args, model, route.options(args))
     route.before(problem)
-    result = problem.fit()
-    doc = route.document(result, problem, args)
+    fit = problem.fit()
+    doc = fit.document(args.out)
     write_json(args.out, doc)
-    print(route.summary(result, doc, problem))
+    print(route.summary(fit.result, doc, problem))
     print(f"wrote {os.fspath(args.out)}")
     return 0

@@ -28,13 +28,15 @@ units), any Drake solver on :attr:`prog`, and :meth:`CalibrationProblem.gauss_ne
 such as Clarabel or OSQP). A nonlinear user constraint or cost is solved by the NLP solvers; LM and the
 Gauss-Newton steps refuse it by name.
 
-Whatever solved it, :meth:`CalibrationProblem.identification` turns a solver's result into the kind's result
-(the SCARA ``Identification``, the serial ``SerialIdentification``, ``MultilaterationResult``,
-``VolumetricResult``) by the same identifiability check, covariance and acceptance as LM's (a solver that did
+Whatever solved it, :meth:`CalibrationProblem.identification` turns a solver's result into the same
+:class:`~olti_drake.estimation.identified.Identification` as :meth:`CalibrationProblem.fit` -- for every kind
+(``kind``, ``names``, ``x``, ``std``, ``covariance``, ``residuals``, ``document()``, ``write(path)``; the kind's own
+result as ``result``) -- by the same identifiability check, covariance and acceptance as LM's (a solver that did
 not succeed is refused, never reported).
 """
 
 import math
+import os
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -62,6 +64,12 @@ class Kind:
     #: ``pristine``: nothing was added to the program, so the kind may re-build it around its first fit.
     build: Callable
     what: str
+    #: result -> its fit: what carries names, x, std (k = 1), covariance, residuals (mm), notes, warnings,
+    #: converged_by, lack_of_fit_mm (the engine's ``Fit``, or the SCARA's ``Identification``, which has them).
+    fit: Callable = lambda result: result.fit
+    #: (result, problem, path) -> the result document ``olti identify`` writes to ``path`` for this kind, by the
+    #: kind's writer in :mod:`olti_drake.io` (the files it names relative to ``path``'s folder).
+    document: Callable = None
 
 
 def _options(cls, o: dict, what: str):
@@ -179,14 +187,52 @@ def _machine5(campaign, o: dict):
     return ident, lambda pristine=False: ident.fit(), data
 
 
+def _itself(result):
+    return result
+
+
+def _scara_document(ident, problem, path) -> dict:
+    from olti_drake.io.result import result_dict
+
+    return result_dict(ident)
+
+
+def _serial_document(ident, problem, path) -> dict:
+    from olti_drake.io.serial_io import robot_reference, serial_result_dict
+
+    chain = problem.program.measurement.model.chain
+    return serial_result_dict(kind=problem.model, robot_file=robot_reference(problem.robot, path),
+                              measurement=ident.measurement, fit=ident.fit, gauge=ident.gauge,
+                              campaign_digest=problem.campaign.digest(), notes=list(chain.notes) + ident.notes,
+                              program=problem.program)
+
+
+def _machine_document(res, problem, path) -> dict:
+    return res.to_dict()  # (MultilaterationResult's, VolumetricResult's: io.documents / io.volumetric_io)
+
+
+def _machine5_document(fit, problem, path) -> dict:
+    from olti_drake.io.five_axis_io import machine5_result_dict
+
+    out_dir = os.path.dirname(os.path.abspath(os.fspath(path)))
+    linear = problem.options.get("linear")
+    linear = os.path.relpath(os.path.abspath(linear), out_dir) if linear else None
+    return machine5_result_dict(problem.program, fit,
+                                os.path.relpath(os.path.abspath(problem.options["machine"]), out_dir),
+                                linear_reference=linear)
+
+
 #: The kinds of calibration, by name: the one place that tells them apart (:func:`kind_of`).
 KINDS = {
-    "scara": Kind("scara", _scara, "the SCARA of paper 000 (model dh or errormap)"),
-    "serial": Kind("serial", _serial, "an N-joint robot from its model file (robot=, tool_frame=)"),
-    "multilateration": Kind("multilateration", _multilateration, "the machine-tool multilateration of 001"),
-    "volumetric": Kind("volumetric", _volumetric, "the 21 ISO 230-1 motions of a 3-axis machine"),
+    "scara": Kind("scara", _scara, "the SCARA of paper 000 (model dh or errormap)", _itself, _scara_document),
+    "serial": Kind("serial", _serial, "an N-joint robot from its model file (robot=, tool_frame=)",
+                   document=_serial_document),
+    "multilateration": Kind("multilateration", _multilateration, "the machine-tool multilateration of 001",
+                            document=_machine_document),
+    "volumetric": Kind("volumetric", _volumetric, "the 21 ISO 230-1 motions of a 3-axis machine",
+                       document=_machine_document),
     "machine5": Kind("machine5", _machine5, "a five-axis machine from its model file (machine=, model geometric or "
-                                            "errormap)"),
+                                            "errormap)", _itself, _machine5_document),
 }
 
 
@@ -229,7 +275,8 @@ def calibration_problem(campaign, model: str = "errormap", robot: Optional[str] 
     if robot is not None:
         o["robot"] = robot
     program, finish, data = kind.build(str(campaign), o)
-    return CalibrationProblem(program, finish, kind.name, data)
+    return CalibrationProblem(program, finish, kind.name, data, model=model, robot=robot, options=dict(options),
+                              source=str(campaign))
 
 
 class CalibrationProblem:
@@ -237,10 +284,14 @@ class CalibrationProblem:
 
     ``program``: the engine's :class:`~olti_drake.estimation.calibration.LeastSquaresProgram` (model units);
     ``finish``: solves it (or takes a given solution) and returns the kind's result; ``kind``: its name;
-    ``campaign``: the campaign as read (the kind's campaign type: its rows, lines, digest)."""
+    ``campaign``: the campaign as read (the kind's campaign type: its rows, lines, digest); ``model``, ``robot``,
+    ``options``, ``source``: what :func:`calibration_problem` was given (the model name, the robot file or name,
+    the options, the campaign file) -- the result document names them."""
 
-    def __init__(self, program, finish, kind: str, campaign=None):
+    def __init__(self, program, finish, kind: str, campaign=None, model: Optional[str] = None,
+                 robot: Optional[str] = None, options: Optional[dict] = None, source: Optional[str] = None):
         self.program, self._finish, self.kind, self.campaign = program, finish, kind, campaign
+        self.model, self.robot, self.options, self.source = model, robot, dict(options or {}), source
         self.names = list(program.names)
         self.x0 = np.asarray(program.x0, dtype=float).copy()
         self._prog = None  # built when first read: a fit alone (the CLI's) needs no scaled program
@@ -386,14 +437,29 @@ class CalibrationProblem:
             out.evaluator().set_description(e.get_description() or "user's")
             self._remember(self._carried, e)
 
+    def inputs(self) -> list:
+        """The files this calibration reads (campaign, budget, robot or machine model, ``linear`` result): never
+        to be written over by a result (:meth:`Identification.write`)."""
+        budget = self.options.get("budget")
+        files = [self.source, budget if isinstance(budget, str) and budget != "residuals" else None,
+                 self.robot, self.options.get("machine"), self.options.get("linear")]
+        return [f for f in files if isinstance(f, (str, os.PathLike)) and os.path.exists(f)]
+
     # -- solving -------------------------------------------------------------------------------------
+    def _identified(self, result):
+        from olti_drake.estimation.identified import Identification
+
+        return Identification(KINDS[self.kind], result, self)
+
     def fit(self):
-        """The default LM fit (``olti identify``'s) with the user's additions to :attr:`prog`; the kind's result."""
+        """The default LM fit (``olti identify``'s) with the user's additions to :attr:`prog`: an
+        :class:`~olti_drake.estimation.identified.Identification` (the kind's own result as its ``result``)."""
         self._carry()
-        return self._finish(pristine=self.pristine)
+        return self._identified(self._finish(pristine=self.pristine))
 
     def identification(self, result, solver: Optional[str] = None):
-        """The kind's result from a solver's ``MathematicalProgramResult`` on :attr:`prog` (or from
+        """The :class:`~olti_drake.estimation.identified.Identification` (the same type :meth:`fit` returns)
+        from a solver's ``MathematicalProgramResult`` on :attr:`prog` (or from
         :meth:`gauss_newton`): the same identifiability check, covariance and acceptance as :meth:`fit`. A result
         that is not a success is refused in one line."""
         if not result.is_success():
@@ -409,7 +475,7 @@ class CalibrationProblem:
             z[eng.FindDecisionVariableIndex(v)] = zs[len(self.names) + k]
         name = solver or getattr(result, "label", None) or _solver_name(result)
         with self.program.given_solution(z, f"given: {name} on the scaled program"):
-            return self._finish(pristine=False)
+            return self._identified(self._finish(pristine=False))
 
     def gauss_newton(self, solver=None, max_iterations: int = 50):
         """Gauss-Newton on the scaled unknowns, each step a QP in the step δz solved by ``solver`` (a Drake solver
