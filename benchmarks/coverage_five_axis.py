@@ -5,11 +5,12 @@
 Per seeded truth outside the model family (:func:`olti_drake.model.five_axis_truth.synthetic_truth`: harmonic error
 motions with backlash, location errors of 10-50 µm / 20-100 µrad), campaign kind (``distance``: 150 random commands
 read from 6 stations riding on the table; ``rtest``: ISO 10791-6 BK-type R-test paths around 3 balls
-(``tests/estimation/test_five_axis_coverage.bk_campaign``: A alone, C alone, A+C); ``mixed``: 40 commands
+(``tests/estimation/test_five_axis_coverage.bk_campaign``: A alone, C alone, A+C); ``k4``: K4-like R-test paths
+(A swept down and back while C turns once, one way; 4 nests); ``mixed``: 40 commands
 from 4 table stations plus the R-test paths; readings 1 µm) and grid pitch, the errormap identification (smoothing
 'auto') is compared with the truth:
 
-* ``loc max z``: max over the free location errors of |error| / u;
+* ``loc max z``: max over the free location errors of |error| / u (``worst``: which); ``loc med z``: their median;
 * ``map >3u+b``: the share of free map values (both branches) with |error| > 3 u + b, b the grid's representation
   bound of that motion branch (:func:`representation_bound`: the truth sampled at the nodes and interpolated as
   the model does, the largest deviation from the truth over the travel); ``map med z``: the median |error| / u;
@@ -48,6 +49,8 @@ def columns(machine, truth, kind: str, seed: int) -> dict:
         return distance_campaign(machine, truth, 150, seed, SIX_TABLE_STATIONS, "workpiece")
     if kind == "rtest":
         return bk_campaign(machine, truth, seed)
+    if kind == "k4":  # ISO 10791-6 K4-like paths: A swept down and back while C turns once (one way), 4 nests
+        return rtest_campaign(machine, truth, seed)
     return mixed(distance_campaign(machine, truth, 40, seed, TABLE_STATIONS, "workpiece"),
                  rtest_campaign(machine, truth, seed=seed + 5))
 
@@ -113,7 +116,7 @@ def main(argv=None) -> int:
         FiveAxisIdentification.representation = lambda self, x: (np.zeros((len(self.names),) * 2), 0.0)
     machine = FiveAxisMachine.from_file(TRUNNION, "workpiece", "tool")
     print(f"{'kind':9s}{'grid':>5s}{'seed':>5s}{'loc max z':>10s}{'map >3u+b':>10s}{'map med z':>10s}"
-          f"{'tool max z':>11s}{'tool >3u':>9s}{'tool med z':>11s}{'lack um':>8s}{'s':>6s}")
+          f"{'tool max z':>11s}{'tool >3u':>9s}{'tool med z':>11s}{'lack um':>8s}{'s':>6s}{'loc med z':>10s}  worst")
     with tempfile.TemporaryDirectory() as folder:
         for kind in args.kinds.split(","):
             for pitch in (float(g) for g in args.grids.split(",")):
@@ -127,7 +130,8 @@ def main(argv=None) -> int:
                     print(f"{kind:9s}{pitch:5.0f}{seed:5d}{max(r['loc_z'].values()):10.2f}{r['map_excess']:10.3f}"
                           f"{np.median(r['map_z']) if r['map_z'].size else float('nan'):10.2f}"
                           f"{r['tool_z'].max():11.2f}{np.mean(r['tool_z'] > 3):9.3f}{np.median(r['tool_z']):11.2f}"
-                          f"{r['lack_um']:8.2f}{time.perf_counter() - t0:6.1f}", flush=True)
+                          f"{r['lack_um']:8.2f}{time.perf_counter() - t0:6.1f}{np.median(list(r['loc_z'].values())):10.2f}  "
+                          f"{max(r['loc_z'], key=r['loc_z'].get)}", flush=True)
     return 0
 
 

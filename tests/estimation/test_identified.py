@@ -13,7 +13,6 @@ import pytest
 import olti_drake as od
 from olti_drake.io.outputs import OutputError
 from numeric_files import json_differences
-from olti_calls import olti_in
 from tests.estimation.test_five_axis_identify import SIX_TABLE_STATIONS, TRUNNION, distance_campaign
 from tests.estimation.test_five_axis_uncertainty import identified
 from tests.io.test_result_kinds import TOOL, TOOLS, campaigns, results  # noqa: F401 (module fixtures)
