@@ -289,13 +289,8 @@ class FiveAxisIdentification(Calibration):
             _, J = meas.residuals(meas.start_vector())
         finally:
             self.errors.linear_motions = known
-        J, what = J.toarray(), " + ".join(kinds) + " readings, their own unknowns free"
         R = meas.roughness() if smoothing_on(self._options) else None
-        if R is not None and R.shape[0]:  # what the smoothness prior determines (a map's shape between and beyond
-            R = R.toarray()               # the commanded angles) is separable, its trend is not
-            scale = 1e-3 * np.linalg.norm(J, axis=0).max() / max(np.linalg.norm(R, axis=0).max(), 1e-300)
-            J, what = np.vstack([J, scale * R]), what + ", the maps' smoothness prior"
-        return separable(pm, jacobian=(J, what))
+        return separable(pm, jacobian=(J, " + ".join(kinds) + " readings, their own unknowns free"), prior=R)
 
     def _gauge_sentence(self, gauge) -> str:
         frames = sorted(set(self.campaign.frame))

@@ -777,7 +777,7 @@ PREFER_DROPPING = ("E_A0A_urad", "E_B0B_urad", "E_C0C_urad")
 
 
 def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8, share: float = 1e-3,
-              prefer: Tuple[str, ...] = PREFER_DROPPING, jacobian=None) -> Separability:
+              prefer: Tuple[str, ...] = PREFER_DROPPING, jacobian=None, prior=None) -> Separability:
     """Which location errors and error motions a campaign separates, and the fewest to drop so that the rest is.
 
     The model's Jacobian at its commands with the measurement's own unknowns (``stations_mm`` (N, 3): distances
@@ -788,17 +788,29 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
     them, else the one holding most --, the reason naming the groups its null directions share ("the measurement's
     gauge" when the nuisance takes part). ``jacobian``: instead, (J, what) of any measurement of the model -- its
     residuals' Jacobian (rows, n_params + its own unknowns: nests, tracker frames, stations), the model's columns
-    first -- e.g. a mixed campaign's (:class:`~olti_drake.model.displacements.CombinedMeasurement`)."""
+    first -- e.g. a mixed campaign's (:class:`~olti_drake.model.displacements.CombinedMeasurement`). ``prior``:
+    the roughness rows of the maps' smoothness prior over the same columns (sparse or dense), appended at 1e-3 of
+    the readings' largest column: what the prior determines (a map's shape between and beyond the commanded
+    angles) is separable, its trend is not. Before the null space: the angular motions of an axis whose readings
+    see it move one point only (:func:`one_point_motions`) are dropped -- the prior would otherwise count their
+    trade with the translational ones, node by node, as determined."""
     from olti_drake.threads import single_thread_blas
 
-    A, N, what = (_separability_rows(model, stations_mm) if jacobian is None else
-                  _with_ties(model, np.asarray(jacobian[0].todense() if hasattr(jacobian[0], "todense") else
-                                               jacobian[0], float), jacobian[1]))
+    J, what = _separability_rows(model, stations_mm) if jacobian is None else (_dense(jacobian[0]), jacobian[1])
+    dropped = one_point_motions(model)
+    reasons = dict(dropped)
+    dropped = list(dropped)
+    if prior is not None and prior.shape[0]:
+        R = _dense(prior)
+        scale = 1e-3 * np.linalg.norm(J, axis=0).max() / max(np.linalg.norm(R, axis=0).max(), 1e-300)
+        J, what = np.vstack([J, scale * R]), what + ", the maps' smoothness prior"
+    A, N, what = _with_ties(model, J, what)
     norms = np.linalg.norm(A, axis=0)
     unit_cols = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
     groups = _groups(model)
     keep = np.ones(model.n_params, bool)
-    dropped, reasons = [], {}
+    for g in dropped:
+        keep[groups[g]] = False
     with single_thread_blas():  # (medium SVDs: BLAS threads spin on a shared machine)
         Un, sn, _ = np.linalg.svd(N / np.maximum(np.linalg.norm(N, axis=0), 1e-300), full_matrices=False)
         Q = Un[:, sn > 1e-10 * sn[0]]
@@ -837,8 +849,7 @@ def _reason(g, groups, null, unit_cols, norms, share, dropped) -> str:
 
 
 def _separability_rows(model: FiveAxisPositionModel, stations_mm):
-    """(model columns A, nuisance columns N, what was measured) of a campaign, the motions' gauge rows appended
-    to A (scaled to its largest column)."""
+    """(the readings' Jacobian: the model's columns, then the nuisance's; what was measured) of a campaign."""
     from olti_drake.model.measurements import distance_rows_nd
     from olti_drake.model.volumetric3d import _rigid_columns
 
@@ -856,7 +867,79 @@ def _separability_rows(model: FiveAxisPositionModel, stations_mm):
         full = np.zeros((len(pts), n + 4 * s))
         np.add.at(full, (np.repeat(np.arange(len(pts)), rc.shape[1]), rc.ravel()), rv[0].ravel())
         A, N, what = full[:, :n], full[:, n:], f"distances from {s} stations, unknown stations and dead paths"
-    return _with_ties(model, np.hstack([A, N]), what)
+    return np.hstack([A, N]), what
+
+
+def _dense(M) -> np.ndarray:
+    return np.asarray(M.toarray() if hasattr(M, "toarray") else M, float)
+
+
+def one_point_motions(model, rtol: float = 1e-6) -> Dict[str, str]:
+    """{group: reason}: the angular error motions (``E_AC``, ``E_BC``, ``E_CC`` for C) of each rotary axis whose
+    readings see it move one point only, to drop.
+
+    An error motion of axis L at angle θ moves a point w of the carried side (in L's carrier frame) by
+    t(θ) + ω(θ) × w. Readings of one point per angle -- one R-test nest or ball on a rotary table, w(θ) = R_L(θ) w0,
+    or one tool on a head axis -- cannot tell ω from t: t = −ω × w(θ) moves no reading at any angle, and the maps'
+    smoothness prior does not see that trade either (it is as smooth as w). The test, per branch of L with at least
+    5 distinct points (``model``: a :class:`FiveAxisPositionModel` or one holding several in ``parts``): the rank
+    of the sensitivities of its points (:func:`_sensitivities`, 3 rows per point, the best any measurement reads)
+    to a constant ω and a t of the first harmonic of θ (unit columns; singular values ≤ ``rtol`` × the largest
+    null: exact for a point carried by the axis, ≥ 1e-3 for points spread over the travel). While a branch lacks
+    rank, the angular motion holding most of its null directions is dropped: the translational motions then hold
+    the tool point's error at the point that was read. Necessary, not sufficient: :func:`separable` follows."""
+    em, out = model.errors, {}
+    parts = list(getattr(model, "parts", {None: model}).values())
+    for L in model.machine.rotary if em.with_motions else ():
+        designs = [D for part in parts for D in _one_point_designs(part, L)]
+        dropped = []
+        while designs:
+            shares, lacking = {c: 0.0 for c in ROTARY}, 0
+            for D in designs:
+                keep = [k for k in range(D.shape[1]) if k < D.shape[1] - 3 or ROTARY[k - D.shape[1] + 3] not in dropped]
+                _, sv, Vt = np.linalg.svd(D[:, keep], full_matrices=False)
+                null = Vt[sv <= rtol * sv[0]]
+                lacking += bool(null.shape[0])
+                for j, k in enumerate(keep):
+                    if k >= D.shape[1] - 3:
+                        shares[ROTARY[k - D.shape[1] + 3]] += float(np.linalg.norm(null[:, j]))
+            candidates = [c for c in ROTARY if c not in dropped and shares[c] > 1e-3]
+            if not lacking or not candidates:
+                break
+            dropped.append(max(candidates, key=shares.get))
+            out[f"E_{dropped[-1]}{L}"] = (f"the readings see axis {L} move one point only ({_one_point(model, L)}): "
+                                          f"its angular motions trade with its translational ones (t + ω × w at one "
+                                          f"w); the translational motions hold the error at that point")
+    return {g: why for g, why in out.items() if g in _groups(model)}
+
+
+def _one_point(model, L: str) -> str:
+    side = next(e.side for e in model.machine.loop if isinstance(e, AxisLink) and e.letter == L)
+    return "one tool point on the head" if side == "head" else "one nest, ball or reflector per angle on the table"
+
+
+def _one_point_designs(part: FiveAxisPositionModel, L: str):
+    """The designs of :func:`one_point_motions` of axis L, one per branch read at >= 5 distinct points: rows
+    ∂p/∂(t ⊗ (1, cos θ, sin θ), ω) of each point (3 per point), unit columns."""
+    _, state = part._state(part.theta(part.start_vector()))
+    S = _sensitivities(state, L)
+    if S is None:
+        return []
+    theta = part.commands[:, part.machine.axes.index(L)] * DEG
+    d = part._dir(L)
+    out = []
+    for b in ((1.0, -1.0) if d is not None else (None,)):
+        sel = np.ones(len(theta), bool) if b is None else d == b
+        _, first = np.unique(np.column_stack([part.commands[sel], part.tool[sel]]).round(9), axis=0,
+                             return_index=True)
+        idx = np.flatnonzero(sel)[first]
+        if idx.size < 5:
+            continue
+        h = np.column_stack([np.ones(idx.size), np.cos(theta[idx]), np.sin(theta[idx])])
+        D = np.concatenate([np.einsum("mij,mk->mijk", S[idx, :, :3], h).reshape(idx.size * 3, 9),
+                            S[idx, :, 3:].reshape(idx.size * 3, 3)], axis=1)
+        out.append(D / np.maximum(np.linalg.norm(D, axis=0), 1e-300))
+    return out
 
 
 def _with_ties(model: FiveAxisPositionModel, J, what: str):

@@ -272,6 +272,33 @@ def test_separable_names_what_a_campaign_cannot_see(trunnion):
         assert sep.separable[name], name
 
 
+def test_one_point_per_angle_holds_that_axis_angular_motions(trunnion):
+    """A point fixed on the C table (the tool point put on it at every A, C: one R-test ball) is one point of C's
+    carrier at each angle: C's angular motions trade with its translational ones (t = -ω × w moves nothing), A's
+    do not (the same ball seen from A's carrier moves with C). Points spread over the travel: nothing held. Both
+    branches read at >= 5 points count; the reason names the axis."""
+    from olti_drake.model.five_axis_errors import one_point_motions
+
+    def onto(c, ball):
+        p0 = trunnion.tool_points(c)
+        M = np.stack([trunnion.tool_points(c + np.eye(5)[k]) - p0 for k in range(3)], axis=-1)
+        c[:, :3] += np.linalg.solve(M, (ball - p0)[..., None])[..., 0]
+        return c[np.all((c >= trunnion.lower) & (c <= trunnion.upper), axis=1)]  # (the linear axes reach it)
+
+    rng = np.random.default_rng(21)
+    c = np.column_stack([np.zeros((80, 3)), rng.uniform(-30, 30, 80), rng.uniform(-180, 180, 80)])
+    em = FiveAxisErrors(trunnion, pitch_deg=30.0)
+    one = onto(c.copy(), np.array([100.0, 0.0, 150.0]))
+    held = one_point_motions(FiveAxisPositionModel(trunnion, em, one, rng.choice([-1.0, 1.0], (len(one), 2))))
+    assert set(held) == {"E_AC", "E_BC", "E_CC"}, held
+    assert all("see axis C move one point only (one nest, ball or reflector per angle" in w for w in held.values())
+    two = np.vstack([one, onto(c.copy(), np.array([-60.0, 80.0, 200.0]))])
+    assert len(one) >= 40 and len(two) >= 80
+    assert one_point_motions(FiveAxisPositionModel(trunnion, em, two, rng.choice([-1.0, 1.0], (len(two), 2)))) == {}
+    spread, dirs = commands(trunnion, 60, seed=22)
+    assert one_point_motions(FiveAxisPositionModel(trunnion, em, spread, dirs)) == {}
+
+
 def test_known_linear_motions_and_tool_offsets_enter_as_in_the_truth(trunnion):
     """An earlier volumetric result's motions (here the truth's own) taken over: the model at the truth's location
     errors is the truth, to rounding; and an absurd value is named."""
