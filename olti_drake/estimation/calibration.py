@@ -2342,9 +2342,9 @@ def _station_fit_cause(p, d) -> str:
     if spread < 1e-2 * extent:
         return (f"the readings spread {spread:.4g} mm while the points they are read at spread {extent:.4g} mm: "
                 f"readings in another unit (metres?), not mm")
-    return (f"no station position fits the readings (the fit of ||p - P|| - L0 met a singular step): readings "
-            f"whose sign is flipped (they must grow as the beam lengthens), of another station, or at other "
-            f"targets than numbered")
+    return ("no station position fits the readings (the fit of ||p - P|| - L0 met a singular step): readings "
+            "whose sign is flipped (they must grow as the beam lengthens), of another station, or at other "
+            "targets than numbered")
 
 
 def _norms(diff) -> np.ndarray:

@@ -10,7 +10,6 @@ from olti_drake.model.position_model import PositionModel
 
 def _scara():
     from olti_drake.io.csvio import load_campaign
-    from olti_drake.model.scara import ScaraPositionModel
     from olti_drake.estimation.identification import IdentificationOptions, Identifier
 
     return Identifier(load_campaign("data/paper000/campaign.csv"), IdentificationOptions(model="errormap")).model

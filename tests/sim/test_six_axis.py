@@ -16,7 +16,7 @@ import pytest
 
 from olti_drake.errors import InputError
 from olti_drake.sim import serial_station as ss
-from olti_drake.sim.serial_scenario import SerialScenario, load_serial_scenario, scenario_kind
+from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
 from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -3,8 +3,6 @@
 import json
 import re
 
-import numpy as np
-
 from olti_calls import olti_sub
 from tests.sim.test_six_axis import SIX_AXIS
 
