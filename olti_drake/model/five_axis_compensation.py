@@ -95,12 +95,24 @@ def nominal_directions(machine: FiveAxisMachine, rotary_deg) -> np.ndarray:
     return z
 
 
+def _full_turns(machine: FiveAxisMachine) -> np.ndarray:
+    """(n_axes,) True for a rotary axis whose travel is a full turn (−180..180: −180 and 180 are one angle)."""
+    span = machine.upper - machine.lower
+    return np.isin(list(machine.axes), list(ROTARY)) & np.isfinite(span) & (span >= 360.0 - 1e-9)
+
+
 def _into_travel(machine: FiveAxisMachine, c: np.ndarray) -> np.ndarray:
     """Commands with a full-turn rotary axis wrapped into its travel, then clipped into every travel."""
-    span = machine.upper - machine.lower
-    turn = np.isin(list(machine.axes), list(ROTARY)) & np.isfinite(span) & (span >= 360.0 - 1e-9)
-    c = np.where(turn, machine.lower + np.mod(c - machine.lower, 360.0), c)
+    c = np.where(_full_turns(machine), machine.lower + np.mod(c - machine.lower, 360.0), c)
     return np.clip(c, machine.lower, machine.upper)
+
+
+def _rotary_offset(machine: FiveAxisMachine, to_deg, from_deg) -> np.ndarray:
+    """to − from (deg) per rotary axis, the shorter way round on a full-turn axis: a command wrapped across its
+    end (−180.1 → 179.9) is 0.2 deg from −180, not 359.8."""
+    d = np.asarray(to_deg, float) - np.asarray(from_deg, float)
+    turn = _full_turns(machine)[[machine.axes.index(a) for a in machine.rotary]]
+    return np.where(turn, np.mod(d + 180.0, 360.0) - 180.0, d)
 
 
 def _gauss_newton(machine, pose, c, points, dirs, anchor=None, max_iter: int = 60):
@@ -120,7 +132,7 @@ def _gauss_newton(machine, pose, c, points, dirs, anchor=None, max_iter: int = 6
         r = np.concatenate([points - p, LEVER_MM * (dirs - d)], axis=1)
         g = np.einsum("mki,mk->mi", J, r)
         if anchor is not None:
-            g[:, rot] += ANCHOR ** 2 * (anchor - c[:, rot]) * DEG * LEVER_MM
+            g[:, rot] += ANCHOR ** 2 * _rotary_offset(machine, anchor, c[:, rot]) * DEG * LEVER_MM
         step = np.linalg.solve(np.einsum("mki,mkj->mij", J, J) + damp, g[..., None])[..., 0] / scale
         step[:, rot] = np.clip(step[:, rot], -MAX_ROTARY_STEP_DEG, MAX_ROTARY_STEP_DEG)
         c = _into_travel(machine, c + step)
@@ -173,7 +185,8 @@ def nominal_inverse(machine: FiveAxisMachine, points_mm, tool_dirs, offsets_mm, 
     p, d, _, _ = pose(c)
     ok = (np.linalg.norm(p - pts, axis=1) < NOMINAL_TOL_MM) & (_angle(d, dirs) < NOMINAL_TOL_RAD)
     rot = [machine.axes.index(a) for a in machine.rotary]
-    dist = np.where(ok, np.abs(c[:, rot] - np.repeat(reference_deg, S, axis=0)).sum(axis=1), np.inf).reshape(M, S)
+    dist = np.where(ok, np.abs(_rotary_offset(machine, c[:, rot], np.repeat(reference_deg, S, axis=0))).sum(axis=1),
+                    np.inf).reshape(M, S)
     bad = np.flatnonzero(~np.isfinite(dist.min(axis=1)))
     if bad.size:
         i = bad[0]

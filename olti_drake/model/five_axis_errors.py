@@ -43,8 +43,8 @@ import scipy.sparse as sp
 from olti_drake.errors import InputError
 from olti_drake.model.five_axis import DEG, LINEAR, ROTARY, AxisLink, FiveAxisMachine, motion
 from olti_drake.model.serial import Gauge, GaugeConstraint, JointMap
-from olti_drake.model.volumetric3d import (IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD, SQUARENESS, MachineConfig, MotionJacobian,
-                                           VolumetricModel, _rotations, axis_directions, motion_names,
+from olti_drake.model.volumetric3d import (ALL_MOTIONS, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD, SQUARENESS, MachineConfig,
+                                           MotionJacobian, VolumetricModel, _rotations, axis_directions, motion_names,
                                            roughness_lever_mm)
 
 COMPONENTS = ("X", "Y", "Z", "A", "B", "C")
@@ -230,6 +230,10 @@ class FiveAxisErrors:
                 raise InputError(f"linear: 'identify', known motions or None, got {linear!r}")
             self.linear_model = VolumetricModel(self.linear_config(knot_spacing_mm))
             add("linear", list(self.linear_model.parameter_names()))
+            for name, sl in self.linear_model.slices.items():  # (each motion its own group: separable() holds
+                if name in ALL_MOTIONS:                          # the few that trade, not all 21 with them)
+                    self.slices[name] = slice(self.slices["linear"].start + sl.start,
+                                              self.slices["linear"].start + sl.stop)
         self.tool_groups = tuple(f"tool{m}" for m in range(1, len(self.tools))) if identify_tool_offsets else ()
         for g in self.tool_groups:
             add(g, [f"{g}_{c}_mm" for c in "xyz"])
@@ -963,7 +967,10 @@ def _groups(model: FiveAxisPositionModel) -> Dict[str, np.ndarray]:
         out.update({em.names[i]: np.array([i]) for i in range(s.start, s.stop)})
     for jm in em.maps.values():
         out[jm.joint] = np.arange(em.slices[jm.joint].start, em.slices[jm.joint].stop)
-    for g in (["linear"] if em.linear_model is not None else []) + list(em.tool_groups):
+    if em.linear_model is not None:  # the linear axes' motions and squareness errors, each alone
+        out.update({m: np.arange(em.slices[m].start, em.slices[m].stop) for m in ALL_MOTIONS if m in em.slices})
+        out.update({f"{q}_urad": np.array([em.names.index(f"{q}_urad")]) for q in SQUARENESS})
+    for g in em.tool_groups:
         out[g] = np.arange(em.slices[g].start, em.slices[g].stop)
     out = {g: remap[idx][remap[idx] >= 0] for g, idx in out.items()}
     return {g: idx for g, idx in out.items() if idx.size}

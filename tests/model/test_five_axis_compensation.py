@@ -122,6 +122,26 @@ def test_unreachable_targets_are_refused_naming_the_row(machine, known_model):
         fc.compensate(model, x, machine, pts, flat, approach=app)
 
 
+@pytest.mark.parametrize("zero_urad", [200.0, -200.0])
+@pytest.mark.parametrize("c_deg", [-180.0, 180.0])
+def test_a_correction_across_the_end_of_a_full_turn_stays_near_the_pose(machine, zero_urad, c_deg):
+    """C turns a full turn (-180..180 deg: one angle at both ends). A correction that pushes C past an end wraps
+    it to the other (-180.01 -> 179.99); the rotary commands' tie to the nominal pose then measured the 359.99 deg
+    the long way round, and the solve walked C round the table with X and Y to the ends of their travel (seen on
+    BK paths at C = -180 with the linear axes identified). The tie takes the short way now."""
+    em = FiveAxisErrors(machine, motions=False)
+    x = np.zeros(em.n_params)
+    x[em.names.index("E_C0C_urad")] = zero_urad  # (C's zero: the correction is C's own, ~0.011 deg)
+
+    def model(c, d, t):
+        return FiveAxisPositionModel(machine, em, c, d, t)
+    pose = np.array([[40.0, -30.0, 150.0, -30.0, c_deg]])
+    comp = fc.compensate(model, x, machine, machine.tool_points(pose), rotary_deg=pose[:, 3:])
+    turn = np.mod(comp.commands[0, 4] - c_deg + 180.0, 360.0) - 180.0
+    assert 1e-3 < abs(turn) < 0.05, comp.commands
+    assert np.abs(comp.commands[0, :4] - pose[0, :4]).max() < 1.0, comp.commands
+
+
 # ----------------------------------------------------------------------------------------------- BK check
 @pytest.fixture(scope="module")
 def identified(machine, tmp_path_factory):
@@ -164,8 +184,12 @@ def test_bk_paths_at_least_5x_closer_after_compensation(machine, identified, bal
 
 
 def test_compensated_bk_deviations_are_covered_by_the_stated_u(machine, identified):
-    """The remaining deviation is the identified model's error at the compensated commands: its RMS within 0.5-2
-    times the model's stated u there (as the unseen predictions of test_five_axis_identify)."""
+    """The remaining deviation is the identified model's error at the compensated commands: within 3 u at every
+    command, and its RMS within 0.5-2 times the model's stated u where C stays within +-150 deg (as the unseen
+    predictions of test_five_axis_identify). Beyond, to C's ends at +-180, the campaign (C within +-162) read
+    nothing and the u of the maps' extrapolation is large (51 µm at C = 180, against 6-13 µm): the RMS over every
+    command was 0.59 u while the inverse still left C = 180 for a pose 40 deg away (the wrap fixed in
+    test_a_correction_across_the_end_of_a_full_turn_stays_near_the_pose), 0.49 u since."""
     truth, model, x, cov = identified
     plan = bk_paths(machine, [80.0, 60.0, 250.0], 20, **BK)
     comp = fc.compensate(model, x, machine, plan.nests_mm[plan.nest], rotary_deg=plan.commands[:, 3:])
@@ -173,6 +197,10 @@ def test_compensated_bk_deviations_are_covered_by_the_stated_u(machine, identifi
     u = np.linalg.norm(predicted_std(J.tocsr(), cov, dim=3), axis=1)
     e = np.linalg.norm(truth.truth_positions(comp.commands, fc.sequence_directions(comp.commands[:, 3:]))
                        - plan.nests_mm[plan.nest], axis=1)
+    assert np.all(e <= 3 * u), (1e3 * e[e > 3 * u], 1e3 * u[e > 3 * u])
+    inside = np.abs(comp.commands[:, 4]) <= 150.0
+    assert inside.sum() >= 0.7 * len(e)
+    e, u = e[inside], u[inside]
     ratio = np.sqrt(np.mean(e ** 2)) / np.sqrt(np.mean(u ** 2))
     print(f"\ncompensated BK: RMS error {1e3 * np.sqrt(np.mean(e ** 2)):.2f} um, RMS u {1e3 * np.sqrt(np.mean(u ** 2)):.2f}"
           f" um, ratio {ratio:.2f}; tool direction residual max {1e6 * comp.direction_residual_rad.max():.1f} urad")

@@ -222,3 +222,27 @@ def test_what_does_not_fit_is_refused_in_one_line(swivel, thin_campaign, volumet
     # (the trunnion: X, Z on the head, Y on the table)
     with pytest.raises(InputError, match=r"\(--topology serial\); machine model .* \(--topology table-y\)$"):
         load_linear_from(vol_path, FiveAxisMachine.from_file(TRUNNION))
+
+
+def test_identified_linear_axes_are_held_motion_by_motion():
+    """The linear axes identified with the rotary ones (``FiveAxisErrors(linear="identify")``): what a campaign
+    cannot separate is held motion by motion, each named with its reason -- a single tool on the spindle axis
+    reads no roll of Z, a straightness trades with its own tilt -- not the 18 motions and 3 squareness errors at
+    once as one group (before: 'linear: trades with the measurement's gauge', all 87 parameters held)."""
+    from olti_drake.model.five_axis_errors import separable
+    from olti_drake.model.volumetric3d import ALL_MOTIONS, SQUARENESS
+    from tests.estimation.test_five_axis_identify import SIX_TABLE_STATIONS
+
+    m = FiveAxisMachine.from_file(TRUNNION)
+    rng = np.random.default_rng(11)
+    c, d = rng.uniform(m.lower, m.upper, (200, 5)), rng.choice([-1.0, 1.0], (200, 2))
+    em = FiveAxisErrors(m, motions=False, linear="identify", knot_spacing_mm=200.0)
+    sep = separable(FiveAxisPositionModel(m, em, c, d), np.asarray(SIX_TABLE_STATIONS))
+    linear = [g for g in sep.dropped if g in ALL_MOTIONS or g[:-5] in SQUARENESS]
+    assert "linear" not in sep.dropped and 1 <= len(linear) <= 8, sep.dropped
+    assert "E_CZ" in linear and sep.reasons["E_CZ"] == "no reading depends on it"
+    kept = [g for g in ALL_MOTIONS if g not in linear] + [f"{q}_urad" for q in SQUARENESS if f"{q}_urad" not in linear]
+    assert len(kept) >= 13 and all(sep.separable[g] for g in kept)
+    held = FiveAxisPositionModel(m, em, c, d, held=sep.dropped)
+    assert held.n_params == em.n_params - sum(em.slices[g].stop - em.slices[g].start if g in em.slices else 1
+                                              for g in sep.dropped)
