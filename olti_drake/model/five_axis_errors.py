@@ -801,9 +801,8 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
     from olti_drake.threads import single_thread_blas
 
     J, what = _separability_rows(model, stations_mm) if jacobian is None else (_dense(jacobian[0]), jacobian[1])
-    dropped = one_point_motions(model)
-    reasons = dict(dropped)
-    dropped = list(dropped)
+    reasons = one_point_motions(model)
+    dropped = list(reasons)
     if prior is not None and prior.shape[0]:
         R = _dense(prior)
         scale = 1e-3 * np.linalg.norm(J, axis=0).max() / max(np.linalg.norm(R, axis=0).max(), 1e-300)
@@ -899,14 +898,14 @@ def one_point_motions(model, rtol: float = 1e-6) -> Dict[str, str]:
         dropped = []
         while designs:
             shares, lacking = {c: 0.0 for c in ROTARY}, 0
-            for D in designs:
-                keep = [k for k in range(D.shape[1]) if k < D.shape[1] - 3 or ROTARY[k - D.shape[1] + 3] not in dropped]
-                _, sv, Vt = np.linalg.svd(D[:, keep], full_matrices=False)
+            for D in designs:  # (columns: t's 9, then ω about x, y, z: the angular components A, B, C)
+                n_t, angular = D.shape[1] - 3, [c for c in ROTARY if c not in dropped]
+                _, sv, Vt = np.linalg.svd(D[:, list(range(n_t)) + [n_t + ROTARY.index(c) for c in angular]],
+                                          full_matrices=False)
                 null = Vt[sv <= rtol * sv[0]]
                 lacking += bool(null.shape[0])
-                for j, k in enumerate(keep):
-                    if k >= D.shape[1] - 3:
-                        shares[ROTARY[k - D.shape[1] + 3]] += float(np.linalg.norm(null[:, j]))
+                for j, c in enumerate(angular):
+                    shares[c] += float(np.linalg.norm(null[:, n_t + j]))
             candidates = [c for c in ROTARY if c not in dropped and shares[c] > 1e-3]
             if not lacking or not candidates:
                 break
