@@ -278,11 +278,10 @@ def test_one_point_per_angle_holds_that_axis_angular_motions(trunnion):
     do not (the same ball seen from A's carrier moves with C). Points spread over the travel: nothing held. Both
     branches read at >= 5 points count; the reason names the axis."""
     from olti_drake.model.five_axis_errors import one_point_motions
+    from tests.estimation.test_five_axis_identify import _onto
 
     def onto(c, ball):
-        p0 = trunnion.tool_points(c)
-        M = np.stack([trunnion.tool_points(c + np.eye(5)[k]) - p0 for k in range(3)], axis=-1)
-        c[:, :3] += np.linalg.solve(M, (ball - p0)[..., None])[..., 0]
+        c[:, :3] = _onto(trunnion, c, ball)
         return c[np.all((c >= trunnion.lower) & (c <= trunnion.upper), axis=1)]  # (the linear axes reach it)
 
     rng = np.random.default_rng(21)
