@@ -20,7 +20,24 @@ def summary(ident, fit, doc) -> str:
         lines.append(f"held at 0 (not separable, see notes): {', '.join(doc['held'])}")
     if doc.get("error_motions"):
         lines.append(f"error motions: {', '.join(doc['error_motions'])} on their grids")
+    lines.append(_linear_line(doc))
     return "\n".join(lines)
+
+
+def _linear_line(doc) -> str:
+    """How the result has the linear axes: identified (knots, the largest motion and its u), fixed or perfect."""
+    if doc.get("linear_from"):
+        return f"linear axes: held fixed from {doc['linear_from'].get('file')}"
+    lin = doc.get("linear")
+    if not lin:
+        return "linear axes: perfect (--linear perfect)"
+    unc = doc["uncertainty"]["linear"]["error_motions"]
+    worst = max(lin["error_motions"], key=lambda n: np.max(np.abs(lin["error_motions"][n]["values"]), initial=0.0))
+    v, u = np.asarray(lin["error_motions"][worst]["values"]), np.asarray(unc[worst]["values"])
+    i, e = int(np.argmax(np.abs(v))), lin["error_motions"][worst]
+    return (f"linear axes: 18 error motions and 3 squareness errors identified (B-spline knots every "
+            f"{doc['error_model']['knot_spacing_mm']:g} mm); largest {worst} {v[i]:.4g} {e['unit']} +- {u[i]:.2g} "
+            f"at {e['axis']} = {e['positions_mm'][i]:g} mm")
 
 
 def predict(args) -> int:

@@ -133,8 +133,17 @@ def _volumetric_summary(res, doc, problem) -> str:
 def _machine5_options(args) -> dict:
     return dict(machine=args.machine, workpiece_frame=args.workpiece_frame, tool_frame=args.tool_frame,
                 pitch_deg=args.grid_step_deg or 15.0, tool_offsets_mm=args.tool_offsets_mm, budget=args.budget,
-                smoothing="auto" if args.smoothing is None else args.smoothing, linear=getattr(args, "linear", None),
+                smoothing="auto" if args.smoothing is None else args.smoothing,
+                linear=getattr(args, "linear", None) or "auto", knot_spacing_mm=args.knot_spacing_mm,
                 **_solver_options(args))
+
+
+def _linear_input(args):
+    """The ``--linear`` volumetric result (an input never to be written), not the words auto / identify / perfect."""
+    from olti_drake.estimation.five_axis import LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT
+
+    linear = getattr(args, "linear", None)
+    return None if linear in (None, LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT) else linear
 
 
 def _machine5_summary(fit, doc, problem) -> str:
@@ -172,7 +181,7 @@ ROUTES = {
     "multilateration": Route(_multilateration_options, _multilateration_summary),
     "volumetric": Route(_volumetric_options, _volumetric_summary),
     "machine5": Route(_machine5_options, _machine5_summary, before=_machine5_before,
-                      inputs=lambda args: [args.campaign, args.budget, args.machine, getattr(args, "linear", None)]),
+                      inputs=lambda args: [args.campaign, args.budget, args.machine, _linear_input(args)]),
 }
 
 

@@ -98,7 +98,8 @@ OPTIONS = (
     # olti identify: the calibration kinds (estimation.problem.kind_of)
     Option("identify", "--tool-offsets-mm", "tool_offsets_mm", ("volumetric", "machine5"),
            {None: "{flag} applies to --model volumetric and to five-axis machines (--machine FILE)"}),
-    _volumetric_only("--knot-spacing-mm", "knot_spacing_mm"),
+    Option("identify", "--knot-spacing-mm", "knot_spacing_mm", ("volumetric", "machine5"),
+           {None: "{flag} applies to --model volumetric and to a five-axis machine's linear axes (--machine FILE)"}),
     _volumetric_only("--topology", "topology", "serial"),
     _volumetric_only("--pitch-mm", "pitch_mm"),
     Option("identify", "--robot", "robot", ("serial",),
@@ -108,8 +109,8 @@ OPTIONS = (
     Option("identify", "--workpiece-frame", "workpiece_frame", ("machine5",),
            {None: "{flag} needs --machine FILE (a five-axis machine model)"}),
     Option("identify", "--linear", "linear", ("machine5",),
-           {None: "{flag} (the linear axes from a volumetric result) needs --machine FILE (a five-axis machine "
-                  "model)"}),
+           {None: "{flag} (a five-axis machine's linear axes: identify, perfect or a volumetric result) needs "
+                  "--machine FILE (a five-axis machine model)"}),
     _scara_only("--grid1-deg", "grid1_deg", "--grid-step-deg"),
     _scara_only("--grid2-deg", "grid2_deg", "--grid-step-deg"),
     _scara_only("--nominal-mm", "nominal_mm", "the robot file's geometry and --tool-offset-mm"),

@@ -527,7 +527,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "point (tool 0's taken as given, the others' estimated; default 0,0,0 for a 1-tool campaign)")
     p.add_argument("--knot-spacing-mm", type=cliargs.length_mm,
                    help="volumetric: largest B-spline knot interval of the error motions (default: up to 8 intervals "
-                        "per axis, fewer when the campaign has few distinct positions)")
+                        "per axis, fewer when the campaign has few distinct positions); with --machine: the linear "
+                        "axes' knot interval (default: 3 intervals over the longest linear travel)")
     p.add_argument("--topology", choices=("serial", "table-xy", "table-yx", "table-y"), default="serial",
                    help="volumetric: serial X-Y-Z (default); table-xy: table carries X on Y, column Z; table-yx: "
                         "table carries Y on X, column Z; table-y: table carries Y, column X, ram Z on X (the A/C "
@@ -544,10 +545,11 @@ def build_parser() -> argparse.ArgumentParser:
                                      "revolute A, B, C joints named by their letters; formats.md, Five-axis machine "
                                      "tools); the campaign then has x/y/z_cmd_mm and <letter>_cmd_deg")
     p.add_argument("--workpiece-frame", help="with --machine: the workpiece frame on the table (default workpiece)")
-    p.add_argument("--linear", metavar="RESULT.json",
-                   help="with --machine: the linear axes' 18 error motions and 3 squareness errors from an earlier "
-                        "volumetric result (olti identify --model volumetric), held fixed, not estimated "
-                        "(docs/five_axis.md)")
+    p.add_argument("--linear", metavar="auto|identify|perfect|RESULT.json",
+                   help="with --machine: the linear axes' 18 error motions and 3 squareness errors: identify (with "
+                        "the rotary axes), perfect (none), from an earlier volumetric result (olti identify --model "
+                        "volumetric), held fixed, not estimated; auto (default): identify for distance or tracker "
+                        "readings, perfect for an R-test campaign alone (docs/five_axis.md)")
     p.add_argument("--tool-offset-mm", type=cliargs.pairs_mm(3),
                    help="with --robot: nominal tool point x,y,z in the tool frame, mm (the start; default 0,0,0)")
     p.add_argument("--grid-step-deg", type=cliargs.real(0, 360, lo_open=True), default=None,

@@ -369,8 +369,9 @@ class LeastSquaresProgram:
         residuals at x when at hand (a distance residual is beam − dead path − reading: no evaluation then)."""
         raise NotImplementedError
 
-    def layout(self, v) -> dict:
-        """A parameter-shaped vector (e.g. uncertainties) in the model's result keys and shapes."""
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        """A parameter-shaped vector (values, or with ``uncertainty`` standard uncertainties: what is not a
+        parameter, e.g. a curve's values, is then left to the covariance) in the model's result keys and shapes."""
         raise NotImplementedError
 
     def implausible(self, x) -> list:
@@ -2268,8 +2269,8 @@ class Calibration(LeastSquaresProgram):
     def beam_lengths(self, x, residuals=None) -> np.ndarray:
         return self.measurement.beam_lengths(np.asarray(x, dtype=float), residuals)
 
-    def layout(self, v) -> dict:
-        return self.measurement.layout(np.asarray(v, dtype=float))
+    def layout(self, v, uncertainty: bool = False) -> dict:
+        return self.measurement.layout(np.asarray(v, dtype=float), uncertainty)
 
     def roughness(self):
         rows = getattr(self.measurement, "roughness", None)

@@ -24,6 +24,7 @@ between nodes, its effect on every estimate and its share of a predicted point, 
 Units: mm, deg (commands), µrad.
 """
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -36,6 +37,10 @@ from olti_drake.model.five_axis_errors import FiveAxisErrors, FiveAxisPositionMo
 from olti_drake.model.volumetric3d import MotionJacobian
 
 MODELS = ("geometric", "errormap")
+#: ``FiveAxisOptions.linear`` words (anything else is a volumetric result's path). ``auto``: identified when the
+#: campaign reads the tool point over the volume (distances, tracker points), perfect for an R-test campaign alone
+#: (:func:`resolved_linear`).
+LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT = "auto", "identify", "perfect"
 #: The reading uncertainty (mm, k = 1) each reading kind is weighed with in a mixed campaign (001 Table 4's
 #: interferometer order; a tracker's 10 µm).
 MIXED_SIGMAS_MM = {"distance": 0.001, "nest": 0.001, "tracker": 0.010}
@@ -47,14 +52,18 @@ class FiveAxisOptions(SolverOptions):
     the error motions every ``pitch_deg`` of each rotary axis' travel); ``tool_offsets_mm`` one [x, y, z] per
     tool index in the tool frame (mm; default 0 for every tool: tool 0 is the reference, the others' errors are
     identified); ``smoothing`` the maps' prior ('auto' by default for errormap; geometric has no maps); ``linear``
-    an earlier ``olti-volumetric/1`` result whose linear-axis motions and squareness are held fixed in the model
-    (:func:`~olti_drake.io.five_axis_io.load_linear_from`; None: perfect linear axes)."""
+    the linear axes: ``"identify"`` (formats.md: their 18 error motions and 3 squareness errors identified with
+    the rotary axes, B-splines on knots every ``knot_spacing_mm``, None: :func:`linear_knot_spacing`), the path
+    of an earlier ``olti-volumetric/1`` result whose motions are held fixed
+    (:func:`~olti_drake.io.five_axis_io.load_linear_from`), ``"perfect"`` (None too: no linear-axis errors in the
+    model), or ``"auto"`` (default: :func:`resolved_linear`)."""
 
     model: str = "errormap"
     pitch_deg: float = 15.0
     tool_offsets_mm: Optional[Sequence[Sequence[float]]] = None
     smoothing: object = "auto"
-    linear: Optional[str] = None
+    linear: Optional[str] = LINEAR_AUTO
+    knot_spacing_mm: Optional[float] = None
 
 
 # ----------------------------------------------------------------------------------------------- the model
@@ -131,11 +140,11 @@ class FramedPositionModel:
                 dp[c][:, sel] = np.broadcast_to(df[c], (T, sel.size, cf.shape[1]))
         return p, cols, tuple(dp)
 
-    def roughness(self):
-        return self.first.roughness()
+    def roughness(self, linear: bool = True):
+        return self.first.roughness(linear)
 
-    def gauge_constraints(self):
-        return self.first.gauge_constraints()
+    def gauge_constraints(self, full_turns: bool = True):
+        return self.first.gauge_constraints(full_turns)
 
     def gauge(self, n_total=None):
         return self.first.gauge(n_total)
@@ -152,10 +161,39 @@ class FramedPositionModel:
 
 
 # ----------------------------------------------------------------------------------------------- the program
-def error_model(machine, campaign, options: FiveAxisOptions, linear=None) -> FiveAxisErrors:
+def resolved_linear(linear, campaign, n_unknowns: int = 0):
+    """``linear`` with ``"auto"`` resolved for ``campaign``: identified when it has distance or tracker readings
+    and more readings (components) than ``n_unknowns`` (the model's with the linear axes), else perfect. R-test
+    readings alone: nests read the ball's displacement about a few fixed points, the linear axes only over the
+    small circles it describes there -- their motions over the travel are unseen (refused as physically
+    impossible on one nest), as in an R-test calibration, which takes the linear axes as calibrated. Fewer readings
+    than unknowns: the maps' prior already carries the fit; 21 more motions carried by it gave unseen tool points
+    beyond 3 u twice as often as the rotary axes alone (6 % on 25 commands, 4 stations)."""
+    if linear != LINEAR_AUTO:
+        return linear
+    seen = np.any(np.isin(campaign.kind, ("distance", "tracker")))
+    return LINEAR_IDENTIFY if seen and _n_components(campaign) > n_unknowns else LINEAR_PERFECT
+
+
+def _n_components(campaign) -> int:
+    """The campaign's scalar readings: 1 per distance, 3 per nest or tracker point."""
+    return int(np.sum(np.where(campaign.kind == "distance", 1, 3)))
+
+
+def linear_knot_spacing(machine) -> float:
+    """The default knot spacing (mm) of linear axes identified with the rotary ones: 3 intervals over the
+    longest linear travel (6 coefficients per motion), rounded up to 1 mm. A five-axis campaign reads the linear
+    axes through the rotary ones' lever arms, each position seldom twice: finer knots trade with the rotary maps
+    (measured, docs/five_axis.md, "Linear axes identified with the rotary ones")."""
+    k = [machine.axes.index(a) for a in machine.linear]
+    travel = max((float(machine.upper[i] - machine.lower[i]) for i in k), default=0.0)
+    return float(max(1.0, np.ceil(travel / 3.0 - 1e-9)))
+
+
+def error_model(machine, campaign, options: FiveAxisOptions, linear=None, knot_spacing_mm=None) -> FiveAxisErrors:
     """The error model the options ask for on ``machine``: location errors always; the error motions every
-    ``pitch_deg`` with ``errormap`` (bidirectional when the campaign has directions); tool offsets; the known
-    linear-axis motions ``linear`` (or perfect linear axes)."""
+    ``pitch_deg`` with ``errormap`` (bidirectional when the campaign has directions); tool offsets; the linear
+    axes ``linear``: "identify" (on knots every ``knot_spacing_mm``), known motions, or None (perfect)."""
     if options.model not in MODELS:
         raise InputError(f"--model {options.model}: a five-axis machine takes {' or '.join(MODELS)}")
     tools = options.tool_offsets_mm
@@ -164,7 +202,8 @@ def error_model(machine, campaign, options: FiveAxisOptions, linear=None) -> Fiv
         raise InputError(f"--tool-offsets-mm: {len(tools)} offset(s) given, but {campaign.source} uses tool indices "
                          f"0..{campaign.n_tools - 1} (one 'x,y,z' per tool index, separated by ';')")
     return FiveAxisErrors(machine, location=True, motions=options.model == "errormap", pitch_deg=options.pitch_deg,
-                          bidirectional=campaign.directions is not None, linear=linear, tool_offsets_mm=tools,
+                          bidirectional=campaign.directions is not None, linear=linear,
+                          knot_spacing_mm=knot_spacing_mm or 50.0, tool_offsets_mm=tools,
                           identify_tool_offsets=len(tools) > 1, one_way=one_way(machine, campaign))
 
 
@@ -242,21 +281,37 @@ class FiveAxisIdentification(Calibration):
 
     def __init__(self, campaign, machine, options: FiveAxisOptions = None):
         o = options or FiveAxisOptions()
-        if o.model == "geometric":
-            import dataclasses
-
-            o = dataclasses.replace(o, smoothing="off")  # (no maps: nothing to smooth)
+        if o.linear == LINEAR_AUTO:  # (counted on the model with them, at the default knots)
+            n = error_model(machine, campaign, o, LINEAR_IDENTIFY,
+                            float(o.knot_spacing_mm or linear_knot_spacing(machine))).n_params
+            o = dataclasses.replace(o, linear=resolved_linear(o.linear, campaign, n))
+            if o.linear == LINEAR_PERFECT:
+                seen = np.any(np.isin(campaign.kind, ("distance", "tracker")))
+                self._auto_perfect = ("an R-test campaign sees them only about its nests" if not seen else
+                                      f"{_n_components(campaign)} readings, fewer than the {n} unknowns with them")
+        if o.model == "geometric" and o.linear != LINEAR_IDENTIFY:
+            o = dataclasses.replace(o, smoothing="off")  # (no maps, no linear motions: nothing to smooth)
         self.campaign, self.machine, self.model_name, self._options = campaign, machine, o.model, o
-        self.linear_from = None
-        if o.linear is not None:
+        self.linear_from, linear, spacing = None, None, None
+        if o.linear == LINEAR_IDENTIFY:
+            linear = LINEAR_IDENTIFY
+            spacing = float(o.knot_spacing_mm or linear_knot_spacing(machine))
+        elif o.linear not in (None, LINEAR_PERFECT):
             from olti_drake.io.five_axis_io import load_linear_from
 
             self.linear_from = load_linear_from(o.linear, machine, campaign.commands, campaign.source)
-        self.errors = error_model(machine, campaign, o, self.linear_from and self.linear_from.motions)
+            linear = self.linear_from.motions
+        if o.knot_spacing_mm is not None and linear != LINEAR_IDENTIFY:
+            why = f" (--linear auto: {self._auto_perfect})" if getattr(self, "_auto_perfect", None) else ""
+            raise InputError(f"--knot-spacing-mm applies to linear axes identified with the rotary ones, not to linear "
+                             f"axes {'fixed' if linear is not None else 'perfect'}{why}")
+        self.errors = error_model(machine, campaign, o, linear, spacing)
         self._settings = dict(location=True, motions=o.model == "errormap", pitch_deg=float(o.pitch_deg),
                               bidirectional=campaign.directions is not None,
                               tool_offsets_mm=self.errors.tools.tolist(),
                               identify_tool_offsets=len(self.errors.tools) > 1)
+        if linear == LINEAR_IDENTIFY:
+            self._settings.update(linear=LINEAR_IDENTIFY, knot_spacing_mm=spacing)
         self.separability = self._separable()
         self.dropped = {g: self.separability.reasons[g] for g in self.separability.dropped}
         self.position_model = self._framed(self.separability.dropped)
@@ -270,6 +325,14 @@ class FiveAxisIdentification(Calibration):
                               f"(sha256 {self.linear_from.sha256[:12]}...) held fixed, not estimated, about the "
                               f"loop's carriage frames; their covariance is propagated into every u "
                               f"(docs/five_axis.md)")
+        elif linear == LINEAR_IDENTIFY:
+            self.notes.append(f"linear axes: their 18 error motions and 3 squareness errors identified with the rotary "
+                              f"axes (B-splines, knots every {spacing:g} mm)")
+        else:
+            auto = getattr(self, "_auto_perfect", None)
+            self.notes.append("linear axes: taken as perfect (no error motions, no squareness errors)"
+                              + (f" by --linear auto: {auto}; --linear identify asks for them, --linear RESULT.json "
+                                 f"takes them from a volumetric calibration" if auto else ""))
         if len(self.kinds) > 1:
             self.notes.append("mixed campaign: each reading kind weighed by its u (mm): " + ", ".join(
                 f"{k} {MIXED_SIGMAS_MM[k]:g}" for k in self.kinds))
@@ -289,7 +352,9 @@ class FiveAxisIdentification(Calibration):
             _, J = meas.residuals(meas.start_vector())
         finally:
             self.errors.linear_motions = known
-        R = meas.roughness() if smoothing_on(self._options) else None
+        # (the maps' prior without the identified linear axes': a group the campaign cannot see is not made
+        # separable by smoothness rows on other motions -- measured, docs/five_axis.md)
+        R = meas.roughness(linear=False) if smoothing_on(self._options) else None
         return separable(pm, jacobian=(J, " + ".join(kinds) + " readings, their own unknowns free"), prior=R)
 
     def _gauge_sentence(self, gauge) -> str:
@@ -305,11 +370,11 @@ class FiveAxisIdentification(Calibration):
         """The :class:`FiveAxisErrors` keyword arguments of this identification (the result's ``error_model``)."""
         return dict(self._settings)
 
-    def layout(self, v) -> dict:
+    def layout(self, v, uncertainty: bool = False) -> dict:
         """Values or uncertainties over :attr:`names` in the ``olti-machine5/1`` keys: the model's
         (``location_errors``, ``error_motions``, ``tool_offset_errors_mm``), then the stations (with their file
         labels and frames), nests and tracker frames."""
-        out = self.measurement.layout(np.asarray(v, float))
+        out = self.measurement.layout(np.asarray(v, float), uncertainty)
         c = self.campaign
         rows = c.kind == "distance"
         if rows.any():

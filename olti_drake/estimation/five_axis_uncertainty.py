@@ -36,15 +36,21 @@ TRIAL_TOLERANCE_U = 1e-6
 def result_options(doc: dict, name: str):
     """The :class:`~olti_drake.estimation.five_axis.FiveAxisOptions` of the identification that wrote the result
     ``doc`` (file ``name``): its model, grid and tool offsets, its smoothness weight as given (or off), its
-    ``--linear`` volumetric result (the file relative to the result)."""
-    from olti_drake.estimation.five_axis import FiveAxisOptions
+    linear axes: identified (on the result's knots), from its ``--linear`` volumetric result (the file relative to
+    the result), or perfect (a result written before linear axes were identified by default)."""
+    from olti_drake.estimation.five_axis import LINEAR_IDENTIFY, LINEAR_PERFECT, FiveAxisOptions
 
     settings = doc["error_model"]
     smoothing = doc.get("smoothing") or {}
     weight = smoothing.get("weight") if isinstance(smoothing, dict) else None
     linear = (doc.get("linear_from") or {}).get("file")
-    linear = {} if not linear else {"linear": linear if os.path.isabs(linear) else
-                                    os.path.join(os.path.dirname(os.path.abspath(name)), linear)}
+    if settings.get("linear") == LINEAR_IDENTIFY:
+        linear = {"linear": LINEAR_IDENTIFY, "knot_spacing_mm": settings.get("knot_spacing_mm")}
+    elif linear:
+        linear = {"linear": linear if os.path.isabs(linear) else os.path.join(os.path.dirname(os.path.abspath(name)),
+                                                                              linear)}
+    else:
+        linear = {"linear": LINEAR_PERFECT}
     return FiveAxisOptions(model=doc.get("model", "errormap"), pitch_deg=float(settings["pitch_deg"]),
                            tool_offsets_mm=settings.get("tool_offsets_mm"),
                            smoothing=float(weight) if isinstance(weight, (int, float)) and weight > 0 else "off",

@@ -332,7 +332,7 @@ class Identifier(Calibration):
     def reading_label(self, k: int) -> dict:
         return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
 
-    def layout(self, v) -> dict:
+    def layout(self, v, uncertainty: bool = False) -> dict:
         """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""
         from olti_drake.io.result import uncertainty_layout
 

@@ -215,8 +215,8 @@ def _machine5_document(fit, problem, path) -> dict:
     from olti_drake.io.five_axis_io import machine5_result_dict
 
     out_dir = os.path.dirname(os.path.abspath(os.fspath(path)))
-    linear = problem.options.get("linear")
-    linear = os.path.relpath(os.path.abspath(linear), out_dir) if linear else None
+    linear = problem.program.linear_from  # (the --linear result, named relative to the result: not identify/perfect)
+    linear = os.path.relpath(os.path.abspath(linear.path), out_dir) if linear is not None else None
     return machine5_result_dict(problem.program, fit,
                                 os.path.relpath(os.path.abspath(problem.options["machine"]), out_dir),
                                 linear_reference=linear)

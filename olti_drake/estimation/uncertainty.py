@@ -361,8 +361,8 @@ def uncertainty_dict(ident, std, method: str, budget: Budget, k: float = 2.0, sa
     from olti_drake.formats import UNCERTAINTY
 
     out = {"format": UNCERTAINTY, "method": method, "k": 1}
-    out.update(ident.layout(std))
-    out["expanded"] = dict(k=k, **ident.layout(k * std))
+    out.update(ident.layout(std, uncertainty=True))
+    out["expanded"] = dict(k=k, **ident.layout(k * std, uncertainty=True))
     if samples is not None and intervals:
         lo, hi = np.percentile(samples, [50 * (1 - coverage), 50 * (1 + coverage)], axis=0)
         out["coverage_interval"] = {"p": coverage, "low": ident.layout(lo), "high": ident.layout(hi)}

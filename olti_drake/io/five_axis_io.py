@@ -432,10 +432,32 @@ def machine5_result_dict(ident, fit, machine_reference: str, notes=(),
     linear = getattr(ident, "linear_from", None)
     if linear is not None:
         values["linear_from"] = linear.entry(linear_reference or linear.path)
-    unc = {k: v for k, v in ident.layout(fit.std).items() if k not in _LABELS}
+    unc = {k: v for k, v in ident.layout(fit.std, uncertainty=True).items() if k not in _LABELS}
+    if em.linear_model is not None:
+        unc["linear"] = linear_uncertainty(ident, fit, values["linear"])
     return result_document("machine5", values, fit, gauge=ident.gauge, uncertainty=unc,
                            n_readings=ident.campaign.n_readings, campaign=ident.campaign.digest,
                            notes=list(notes), tail=covariance_entry(fit))
+
+
+def linear_uncertainty(ident, fit, values: dict) -> dict:
+    """The identified linear axes' standard uncertainties (k = 1) in the keys of their ``values``
+    (:func:`~olti_drake.model.five_axis_errors.linear_layout`): every coefficient's, the squareness', and every
+    stated value's from the covariance of the linear block (:func:`~olti_drake.io.volumetric_io.motion_std`;
+    held motions and fixed coefficients: 0)."""
+    from olti_drake.io.volumetric_io import motion_std
+    from olti_drake.model.five_axis_errors import linear_layout
+
+    em, pm = ident.errors, ident.position_model
+    k, f, s = pm.n_params, pm.free_cols, em.slices["linear"]
+    C = np.zeros((em.n_params, em.n_params))
+    C[np.ix_(f, f)] = np.asarray(fit.covariance, float)[:k, :k]
+    C = C[s, s]
+    out = linear_layout(em.linear_model, np.sqrt(np.maximum(np.diag(C), 0.0)), uncertainty=True)
+    positions = {e["axis"]: e["positions_mm"] for e in values["error_motions"].values()}
+    for name, u in motion_std(em.linear_model, C, positions).items():
+        out["error_motions"][name]["values"] = u.tolist()
+    return out
 
 
 @dataclass
@@ -492,7 +514,15 @@ def load_machine5_result(path) -> Machine5Result:
     if file_sha256(file) != mach.get("sha256"):
         raise InputError(f"{name}: key 'machine.sha256': {file} has changed since the identification")
     machine = FiveAxisMachine.from_file(file, mach["workpiece_frame"], mach["tool_frame"])
-    em = FiveAxisErrors(machine, **settings, linear=_linear_of(doc, name, machine))
+    settings = dict(settings)
+    if settings.pop("linear", None) == "identify":  # (identified with the rotary axes, on these knots)
+        linear, settings["knot_spacing_mm"] = "identify", _knot_spacing_of(settings, name)
+    else:
+        linear = _linear_of(doc, name, machine)
+    try:
+        em = FiveAxisErrors(machine, **settings, linear=linear)
+    except TypeError as e:
+        raise InputError(f"{name}: key 'error_model': {e}") from None
     pm = FiveAxisPositionModel(machine, em, np.zeros((1, len(machine.axes))).clip(machine.lower, machine.upper),
                                np.ones((1, len(machine.rotary))) if em.bidirectional and em.maps else None,
                                held=held)
@@ -503,6 +533,13 @@ def load_machine5_result(path) -> Machine5Result:
         idx = [cnames.index(n) for n in pm.names]
         C = C[np.ix_(idx, idx)]
     return Machine5Result(machine, em, pm.names, x, C, held, doc)
+
+
+def _knot_spacing_of(settings: dict, name: str) -> float:
+    v = settings.pop("knot_spacing_mm", None)
+    if not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
+        raise InputError(f"{name}: key 'error_model.knot_spacing_mm': expected a spacing > 0 (mm), got {v!r}")
+    return float(v)
 
 
 def _linear_of(doc: dict, name: str, machine):
@@ -521,7 +558,8 @@ def _linear_of(doc: dict, name: str, machine):
 
 
 def _theta_from_layout(doc: dict, em, name: str) -> np.ndarray:
-    """The error model's full vector from a result's ``location_errors``, ``error_motions`` and ``tool_offset_mm``."""
+    """The error model's full vector from a result's ``location_errors``, ``error_motions``, ``linear`` (identified
+    linear axes) and ``tool_offset_mm``."""
     from olti_drake.io.csvio import json_numbers
 
     theta = em.zeros()
@@ -538,6 +576,10 @@ def _theta_from_layout(doc: dict, em, name: str) -> np.ndarray:
         if em.bidirectional:
             vals.append(json_numbers(entry, name, "reverse", (n,), label=f"error_motions.{jm.joint}.reverse"))
         theta[em.slices[jm.joint]] = np.concatenate(vals)
+    if em.linear_model is not None:
+        from olti_drake.model.five_axis_errors import linear_from_layout
+
+        theta[em.slices["linear"]] = linear_from_layout(em.linear_model, doc.get("linear"), name)
     tools = np.asarray(doc.get("tool_offset_mm", em.tools.tolist()), float).reshape(-1, 3)
     for m, g in enumerate(em.tool_groups, start=1):
         theta[em.slices[g]] = tools[m] - em.tools[m]

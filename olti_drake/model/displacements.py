@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.errors import InputError
+from olti_drake.model.measurements import own_roughness
 from olti_drake.model.scara import rows_to_csr
 
 URAD = 1e-6  # rad per µrad
@@ -104,16 +105,6 @@ def _sigma(sigma_mm, name: str):
     if not (np.isfinite(s) and s > 0):
         raise InputError(f"{name}: the reading uncertainty must be finite and > 0 mm, got {sigma_mm!r}")
     return s
-
-
-def _own_roughness(model, n_own: int):
-    """The model's roughness rows (its maps' smoothness prior) padded with zeros for ``n_own`` own parameters;
-    None when the model has no maps."""
-    rows = getattr(model, "roughness", None)
-    R = rows() if rows is not None else None
-    if R is None:
-        return None
-    return sp.hstack([R, sp.csr_matrix((R.shape[0], n_own))], format="csr")
 
 
 def _reference(model):
@@ -245,8 +236,8 @@ class _GroupedPoints:
         jac.sum_duplicates()
         return r[0], jac
 
-    def roughness(self):
-        return _own_roughness(self.model, len(self.own_names))
+    def roughness(self, **model_options):
+        return own_roughness(self.model, len(self.own_names), **model_options)
 
     def reading_spans(self):
         """(the widest spread of one set-up's readings, the widest spread of the start points it sees), mm:
@@ -614,8 +605,8 @@ class CombinedMeasurement:
         out["measurement_sigmas_mm"] = self.sigmas.tolist()
         return out
 
-    def roughness(self):
-        return _own_roughness(self.model, len(self.own_names))
+    def roughness(self, **model_options):
+        return own_roughness(self.model, len(self.own_names), **model_options)
 
     def reading_spans(self):
         """The (spread, motion) of the measurement whose readings spread least against their points: a unit slip

@@ -45,6 +45,19 @@ START_GRID_DEG, STARTS = 5.0, 3
 STEP_TOL = 1e-10
 #: Largest rotary step of one iteration (deg): keeps Newton on its branch.
 MAX_ROTARY_STEP_DEG = 20.0
+#: The pole of a rotary axis: where turning it turns the tool direction by less than this (rad per rad; sin 0.5 deg:
+#: C with A within 0.5 deg of 0), the axis is held at its nominal command with weight POLE_ANCHOR, as a controller
+#: does at its pole. Anchored by ANCHOR alone, a direction error no nearby pose removes (the tilt the error motions
+#: give the tool there) pulls the axis along a flat valley towards the far pose that removes it, by 1e-6 to 1e-3 of
+#: the cost a step, the steps halved 5-10 times: no convergence in 60 steps (measured on BK paths at A = 0). The
+#: tool point is met either way; the direction's residual is reported.
+POLE_SENSITIVITY, POLE_ANCHOR = np.sin(np.radians(0.5)), 1.0
+#: A row whose point is met and whose cost a step lowers by less than this fraction has converged.
+COST_TOL = 1e-9
+#: The most halvings of a Gauss-Newton step that does not lower a row's cost (:func:`_gauss_newton`).
+HALVINGS = 30
+#: A compensated command reaches its tool point within this (mm).
+POINT_TOL_MM = 1e-6
 #: A nominal solution reaches the wanted direction within this (rad) and the point within this (mm).
 NOMINAL_TOL_RAD, NOMINAL_TOL_MM = 1e-9, 1e-9
 
@@ -118,25 +131,59 @@ def _rotary_offset(machine: FiveAxisMachine, to_deg, from_deg) -> np.ndarray:
 def _gauss_newton(machine, pose, c, points, dirs, anchor=None, max_iter: int = 60):
     """Gauss-Newton on the tool pose ``pose(commands) -> (p, d, Jp, Jd)`` for (M, n_axes) starts ``c``: point
     residual (mm), direction residual (× LEVER_MM), and, when ``anchor`` (M, n_rotary) deg is given, the rotary
-    commands tied to it with weight ANCHOR (else each step is damped by that weight: Levenberg–Marquardt, the
-    exact solution). Iterates kept in the travel. Returns (commands, converged (M,), iterations)."""
+    commands tied to it with weight ANCHOR (POLE_ANCHOR for an axis at its pole at the start) (else each step is damped by that weight: Levenberg–Marquardt, the
+    exact solution). Iterates kept in the travel; a step that does not lower a row's cost is halved (up to
+    :data:`HALVINGS` times): a minimum on a kink of the model (a map node, the end of a full turn) is overshot
+    both ways by the full step; each step is followed by a Newton step of the linear axes on the point alone.
+    Converged: no halved step lowers the cost, the step is below STEP_TOL, or the point is met and the cost fell by
+    less than COST_TOL of itself. Returns (commands, converged (M,), iterations)."""
     rot = np.array([machine.axes.index(a) for a in machine.rotary], int)
+    lin = np.array([machine.axes.index(a) for a in machine.linear], int)
     scale = np.ones(len(machine.axes))
     scale[rot] = DEG * LEVER_MM  # (mm-like unknowns)
-    damp = np.zeros((len(machine.axes), len(machine.axes)))
-    damp[rot, rot] = ANCHOR ** 2
     done = np.zeros(len(c), bool)
+    p, d, Jp, Jd = pose(c)
+    w = np.full((len(c), len(rot)), ANCHOR)
+    if anchor is not None:  # (an axis at its pole is held: the tool turns about it, by < POLE_SENSITIVITY rad/rad)
+        w[np.linalg.norm(Jd[:, :, rot], axis=1) / DEG < POLE_SENSITIVITY] = POLE_ANCHOR
+    damp = np.zeros((len(c), len(machine.axes), len(machine.axes)))
+    damp[:, rot, rot] = w ** 2
+
+    def cost(c, p, d):
+        out = np.sum((points - p) ** 2, axis=1) + LEVER_MM ** 2 * np.sum((dirs - d) ** 2, axis=1)
+        if anchor is not None:
+            out = out + np.sum((w * _rotary_offset(machine, anchor, c[:, rot]) * DEG * LEVER_MM) ** 2, axis=1)
+        return out
+
     for it in range(1, max_iter + 1):
-        p, d, Jp, Jd = pose(c)
         J = np.concatenate([Jp, LEVER_MM * Jd], axis=1) / scale  # (M, 6, n_axes)
         r = np.concatenate([points - p, LEVER_MM * (dirs - d)], axis=1)
         g = np.einsum("mki,mk->mi", J, r)
         if anchor is not None:
-            g[:, rot] += ANCHOR ** 2 * _rotary_offset(machine, anchor, c[:, rot]) * DEG * LEVER_MM
+            g[:, rot] += w ** 2 * _rotary_offset(machine, anchor, c[:, rot]) * DEG * LEVER_MM
         step = np.linalg.solve(np.einsum("mki,mkj->mij", J, J) + damp, g[..., None])[..., 0] / scale
         step[:, rot] = np.clip(step[:, rot], -MAX_ROTARY_STEP_DEG, MAX_ROTARY_STEP_DEG)
-        c = _into_travel(machine, c + step)
-        done = np.max(np.abs(step) * scale, axis=1) < STEP_TOL
+        step[done] = 0.0  # (a converged row stays where it converged)
+        before, t = cost(c, p, d), np.ones(len(c))
+        for _ in range(HALVINGS + 1):
+            trial = _into_travel(machine, c + t[:, None] * step)
+            pt, dt, Jpt, Jdt = pose(trial)
+            worse = cost(trial, pt, dt) > before * (1.0 + 1e-12) + 1e-24
+            if not worse.any() or _ == HALVINGS:
+                break
+            t = np.where(worse, 0.5 * t, t)
+        # (a row no halved step lowers is at its minimum: kept, converged)
+        keep = worse[:, None]
+        c, p, Jp = np.where(keep, c, trial), np.where(keep, p, pt), np.where(keep[..., None], Jp, Jpt)
+        # Then the point by the linear axes alone (the rotary ones held): where a rotary command lies in a flat
+        # valley on a kink of the maps -- C at a singular pose, across +-180 -- the halved steps zigzag over it,
+        # the point's part of every step halved with them.
+        c[:, lin] += np.where(done[:, None], 0.0, np.linalg.solve(Jp[:, :, lin], (points - p)[..., None])[..., 0])
+        c = _into_travel(machine, c)
+        p, d, Jp, Jd = pose(c)
+        after = cost(c, p, d)
+        done |= worse | (np.max(np.abs(t[:, None] * step) * scale, axis=1) < STEP_TOL) | \
+            ((before - after <= COST_TOL * before) & (np.linalg.norm(points - p, axis=1) < POINT_TOL_MM))
         if done.all():
             break
     return c, done, it
@@ -265,8 +312,8 @@ def _check_solution(machine, c, done, err_p, lines, what) -> None:
     """Refuse (one line, the first row) a command at the end of its travel that the point still pulls beyond
     it, or a row not converged."""
     at_end = (np.isclose(c, machine.lower, atol=1e-9) | np.isclose(c, machine.upper, atol=1e-9)) & \
-        np.isfinite(machine.lower)
-    bad = np.flatnonzero(~done | (err_p > 1e-6))
+        np.isfinite(machine.lower) & ~_full_turns(machine)  # (a full turn has no end)
+    bad = np.flatnonzero(~done | (err_p > POINT_TOL_MM))
     if bad.size:
         i = bad[0]
         ends = [a for a, e in zip(machine.axes, at_end[i]) if e]

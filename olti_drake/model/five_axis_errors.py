@@ -45,7 +45,7 @@ from olti_drake.model.five_axis import DEG, LINEAR, ROTARY, AxisLink, FiveAxisMa
 from olti_drake.model.serial import Gauge, GaugeConstraint, JointMap
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, IMPLAUSIBLE_MM, IMPLAUSIBLE_URAD, SQUARENESS, MachineConfig,
                                            MotionJacobian, VolumetricModel, _rotations, axis_directions, motion_names,
-                                           roughness_lever_mm)
+                                           motion_roughness, motions_document, roughness_lever_mm)
 
 COMPONENTS = ("X", "Y", "Z", "A", "B", "C")
 URAD = 1e-6
@@ -170,6 +170,59 @@ def gauge_patterns(machine: FiveAxisMachine, letter: str, q, constants: bool = T
             col[:, ia], col[:, ib] = ca, cb
             cols.append(col)
     return np.stack(cols, axis=-1)
+
+
+def linear_layout(model: VolumetricModel, v, uncertainty: bool = False) -> dict:
+    """The identified linear axes' values ``v`` (over ``model.parameter_names()``) by ISO name, as an
+    ``olti-volumetric/1`` result has them (:func:`~olti_drake.model.volumetric3d.motions_document`): the
+    representation (B-spline knots), per motion its axis, unit, role, every ``coefficient`` (the fixed ones 0; mm
+    or µrad) and its ``values`` at ``positions_mm`` (every :func:`linear_pitch_mm` of the travel), the
+    ``squareness_urad``. With ``uncertainty`` (``v`` standard uncertainties) the coefficients' and squareness'
+    only: a value's u needs the covariance (the result writer's)."""
+    v = np.asarray(v, float)
+    if uncertainty:
+        coef = {}
+        for name in ALL_MOTIONS:
+            full = np.zeros(model.config.n_basis(name[3]))
+            full[model.free[name]] = v[model.slices[name]]
+            coef[name] = {"coefficients": full.tolist()}
+        return {"error_motions": coef, "squareness_urad": {q: float(v[model.slices[q]][0]) for q in SQUARENESS}}
+    doc = motions_document(model, v, linear_pitch_mm(model))
+    keys = ("axis", "unit", "role", "fixed", "coefficients", "positions_mm", "values")
+    return {"representation": doc["representation"], "travel_mm": doc["travel_mm"],
+            "error_motions": {n: {k: e[k] for k in keys} for n, e in doc["error_motions"].items()},
+            "squareness_urad": doc["squareness_urad"]}
+
+
+def linear_pitch_mm(model: VolumetricModel) -> float:
+    """The spacing (mm) of the stated values of identified linear motions: a quarter of the knot spacing."""
+    return model.config.knot_spacing_mm / 4.0
+
+
+def linear_from_layout(model: VolumetricModel, entry, source: str) -> np.ndarray:
+    """The parameter vector of ``model`` from :func:`linear_layout`'s ``entry``; one InputError line naming the
+    key when a value is missing, not finite, or a fixed coefficient is not 0."""
+    x = model.zeros()
+    for name in ALL_MOTIONS:
+        coef = (((entry or {}).get("error_motions") or {}).get(name) or {}).get("coefficients")
+        n = model.config.n_basis(name[3])
+        try:
+            coef = np.asarray(coef, float)
+        except (TypeError, ValueError):
+            coef = np.zeros(0)
+        if coef.shape != (n,) or not np.all(np.isfinite(coef)):
+            raise InputError(f"{source}: key 'linear.error_motions.{name}.coefficients': expected {n} finite values")
+        fixed = np.setdiff1d(np.arange(n), model.free[name])
+        if np.any(coef[fixed] != 0):
+            raise InputError(f"{source}: key 'linear.error_motions.{name}.coefficients': must be 0 at "
+                             f"{fixed.tolist()} (the motion's fixed ends)")
+        x[model.slices[name]] = coef[model.free[name]]
+    for q in SQUARENESS:
+        v = ((entry or {}).get("squareness_urad") or {}).get(q)
+        if not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise InputError(f"{source}: key 'linear.squareness_urad.{q}': missing or not finite")
+        x[model.slices[q]] = float(v)
+    return x
 
 
 # --------------------------------------------------------------------------- the error model
@@ -568,14 +621,20 @@ class FiveAxisPositionModel:
         return p, self._cols[points], tuple(vals[:, :, c] for c in range(3))
 
     # ------------------------------------------------------------------ priors and gauge
-    def roughness(self) -> Optional[sp.csr_matrix]:
+    def roughness(self, linear: bool = True) -> Optional[sp.csr_matrix]:
         """000's map smoothness rows (:meth:`JointMap.roughness`: each branch and the backlash) of every error
-        motion over x; None without motions. An angular motion (µrad) counts at the tool point it moves: times
-        :meth:`roughness_lever_mm` · 10⁻⁶ (mm per µrad), so that one weight serves mm and µrad alike (as the 3-axis
-        machine's prior, :func:`olti_drake.model.volumetric3d.motion_roughness`)."""
+        motion over x, and (``linear``) the identified linear axes'
+        (:func:`~olti_drake.model.volumetric3d.motion_roughness`); None without motions. An angular motion (µrad)
+        counts at the tool point it moves: times :meth:`roughness_lever_mm` · 10⁻⁶ (mm per µrad), so that one weight
+        serves mm and µrad alike (as the 3-axis machine's prior)."""
         em = self.errors
         blocks = []
         lever = self.roughness_lever_mm() * 1e-6
+        if linear and em.linear_model is not None:  # (the 3-axis machine's prior, same lever)
+            s = em.slices["linear"]
+            R = motion_roughness(em.linear_model, self.roughness_lever_mm())
+            blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
+                                     sp.csr_matrix((R.shape[0], em.n_params - s.stop))]))
         for (L, c), jm in em.maps.items():
             R = jm.roughness()
             if unit(c) == "urad":
@@ -595,12 +654,12 @@ class FiveAxisPositionModel:
         ε·lever·10⁻⁶ mm)."""
         return roughness_lever_mm(self.positions(self.start_vector()))
 
-    def gauge_constraints(self) -> Tuple[GaugeConstraint, ...]:
+    def gauge_constraints(self, full_turns: bool = True) -> Tuple[GaugeConstraint, ...]:
         """The error motions' gauge, A x = 0 (module docstring; :func:`gauge_patterns`): per motion the grid mean
         of the branches' average (when the location errors are parameters: they hold the constant), and per
         radial pair and tilt pair the two components of the rotating first harmonic (a constant offset or tilt of
         the frame downstream: the workpiece frame, the next axis' location, tool 0's offset). Trapezoid weights
-        over the grid."""
+        over the grid. Then the one-way ties and (``full_turns``) the full-turn ties (:meth:`_full_turn_ties`)."""
         em, out = self.errors, []
         for L in self.machine.rotary:
             if (L, "X") not in em.maps:
@@ -622,7 +681,31 @@ class FiveAxisPositionModel:
                 name = f"E_{COMPONENTS[int(np.argmax(np.abs(patterns[0, :, j])))]}{L}"
                 if np.any(row[self.free_cols]):  # (a held motion needs no gauge)
                     out.append(GaugeConstraint(name, row[self.free_cols], 0.0, text))
-        return tuple(out) + self._one_way_ties()
+        return tuple(out) + self._one_way_ties() + (self._full_turn_ties() if full_turns else ())
+
+    def full_turns(self) -> Tuple[str, ...]:
+        """The rotary axes with maps whose travel is a full turn (−180..180: its two end nodes are one angle)."""
+        m = self.machine
+        return tuple(L for L in m.rotary if (L, "X") in self.errors.maps
+                     and m.upper[m.axes.index(L)] - m.lower[m.axes.index(L)] >= 360.0 - 1e-9)
+
+    def _full_turn_ties(self) -> Tuple[GaugeConstraint, ...]:
+        """node[last] = node[0] of every branch of a full-turn axis' motions (:meth:`full_turns`): −180° and +180°
+        are one angle, approached the same way; untied, the maps would jump there, the extrapolated ends apart (the
+        inverse of a command across the end then finds no pose). A one-way axis ties its forward branch only (its
+        reverse is tied to it node by node)."""
+        em, out = self.errors, []
+        for L in self.full_turns():
+            for c in COMPONENTS:
+                s, n = em.slices[f"E_{c}{L}"], em.maps[(L, c)].emap.n_nodes
+                for b in range(1 if L in em.one_way or not em.bidirectional else 2):
+                    row = np.zeros(em.n_params)
+                    row[s.start + b * n], row[s.start + b * n + n - 1] = -1.0, 1.0
+                    if np.any(row[self.free_cols]):
+                        out.append(GaugeConstraint(f"E_{c}{L}", row[self.free_cols], 0.0,
+                                                   f"{L} turns a full turn: E_{c}{L} {BRANCHES[b]} at +180 deg = at "
+                                                   f"-180 deg"))
+        return tuple(out)
 
     def _one_way_ties(self) -> Tuple[GaugeConstraint, ...]:
         """reverse[i] = forward[i] of every motion node of the axes the campaign approaches one way only
@@ -652,14 +735,15 @@ class FiveAxisPositionModel:
                      for c in self.gauge_constraints())
         one_way = "".join(f"; {L} approached one way only: its reverse branches = the forward ones"
                           for L in self.errors.one_way)
+        turns = "".join(f"; {L} turns a full turn: its maps equal at -180 and +180 deg" for L in self.full_turns())
         return Gauge(cons, 0, "error motions: mean 0 and no rotating first harmonic per rotary axis "
-                              f"(docs/five_axis.md){one_way}", n)
+                              f"(docs/five_axis.md){one_way}{turns}", n)
 
     # ------------------------------------------------------------------ results
     def layout(self, v, uncertainty: bool = False) -> dict:
         """x-shaped ``v`` (values or uncertainties) in the ``olti-machine5/1`` keys: ``location_errors`` by name,
         ``error_motions`` per ISO name (axis, unit, ``grid_deg``, ``forward``, ``reverse`` when bidirectional),
-        ``linear`` (the volumetric vector), ``tool_offset_errors_mm``."""
+        ``linear`` (identified linear axes, :func:`linear_layout`), ``tool_offset_errors_mm``."""
         em, v = self.errors, self.theta(v)
         out = {"location_errors": {}, "error_motions": {}}
         for L in self.machine.rotary if em.location else ():
@@ -673,7 +757,7 @@ class FiveAxisPositionModel:
                 entry["reverse"] = vals[n:].tolist()
             out["error_motions"][jm.joint] = entry
         if em.linear_model is not None:
-            out["linear"] = {"model": v[em.slices["linear"]].tolist()}
+            out["linear"] = linear_layout(em.linear_model, v[em.slices["linear"]], uncertainty)
         out["tool_offset_errors_mm"] = [v[em.slices[g]].tolist() for g in em.tool_groups]
         return out
 
@@ -789,7 +873,7 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
     the motions' gauge rows appended; columns scaled to unit norm and projected off the nuisance columns (as
     :func:`olti_drake.model.volumetric3d.observability`). While the null space (singular values ≤ ``rtol`` × the
     largest) is not empty, a group holding more than ``share`` of it is dropped -- the first of ``prefer`` among
-    them, else the one holding most --, the reason naming the groups its null directions share ("the measurement's
+    them, else the one holding most, a linear axis' motion or squareness before a rotary group --, the reason naming the groups its null directions share ("the measurement's
     gauge" when the nuisance takes part). ``jacobian``: instead, (J, what) of any measurement of the model -- its
     residuals' Jacobian (rows, n_params + its own unknowns: nests, tracker frames, stations), the model's columns
     first -- e.g. a mixed campaign's (:class:`~olti_drake.model.displacements.CombinedMeasurement`). ``prior``:
@@ -811,6 +895,7 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
     norms = np.linalg.norm(A, axis=0)
     unit_cols = A / np.where(norms > 1e-12 * norms.max(), norms, np.inf)
     groups = _groups(model)
+    linear = set(ALL_MOTIONS) | {f"{q}_urad" for q in SQUARENESS}
     keep = np.ones(model.n_params, bool)
     for g in dropped:
         keep[groups[g]] = False
@@ -831,7 +916,12 @@ def separable(model: FiveAxisPositionModel, stations_mm=None, rtol: float = 1e-8
             inside = [g for g in block if block[g] > share]
             if not inside:
                 break
-            g = next((h for h in prefer if h in inside), max(inside, key=block.get))
+            # (the most-holding group; shares equal to rounding -- one trade seen from both sides -- go to the first
+            # in the model's order, not to whichever the readings' row order rounds up)
+            # A linear motion before a rotary group: the location errors are a five-axis campaign's first answer.
+            pool = [h for h in inside if h in linear] or inside
+            top = max(block[h] for h in pool)
+            g = next((h for h in prefer if h in inside), next(h for h in pool if block[h] >= top * (1 - 1e-6)))
             dropped.append(g)
             reasons[g] = _reason(g, groups, null, unit_cols, norms, share, dropped)
             keep[groups[g]] = False
@@ -950,7 +1040,9 @@ def _with_ties(model: FiveAxisPositionModel, J, what: str):
     appended to A (scaled to its largest column)."""
     n = model.n_params
     A, N = J[:, :n], J[:, n:]
-    ties = np.array([c.row for c in model.gauge_constraints()]).reshape(-1, n)
+    # (not the full-turn ties: they join a map's two ends, which counted C's angular motions on a thin campaign as
+    # the measurement's gauge -- held on 25 commands; the fit keeps them)
+    ties = np.array([c.row for c in model.gauge_constraints(full_turns=False)]).reshape(-1, n)
     A = np.vstack([A, ties * (np.linalg.norm(A, axis=0).max() if A.size else 1.0)])
     return A, np.vstack([N, np.zeros((len(ties), N.shape[1]))]), what
 

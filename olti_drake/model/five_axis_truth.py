@@ -89,7 +89,8 @@ def synthetic_truth(machine: FiveAxisMachine, seed: int, location: bool = True, 
     """A seeded :class:`FiveAxisTruth`: location errors of 10–50 µm and 20–100 µrad (random signs); per rotary
     axis and component two or three sines of periods between 1/5 and 1/1.3 of the travel (radial/axial up to
     4 µm, tilt up to 15 µrad, angular positioning up to 40 µrad); backlash 5–20 µrad on the angular positioning
-    and 0.5–2 µm on the radial motions; the linear axes' motions of
+    and 0.5–2 µm on the radial motions, varying linearly over the travel. An axis turning a full turn is
+    continuous where -180 and +180 deg meet, as a real one: 2-5 whole cycles per turn, a constant backlash; the linear axes' motions of
     :func:`olti_drake.model.volumetric3d.synthetic_truth` when ``linear``."""
     rng = np.random.default_rng(seed)
     loc, harm, lash = {}, {}, {}
@@ -102,11 +103,14 @@ def synthetic_truth(machine: FiveAxisMachine, seed: int, location: bool = True, 
         for c in COMPONENTS if motions else ():
             amp = {"X": 0.004, "Y": 0.004, "Z": 0.003, "A": 15.0, "B": 15.0, "C": 40.0}[c]
             n = int(rng.integers(2, 4))
-            harm[(L, c)] = (amp * rng.uniform(0.3, 1.0, n), span / rng.uniform(1.3, 5.0, n),
-                            rng.uniform(0, 2 * np.pi, n))
+            cycles = rng.uniform(1.3, 5.0, n)
+            if span >= 360.0:  # (a full turn: -180 and +180 deg are one angle, a whole number of cycles per turn)
+                cycles = np.maximum(2.0, np.round(cycles))
+            harm[(L, c)] = (amp * rng.uniform(0.3, 1.0, n), span / cycles, rng.uniform(0, 2 * np.pi, n))
             if backlash and c in (L,) + radial(L):
                 b = rng.uniform(5.0, 20.0) if c == L else rng.uniform(0.0005, 0.002)
-                lash[(L, c)] = (float(b), float(0.1 * b / span * rng.uniform(-1, 1)))
+                slope = 0.1 * b / span * rng.uniform(-1, 1) if span < 360.0 else 0.0  # (rng drawn either way)
+                lash[(L, c)] = (float(b), float(slope))
     lin = linear_truth(linear_config(machine), seed + 1) if linear else None
     return FiveAxisTruth(machine, loc, harm, lash, lin, np.asarray(tool_offsets_mm, float).reshape(-1, 3))
 

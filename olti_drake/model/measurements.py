@@ -151,16 +151,9 @@ class StationDistanceMeasurement:
         p = np.asarray(self.model.positions(self.model.start_vector()), dtype=float)
         return spread, float(np.ptp(p.reshape(-1, self.dim), axis=0).max())
 
-    def roughness(self):
-        """The position model's roughness rows (its maps' smoothness prior, when it has maps) over all of
-        :attr:`names` (stations and dead paths have none); None otherwise."""
-        rows = getattr(self.model, "roughness", None)
-        R = rows() if rows is not None else None
-        if R is None:
-            return None
-        import scipy.sparse as sp
-
-        return sp.hstack([R, sp.csr_matrix((R.shape[0], len(self.own_names)))], format="csr")
+    def roughness(self, **model_options):
+        """The position model's roughness rows over all of :attr:`names` (:func:`own_roughness`)."""
+        return own_roughness(self.model, len(self.own_names), **model_options)
 
     def start_vector(self) -> np.ndarray:
         return np.concatenate([self.model.start_vector(), self._own_start])
@@ -226,3 +219,16 @@ class StationDistanceMeasurement:
             out.append(f"station {j} lies {far[j]:.6g} mm from the command centroid, over {self.STATION_SPANS:g} "
                        f"x {what} {span:g} mm")
         return out + list(self.model.implausible(xm))
+
+
+def own_roughness(model, n_own: int, **model_options):
+    """The model's roughness rows (its maps' smoothness prior, when it has maps; ``model_options`` passed on to its
+    ``roughness``) padded with zeros for a measurement's ``n_own`` own parameters (stations, dead paths, frames
+    have none); None when the model has no maps."""
+    rows = getattr(model, "roughness", None)
+    R = rows(**model_options) if rows is not None else None
+    if R is None:
+        return None
+    import scipy.sparse as sp
+
+    return sp.hstack([R, sp.csr_matrix((R.shape[0], n_own))], format="csr")

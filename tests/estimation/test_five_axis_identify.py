@@ -244,9 +244,10 @@ def test_cli_refuses_mismatched_options(tmp_path, small_campaign):
     assert r.returncode != 0 and "--machine" in r.stderr and "Traceback" not in r.stderr
     r = olti_sub("identify", campaign, "--machine", TRUNNION, "--model", "volumetric", "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "geometric or errormap" in r.stderr and "Traceback" not in r.stderr
-    r = olti_sub("identify", campaign, "--machine", TRUNNION, "--model", "errormap", "--knot-spacing-mm", "50",
-                 "--out", tmp_path / "r.json")
+    r = olti_sub("identify", campaign, "--machine", TRUNNION, "--model", "errormap", "--linear", "perfect",
+                 "--knot-spacing-mm", "50", "--out", tmp_path / "r.json")
     assert r.returncode != 0 and "--knot-spacing-mm" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "r.json").exists()
 
 
 # ----------------------------------------------------------------------------------------------- (e) bad inputs

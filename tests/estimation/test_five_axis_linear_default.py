@@ -1,0 +1,114 @@
+"""The linear axes identified with the rotary ones by default (issue 25, formats.md: a five-axis result has the
+linear axes' 18 error motions and 3 squareness errors): ``olti identify --machine`` without ``--linear`` on a
+distance campaign of a truth with linear-axis errors (sines of 20 µrad on 200 mm knots' scale, outside the B-spline
+family), random commands from six table stations (not planned by the tool); the result written, read back and
+predicted; ``--linear perfect`` and an R-test campaign alone keep them perfect, said in the notes; a full turn's
+maps meet at +-180 deg."""
+
+import json
+
+import numpy as np
+import pytest
+
+from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
+from olti_drake.io.five_axis_io import load_machine5_result, write_five_axis_campaign
+from olti_drake.model.five_axis import FiveAxisMachine
+from olti_drake.model.five_axis_errors import RelocatedMotions, carriage_offsets, linear_config
+from olti_drake.model.five_axis_truth import synthetic_truth
+from olti_drake.model.propagation import predicted_std
+from olti_drake.model.volumetric3d import MachineConfig
+from olti_drake.model.volumetric3d import synthetic_truth as linear_truth
+from tests.estimation.test_five_axis_identify import (SIX_TABLE_STATIONS, TRUNNION, distance_campaign, no_dropped_truth,
+                                                      random_commands, rtest_campaign)
+from olti_calls import olti_in
+
+MACHINE = ("--machine", TRUNNION, "--workpiece-frame", "workpiece", "--tool-frame", "tool")
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return FiveAxisMachine.from_file(TRUNNION, "workpiece", "tool")
+
+
+def truth_with_linear(machine, seed):
+    cfg = linear_config(machine)
+    cfg = MachineConfig(cfg.tool_chain, cfg.work_chain, cfg.travel_mm, 200.0, ((0.0, 0.0, 0.0),))
+    t = no_dropped_truth(synthetic_truth(machine, seed=seed))
+    t.linear = RelocatedMotions(linear_truth(cfg, seed + 1, amplitude_urad=20.0), carriage_offsets(machine))
+    return t
+
+
+@pytest.fixture(scope="module")
+def default_result(machine, tmp_path_factory):
+    d = tmp_path_factory.mktemp("lin")
+    truth = truth_with_linear(machine, 3)
+    write_five_axis_campaign(d / "c.csv", distance_campaign(machine, truth, 150, 2, SIX_TABLE_STATIONS, "workpiece"))
+    _, out, _ = olti_in("identify", d / "c.csv", *MACHINE, "--model", "errormap", "--out", d / "r.json", expect=0)
+    return truth, d, json.loads((d / "r.json").read_text()), out
+
+
+def test_identified_by_default_and_named(default_result):
+    _, _, doc, out = default_result
+    assert doc["error_model"]["linear"] == "identify" and doc["error_model"]["knot_spacing_mm"] == 200.0
+    lin, unc = doc["linear"], doc["uncertainty"]["linear"]
+    assert len(lin["error_motions"]) == 18 and set(lin["squareness_urad"]) == {"E_C0Y", "E_B0Z", "E_A0Z"}
+    for name, e in lin["error_motions"].items():
+        assert len(e["values"]) == len(e["positions_mm"]) == len(unc["error_motions"][name]["values"])
+        assert np.all(np.asarray(unc["error_motions"][name]["values"]) >= 0)
+        if name not in doc["dropped"]:  # (a motion identified has a u where it is not fixed by the gauge)
+            assert np.max(unc["error_motions"][name]["values"]) > 0, name
+    assert "linear axes: 18 error motions and 3 squareness errors identified" in out
+    assert any(n.startswith("linear axes: their 18 error motions") for n in doc["notes"])
+
+
+def test_location_errors_within_3u_and_unseen_points_covered(machine, default_result):
+    """The rotary axes' location errors within 3 u of the truth with the linear axes' errors in the model, and the
+    predicted tool points at unseen random commands from the result file with olti predict's u (the covariance's
+    and the lack of fit): RMS error within 0.5-2 u, <= 3 % of the coordinates beyond 3 u (perfect linear axes, the same campaign: location errors at up to 9 u)."""
+    truth, d, doc, _ = default_result
+    z = {n: abs(v - truth.location[n]) / doc["uncertainty"]["location_errors"][n]
+         for n, v in doc["location_errors"].items() if n not in doc["dropped"]}
+    assert len(z) >= 6 and max(z.values()) < 3.0, z
+    res = load_machine5_result(d / "r.json")
+    c, dirs = random_commands(machine, 300, 41)
+    p, J = res.position_model(c, dirs).jacobian(res.x)
+    u = with_lack_of_fit(predicted_std(J.tocsr(), res.covariance, dim=3), res.lack_of_fit_mm)  # (olti predict's u)
+    e = np.abs(p - truth.truth_positions(c, dirs))
+    ratio = np.sqrt(np.mean(e ** 2)) / np.sqrt(np.mean(u ** 2))
+    assert 0.5 <= ratio <= 2.0 and np.mean(e > 3 * u) <= 0.03, (ratio, np.mean(e > 3 * u))
+
+
+def test_perfect_linear_axes_are_worse_on_this_truth(machine, default_result):
+    truth, d, doc, _ = default_result
+    olti_in("identify", d / "c.csv", *MACHINE, "--model", "errormap", "--linear", "perfect", "--out", d / "p.json",
+            expect=0)
+    perfect = json.loads((d / "p.json").read_text())
+    assert "linear" not in perfect and "linear" not in perfect["error_model"]
+    z = [abs(v - truth.location[n]) / perfect["uncertainty"]["location_errors"][n]
+         for n, v in perfect["location_errors"].items() if n not in perfect["dropped"]]
+    assert max(z) > 3.0  # (the linear errors the model lacks bias the location errors beyond their u)
+
+
+def test_an_rtest_campaign_alone_keeps_them_perfect(machine, tmp_path):
+    truth = truth_with_linear(machine, 3)
+    write_five_axis_campaign(tmp_path / "c.csv", rtest_campaign(machine, truth, seed=5))
+    olti_in("identify", tmp_path / "c.csv", *MACHINE, "--model", "geometric", "--out", tmp_path / "r.json", expect=0)
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert "linear" not in doc
+    assert any("--linear auto: an R-test campaign sees them only about its nests" in n for n in doc["notes"])
+    _, _, err = olti_in("identify", tmp_path / "c.csv", *MACHINE, "--model", "geometric", "--knot-spacing-mm", "100",
+                     "--out", tmp_path / "k.json", expect=2)
+    assert "--knot-spacing-mm" in err and "R-test" in err and not (tmp_path / "k.json").exists()
+
+
+def test_a_full_turn_maps_meet_at_180(default_result):
+    """C turns -180..180: every branch of C's motions has one value at -180 and +180 deg (one angle); A (-120..30)
+    is not tied."""
+    _, _, doc, _ = default_result
+    for name, m in doc["error_motions"].items():
+        if name.endswith("C"):
+            assert m["grid_deg"][0] == -180.0 and m["grid_deg"][-1] == 180.0
+            for b in ("forward", "reverse"):
+                assert m[b][0] == pytest.approx(m[b][-1], abs=1e-9), (name, b)
+    a = doc["error_motions"]["E_XA"]
+    assert abs(a["forward"][0] - a["forward"][-1]) > 1e-6
