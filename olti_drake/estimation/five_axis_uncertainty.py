@@ -231,9 +231,10 @@ def with_prior_spread(ident, x, errors, std, cov, samples, every, seed: int = 0)
         return np.sqrt(np.maximum(np.diag(cov), 0.0)), samples, notes
     every = prior_spread(ident, x, priors, u2, samples=every, seed=seed)
     if known is not None:
-        lam, V = np.linalg.eigh((known + known.T) / 2)
+        from olti_drake.model.propagation import psd_sqrt
+
         rng = np.random.default_rng([seed, 25])
-        every = every + rng.standard_normal(every.shape) @ (V * np.sqrt(np.maximum(lam, 0.0))).T
+        every = every + rng.standard_normal(every.shape) @ psd_sqrt(known)
     return every.std(axis=0, ddof=1), (every if samples is not None else None), notes
 
 

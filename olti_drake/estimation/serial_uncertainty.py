@@ -168,10 +168,10 @@ def prior_spread(cal, x, priors: Priors, reading_variance_mm2: float, cov=None, 
     G = reading_variance_mm2 * priors.Q[:n, :n]
     if samples is None:
         return cov + B @ G @ B
-    lam, V = np.linalg.eigh(G)
-    L = V * np.sqrt(np.maximum(lam, 0.0))
+    from olti_drake.model.propagation import psd_sqrt
+
     rng = np.random.default_rng([seed, 23])
-    g = rng.standard_normal((len(samples), n)) @ L.T
+    g = rng.standard_normal((len(samples), n)) @ psd_sqrt(G)  # (symmetric: row order does not change the draws)
     return samples + g @ B.T
 
 

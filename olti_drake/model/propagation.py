@@ -77,3 +77,13 @@ def _row_sums(J, B, squared: bool) -> np.ndarray:
         else:
             out[i:i + step] = np.sum(JB * Ji, axis=1)
     return out
+
+
+def psd_sqrt(G) -> np.ndarray:
+    """The symmetric square root S = V diag(√λ) Vᵀ of a positive semi-definite G (n, n) (negative rounding of λ
+    taken as 0): draws S z (z ~ N(0, I)) have covariance G. Unlike V diag(√λ), which hangs on the eigenvector
+    basis eigh picks inside a repeated eigenvalue (a prior's null space; rounding decides it), S is unique: the
+    same G in another row order of its campaign draws the same samples."""
+    G = np.asarray(G, float)
+    lam, V = np.linalg.eigh((G + G.T) / 2)
+    return (V * np.sqrt(np.maximum(lam, 0.0))) @ V.T
