@@ -191,6 +191,37 @@ def _motions_section(page, raw, std, k, unc_path):
                         f"The six error motions of the {axis} axis, forward and reverse, with U (k = {k:g}) bands")
 
 
+def _linear_section(page, raw, k):
+    """The linear axes as the result has them: identified (the 18 motions' and 3 squareness errors' range of stated
+    values and largest U, from the result's covariance), fixed from a volumetric result, or perfect."""
+    page.add("<h2>Error motions and squareness of the linear axes</h2>")
+    lin = raw.get("linear")
+    if raw.get("linear_from"):
+        page.add(ui.p(f"Held fixed from the volumetric result {raw['linear_from'].get('file')} (not estimated; its "
+                      f"covariance is in every u)."))
+        return
+    if not lin:
+        page.add(ui.p("Taken as perfect: no linear-axis errors in the model (olti identify --linear identify or "
+                      "--linear RESULT.json gives them; the notes say why).", "note"))
+        return
+    page.source(None)
+    unc, held, rows = raw["uncertainty"]["linear"], raw.get("held", ()), []
+    for name, m in lin["error_motions"].items():
+        v, U = _shown(m["values"], m["unit"]), k * _shown(unc["error_motions"][name]["values"], m["unit"])
+        rows.append((name, m["axis"], m["role"], _page_unit(m["unit"]), f"{v.min():+.3f}", f"{v.max():+.3f}",
+                     f"{U.max():.3f}", "held at 0" if name in held else "identified"))
+    for name, v in lin["squareness_urad"].items():
+        U = k * unc["squareness_urad"][name]
+        rows.append((name, "", "squareness", "µrad", f"{v:+.3f}", f"{v:+.3f}", f"{U:.3f}",
+                     "held at 0" if f"{name}_urad" in held else "identified"))
+    page.add(ui.table(["motion", "axis", "meaning", "unit", "min", "max", f"max U (k = {k:g})", "status"], rows,
+                      left=(0, 1, 2, 3, 7)))
+    q = lin["error_motions"]["E_XX"]["positions_mm"]
+    page.add(ui.p(f"Identified with the rotary axes: clamped cubic B-splines on knots every "
+                  f"{raw['error_model']['knot_spacing_mm']:g} mm, values stated every {q[1] - q[0]:g} mm of each "
+                  f"travel (the result's key linear); U from the result's covariance."))
+
+
 def residuals_by_kind(ident, fit) -> dict:
     """{kind: (residual per reading mm, group labels, residual rows mm)}: each reading kind's own residuals
     (unscaled), a nest or tracker reading by the norm of its x, y, z residual (its rows: the three)."""
@@ -406,6 +437,7 @@ def five_axis_page(raw, result_path, out_dir, unc_path=None, campaign_path=None,
     _header(page, raw, result_path, unc, unc_path, campaign_path, note)
     _location_section(page, raw, std, k, unc_path)
     _motions_section(page, raw, std, k, unc_path)
+    _linear_section(page, raw, k)
     by_kind = _residual_section(page, raw, fitted, campaign_path)
     _acceptance_section(page, raw, std, k, by_kind, tolerances, unc_path, campaign_path)
     _bk_section(page, res, k)

@@ -112,3 +112,25 @@ def test_a_full_turn_maps_meet_at_180(default_result):
                 assert m[b][0] == pytest.approx(m[b][-1], abs=1e-9), (name, b)
     a = doc["error_motions"]["E_XA"]
     assert abs(a["forward"][0] - a["forward"][-1]) > 1e-6
+
+
+def test_the_report_shows_the_identified_linear_axes(default_result):
+    """``olti report``: one row per linear motion and squareness error: the range of its stated values (µm, µrad)
+    and its largest U (k = 2) from the result's covariance; held ones named so."""
+    from tests.report.test_five_axis_report import Rows
+
+    _, d, doc, _ = default_result
+    olti_in("report", d / "r.json", "--out", d / "page", expect=0)
+    html = (d / "page" / "report.html").read_text()
+    assert "Error motions and squareness of the linear axes" in html
+    page = Rows()
+    page.feed(html)
+    rows = {r[0]: r for r in page.rows if len(r) == 8 and r[0].startswith("E_")}
+    unc = doc["uncertainty"]["linear"]["error_motions"]
+    for name, m in doc["linear"]["error_motions"].items():
+        scale = 1e3 if m["unit"] == "mm" else 1.0
+        row = rows[name]
+        assert row[1] == m["axis"] and row[5] == f"{scale * max(m['values']):+.3f}", row
+        assert row[6] == f"{2 * scale * max(unc[name]['values']):.3f}", row
+        assert row[7] == ("held at 0" if name in doc["held"] else "identified"), row
+    assert rows["E_C0Y"][2] == "squareness"
