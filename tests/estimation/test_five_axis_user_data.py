@@ -101,9 +101,8 @@ def test_one_station_on_the_table(machine, truth, clean, tmp_path):
 @pytest.mark.xfail(strict=True, reason="known gap (issue 25): on thin campaigns the prior-carried maps' u is "
                                        "over-confident: 15 % of the unseen coordinates beyond 3 u on 25 commands (5.8 % "
                                        "with C's maps untied at +-180, whose free trend's u had masked it), 7 % on 60 "
-                                       "(tied or not), 2 % on 100; the truth's C made continuous at +-180 showed it. It "
-                                       "is the backlash's part: the truth without backlash gives 1.7 % (25) and 2.9 % "
-                                       "(60)")
+                                       "(tied or not), 2 % on 100; the truth's C made continuous at +-180 showed it "
+                                       "(its backlash is not the cause: removed, the same 15 %)")
 def test_fewer_readings_than_unknowns_converges_with_the_prior(machine, truth, tmp_path):
     cols = distance_campaign(machine, truth, 25, SEED, TABLE_STATIONS, "workpiece")
     ident, fit = identify(machine, cols, tmp_path)
