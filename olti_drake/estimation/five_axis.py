@@ -162,17 +162,21 @@ class FramedPositionModel:
 
 # ----------------------------------------------------------------------------------------------- the program
 def resolved_linear(linear, campaign, n_unknowns: int = 0):
-    """``linear`` with ``"auto"`` resolved for ``campaign``: identified when it has distance or tracker readings
-    and more readings (components) than ``n_unknowns`` (the model's with the linear axes), else perfect. R-test
-    readings alone: nests read the ball's displacement about a few fixed points, the linear axes only over the
-    small circles it describes there -- their motions over the travel are unseen (refused as physically
-    impossible on one nest), as in an R-test calibration, which takes the linear axes as calibrated. Fewer readings
-    than unknowns: the maps' prior already carries the fit; 21 more motions carried by it gave unseen tool points
-    beyond 3 u twice as often as the rotary axes alone (6 % on 25 commands, 4 stations)."""
+    """(``linear`` with ``"auto"`` resolved for ``campaign``, why perfect or None): identified when it has distance
+    or tracker readings and more readings (components) than ``n_unknowns`` (the model's with the linear axes),
+    else perfect. R-test readings alone: nests read the ball's displacement about a few fixed points, the linear
+    axes only over the small circles it describes there -- their motions over the travel are unseen (refused as
+    physically impossible on one nest), as in an R-test calibration, which takes the linear axes as calibrated.
+    Fewer readings than unknowns: the maps' prior already carries the fit; the linear motions would be carried by
+    it too (unseen tool points beyond 3 u on 25 commands: 5.8 % with them, under 3 % without, on the truth of
+    then)."""
     if linear != LINEAR_AUTO:
-        return linear
-    seen = np.any(np.isin(campaign.kind, ("distance", "tracker")))
-    return LINEAR_IDENTIFY if seen and _n_components(campaign) > n_unknowns else LINEAR_PERFECT
+        return linear, None
+    if not np.any(np.isin(campaign.kind, ("distance", "tracker"))):
+        return LINEAR_PERFECT, "an R-test campaign sees them only about its nests"
+    if _n_components(campaign) <= n_unknowns:
+        return LINEAR_PERFECT, f"{_n_components(campaign)} readings, fewer than the {n_unknowns} unknowns with them"
+    return LINEAR_IDENTIFY, None
 
 
 def _n_components(campaign) -> int:
@@ -281,14 +285,12 @@ class FiveAxisIdentification(Calibration):
 
     def __init__(self, campaign, machine, options: FiveAxisOptions = None):
         o = options or FiveAxisOptions()
+        self._auto_perfect = None  # (why --linear auto took them as perfect)
         if o.linear == LINEAR_AUTO:  # (counted on the model with them, at the default knots)
             n = error_model(machine, campaign, o, LINEAR_IDENTIFY,
                             float(o.knot_spacing_mm or linear_knot_spacing(machine))).n_params
-            o = dataclasses.replace(o, linear=resolved_linear(o.linear, campaign, n))
-            if o.linear == LINEAR_PERFECT:
-                seen = np.any(np.isin(campaign.kind, ("distance", "tracker")))
-                self._auto_perfect = ("an R-test campaign sees them only about its nests" if not seen else
-                                      f"{_n_components(campaign)} readings, fewer than the {n} unknowns with them")
+            resolved, self._auto_perfect = resolved_linear(o.linear, campaign, n)
+            o = dataclasses.replace(o, linear=resolved)
         if o.model == "geometric" and o.linear != LINEAR_IDENTIFY:
             o = dataclasses.replace(o, smoothing="off")  # (no maps, no linear motions: nothing to smooth)
         self.campaign, self.machine, self.model_name, self._options = campaign, machine, o.model, o
@@ -302,7 +304,7 @@ class FiveAxisIdentification(Calibration):
             self.linear_from = load_linear_from(o.linear, machine, campaign.commands, campaign.source)
             linear = self.linear_from.motions
         if o.knot_spacing_mm is not None and linear != LINEAR_IDENTIFY:
-            why = f" (--linear auto: {self._auto_perfect})" if getattr(self, "_auto_perfect", None) else ""
+            why = f" (--linear auto: {self._auto_perfect})" if self._auto_perfect else ""
             raise InputError(f"--knot-spacing-mm applies to linear axes identified with the rotary ones, not to linear "
                              f"axes {'fixed' if linear is not None else 'perfect'}{why}")
         self.errors = error_model(machine, campaign, o, linear, spacing)
@@ -329,10 +331,9 @@ class FiveAxisIdentification(Calibration):
             self.notes.append(f"linear axes: their 18 error motions and 3 squareness errors identified with the rotary "
                               f"axes (B-splines, knots every {spacing:g} mm)")
         else:
-            auto = getattr(self, "_auto_perfect", None)
             self.notes.append("linear axes: taken as perfect (no error motions, no squareness errors)"
-                              + (f" by --linear auto: {auto}; --linear identify asks for them, --linear RESULT.json "
-                                 f"takes them from a volumetric calibration" if auto else ""))
+                              + (f" by --linear auto: {self._auto_perfect}; --linear identify asks for them, --linear "
+                                 f"RESULT.json takes them from a volumetric calibration" if self._auto_perfect else ""))
         if len(self.kinds) > 1:
             self.notes.append("mixed campaign: each reading kind weighed by its u (mm): " + ", ".join(
                 f"{k} {MIXED_SIGMAS_MM[k]:g}" for k in self.kinds))

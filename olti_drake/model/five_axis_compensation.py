@@ -131,8 +131,8 @@ def _rotary_offset(machine: FiveAxisMachine, to_deg, from_deg) -> np.ndarray:
 def _gauss_newton(machine, pose, c, points, dirs, anchor=None, max_iter: int = 60):
     """Gauss-Newton on the tool pose ``pose(commands) -> (p, d, Jp, Jd)`` for (M, n_axes) starts ``c``: point
     residual (mm), direction residual (× LEVER_MM), and, when ``anchor`` (M, n_rotary) deg is given, the rotary
-    commands tied to it with weight ANCHOR (POLE_ANCHOR for an axis at its pole at the start) (else each step is damped by that weight: Levenberg–Marquardt, the
-    exact solution). Iterates kept in the travel; a step that does not lower a row's cost is halved (up to
+    commands tied to it with weight ANCHOR, POLE_ANCHOR for an axis at its pole at the start (else each step is
+    damped by ANCHOR: Levenberg–Marquardt, the exact solution). Iterates kept in the travel; a step that does not lower a row's cost is halved (up to
     :data:`HALVINGS` times): a minimum on a kink of the model (a map node, the end of a full turn) is overshot
     both ways by the full step; each step is followed by a Newton step of the linear axes on the point alone.
     Converged: no halved step lowers the cost, the step is below STEP_TOL, or the point is met and the cost fell by
