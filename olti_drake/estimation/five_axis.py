@@ -284,6 +284,9 @@ class FiveAxisIdentification(Calibration):
     untouched_hint = "every station and nest needs readings of commands spread over the travel"
 
     def __init__(self, campaign, machine, options: FiveAxisOptions = None):
+        from olti_drake.io.five_axis_io import in_canonical_order
+
+        campaign = in_canonical_order(campaign)  # (the file's row order decides nothing, to the last bit)
         o = options or FiveAxisOptions()
         self._auto_perfect = None  # (why --linear auto took them as perfect)
         if o.linear == LINEAR_AUTO:  # (counted on the model with them, at the default knots)

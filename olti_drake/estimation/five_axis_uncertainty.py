@@ -96,23 +96,10 @@ def _check_reproduced(ident, fit, res, name) -> None:
                          f"(loss, solver) were not the defaults")
 
 
-def canonical_rows(campaign) -> np.ndarray:
-    """A rank of every campaign row by its content (kind, frame, station / nest / set-up, tool, commands,
-    directions, reading): the same rows in any file order get the same ranks (identical rows tie)."""
-    c = campaign
-    keys = [c.kind, c.frame, c.group, c.tool, *c.commands.T, *(() if c.directions is None else c.directions.T),
-            *c.reading.T]
-    codes = [np.unique(k, return_inverse=True)[1].ravel() for k in keys]
-    order = np.lexsort(codes[::-1])
-    rank = np.empty(len(order), int)
-    rank[order] = np.arange(len(order))
-    return rank
-
-
 class CanonicalErrors:
     """Reading errors (:class:`~olti_drake.model.budget.ReadingErrors`) of the rows of a measurement, each row's
     times ``scale[row]`` (the mixed campaign's row scaling; 1 otherwise), drawn in the order ``order`` (rows by
-    content, :func:`canonical_rows`): a Monte Carlo on the campaign's rows in another file order draws the same
+    content, :func:`~olti_drake.io.five_axis_io.canonical_rows`): a Monte Carlo on the campaign's rows in another file order draws the same
     error for the same reading."""
 
     ordered_by_content = True  # (uncertainty._draw_by_content: this order is already the rows' content)
@@ -156,6 +143,8 @@ def reading_errors(ident, fit, budget=None):
     from olti_drake.model.budget import Budget, Contributor, ReadingErrors
 
     rows, coord = residual_rows(ident)
+    from olti_drake.io.five_axis_io import canonical_rows
+
     rank = canonical_rows(ident.campaign)
     order = np.lexsort((coord, rank[rows]))
     if budget is None:
