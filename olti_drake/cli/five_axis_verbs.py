@@ -29,8 +29,9 @@ def _linear_line(doc) -> str:
     if doc.get("linear_from"):
         return f"linear axes: held fixed from {doc['linear_from'].get('file')}"
     lin = doc.get("linear")
-    if not lin:
-        return "linear axes: perfect (--linear perfect)"
+    if not lin:  # (the program's note says whether --linear perfect or auto chose it, and why)
+        said = [n for n in doc.get("notes", []) if n.startswith("linear axes:")]
+        return said[0] if said else "linear axes: taken as perfect"
     unc = doc["uncertainty"]["linear"]["error_motions"]
     worst = max(lin["error_motions"], key=lambda n: np.max(np.abs(lin["error_motions"][n]["values"]), initial=0.0))
     v, u = np.asarray(lin["error_motions"][worst]["values"]), np.asarray(unc[worst]["values"])

@@ -140,10 +140,10 @@ def _machine5_options(args) -> dict:
 
 def _linear_input(args):
     """The ``--linear`` volumetric result (an input never to be written), not the words auto / identify / perfect."""
-    from olti_drake.estimation.five_axis import LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT
+    from olti_drake.estimation.five_axis import LINEAR_WORDS
 
     linear = getattr(args, "linear", None)
-    return None if linear in (None, LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT) else linear
+    return None if linear is None or linear in LINEAR_WORDS else linear
 
 
 def _machine5_summary(fit, doc, problem) -> str:

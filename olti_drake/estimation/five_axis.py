@@ -41,6 +41,8 @@ MODELS = ("geometric", "errormap")
 #: campaign reads the tool point over the volume (distances, tracker points), perfect for an R-test campaign alone
 #: (:func:`resolved_linear`).
 LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT = "auto", "identify", "perfect"
+#: The words ``--linear`` takes (anything else is a volumetric result's file).
+LINEAR_WORDS = (LINEAR_AUTO, LINEAR_IDENTIFY, LINEAR_PERFECT)
 #: The reading uncertainty (mm, k = 1) each reading kind is weighed with in a mixed campaign (001 Table 4's
 #: interferometer order; a tracker's 10 µm).
 MIXED_SIGMAS_MM = {"distance": 0.001, "nest": 0.001, "tracker": 0.010}
@@ -288,11 +290,11 @@ class FiveAxisIdentification(Calibration):
 
         campaign = in_canonical_order(campaign)  # (the file's row order decides nothing, to the last bit)
         o = options or FiveAxisOptions()
-        self._auto_perfect = None  # (why --linear auto took them as perfect)
+        self._auto_perfect, with_linear = None, None  # (why --linear auto took them as perfect; the model counted)
         if o.linear == LINEAR_AUTO:  # (counted on the model with them, at the default knots)
-            n = error_model(machine, campaign, o, LINEAR_IDENTIFY,
-                            float(o.knot_spacing_mm or linear_knot_spacing(machine))).n_params
-            resolved, self._auto_perfect = resolved_linear(o.linear, campaign, n)
+            with_linear = error_model(machine, campaign, o, LINEAR_IDENTIFY,
+                                      float(o.knot_spacing_mm or linear_knot_spacing(machine)))
+            resolved, self._auto_perfect = resolved_linear(o.linear, campaign, with_linear.n_params)
             o = dataclasses.replace(o, linear=resolved)
         if o.model == "geometric" and o.linear != LINEAR_IDENTIFY:
             o = dataclasses.replace(o, smoothing="off")  # (no maps, no linear motions: nothing to smooth)
@@ -310,7 +312,9 @@ class FiveAxisIdentification(Calibration):
             why = f" (--linear auto: {self._auto_perfect})" if self._auto_perfect else ""
             raise InputError(f"--knot-spacing-mm applies to linear axes identified with the rotary ones, not to linear "
                              f"axes {'fixed' if linear is not None else 'perfect'}{why}")
-        self.errors = error_model(machine, campaign, o, linear, spacing)
+        # (auto's counted model is the one to fit when it chose them: the same options, the same knots)
+        self.errors = (with_linear if with_linear is not None and linear == LINEAR_IDENTIFY
+                       else error_model(machine, campaign, o, linear, spacing))
         self._settings = dict(location=True, motions=o.model == "errormap", pitch_deg=float(o.pitch_deg),
                               bidirectional=campaign.directions is not None,
                               tool_offsets_mm=self.errors.tools.tolist(),

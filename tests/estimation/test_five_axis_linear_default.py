@@ -92,9 +92,11 @@ def test_perfect_linear_axes_are_worse_on_this_truth(machine, default_result):
 def test_an_rtest_campaign_alone_keeps_them_perfect(machine, tmp_path):
     truth = truth_with_linear(machine, 3)
     write_five_axis_campaign(tmp_path / "c.csv", rtest_campaign(machine, truth, seed=5))
-    olti_in("identify", tmp_path / "c.csv", *MACHINE, "--model", "geometric", "--out", tmp_path / "r.json", expect=0)
+    _, out, _ = olti_in("identify", tmp_path / "c.csv", *MACHINE, "--model", "geometric", "--out", tmp_path / "r.json",
+                        expect=0)
     doc = json.loads((tmp_path / "r.json").read_text())
     assert "linear" not in doc
+    assert "linear axes: taken as perfect" in out and "R-test" in out  # (the summary says auto chose it, and why)
     assert any("--linear auto: an R-test campaign sees them only about its nests" in n for n in doc["notes"])
     _, _, err = olti_in("identify", tmp_path / "c.csv", *MACHINE, "--model", "geometric", "--knot-spacing-mm", "100",
                      "--out", tmp_path / "k.json", expect=2)
