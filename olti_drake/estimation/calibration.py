@@ -197,7 +197,9 @@ class SolverOptions:
     ``solver``: ``lm`` or ``nlp``.
     ``smoothing``: the roughness prior of a map model (:meth:`LeastSquaresProgram.roughness`; issue 23):
     ``"off"``, ``"auto"`` (its weight by restricted maximum likelihood, :mod:`olti_drake.estimation.smoothing`)
-    or a weight λ ≥ 0 (the cost ½ λ ‖R x‖² beside ½ Σ w r², mm² per (deg/deg²)²·deg).
+    or a weight λ ≥ 0 (the cost ½ λ ‖R x‖² beside ½ Σ w r², mm² per (deg/deg²)²·deg), or a result's statement
+    ``{"weight": λ, "group_weights": {group: λ_g}}`` given again to reproduce it (the maps' own roughness in its
+    u: :meth:`LeastSquaresProgram.roughness_groups`).
     """
 
     loss: str = "l2"
@@ -209,6 +211,18 @@ class SolverOptions:
     #: Budget whose predicted reading uncertainty the residual RMS is checked against (None: the model's default).
     budget: object = None
     smoothing: object = "off"
+
+
+def _weight_ok(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and value >= 0
+
+
+def _statement_ok(value) -> bool:
+    """A result's smoothing statement: {"weight": λ, "group_weights": {group: λ_g} (optional)}."""
+    if not isinstance(value, dict) or not _weight_ok(value.get("weight")):
+        return False
+    groups = value.get("group_weights") or {}
+    return isinstance(groups, dict) and all(_weight_ok(v) for v in groups.values())
 
 
 def smoothing_on(options) -> bool:
@@ -241,6 +255,8 @@ class Fit:
     #: "given"), weight, score
     #: (−2 log restricted likelihood), effective parameters, readings, rounds; None without one.
     smoothing: dict = None
+    #: The residual variance σ² (mm², weighted) that scales the covariance (NaN: no covariance).
+    sigma2: float = float("nan")
     #: The model's own error (mm, k = 1) that every prediction shares: the residuals' σ beyond the readings' u
     #: (:meth:`LeastSquaresProgram.lack_of_fit`); a predicted point's or reading's u adds it in quadrature.
     lack_of_fit_mm: float = 0.0
@@ -717,10 +733,41 @@ class LeastSquaresProgram:
         setting = getattr(self.options, "smoothing", "off")
         if not smoothing_on(self.options):
             return None
-        if not (setting == "auto" or (isinstance(setting, (int, float)) and np.isfinite(setting) and setting >= 0)):
+        if not (setting == "auto" or _weight_ok(setting) or _statement_ok(setting)):
             raise InputError(f"smoothing: 'auto', 'off' or a weight >= 0, got {setting!r}")
         R = self.roughness()
         return R if R is not None and R.shape[0] else None
+
+    def roughness_groups(self):
+        """The group label of each :meth:`roughness` row (each error motion's map: its own weight when the weight
+        is chosen from the data), or None: one group."""
+        return None
+
+    def _smoothing_groups(self, R):
+        """{group: its rows of R} when the model groups its roughness rows in more than one group, else None."""
+        labels = self.roughness_groups()
+        if labels is None or len(set(labels)) < 2:
+            return None
+        if len(labels) != R.shape[0]:
+            raise RuntimeError(f"{len(labels)} roughness group labels for {R.shape[0]} rows")
+        labels = np.asarray(labels, dtype=object)
+        R = sp.csr_matrix(R)
+        return {g: R[np.flatnonzero(labels == g)] for g in sorted(set(labels))}
+
+    def _group_misfit(self, groups, weights: dict, lam: float):
+        """D (n, n) = Σ_g λ (λ/λ_g − 1) R_gᵀR_g: what the maps' own roughness (prior variance σ²/λ_g of group g)
+        adds to the normal matrix of the estimate made at the common weight λ -- its error covariance is
+        σ² H⁻¹ (K + Σ_g λ²/λ_g P_g) H⁻¹ = σ² H⁻¹ + σ² H⁻¹ D H⁻¹ (H = K + λP). None when every λ_g is λ."""
+        unknown, missing = sorted(set(weights) - set(groups or {})), sorted(set(groups or {}) - set(weights))
+        if unknown or missing:
+            raise InputError(f"smoothing: group weights for {', '.join(unknown) or 'no other'} group(s), none for "
+                             f"{', '.join(missing) or 'none'} (the model's maps: {', '.join(groups or {}) or 'one'})")
+        D = None
+        for g, Rg in groups.items():
+            k = lam * (lam / max(float(weights[g]), 1e-300) - 1.0)
+            if k > 0:
+                D = (0.0 if D is None else D) + k * np.asarray((Rg.T @ Rg).todense())
+        return D
 
     #: Rounds of refit and likelihood scan until the chosen weight moves by less than a factor 10^0.1.
     SMOOTHING_ROUNDS = 4
@@ -739,9 +786,13 @@ class LeastSquaresProgram:
         P = np.asarray((R.T @ R).todense())
         setting, uncertainty, x0 = self.options.smoothing, self._uncertainty, self.x0.copy()
         given = getattr(self, "_given", None)
+        groups, per_group = self._smoothing_groups(R), None
         if setting == "auto":  # start at a weight the prior and the data share (c of the scan, 10^-3 of it)
             _, J = self.residuals(x0)
             lam = 1e-3 * float(np.sum(J.multiply(J))) / max(float(np.trace(P)), 1e-300)
+        elif isinstance(setting, dict):
+            lam = float(setting["weight"])
+            per_group = {g: float(v) for g, v in (setting.get("group_weights") or {}).items()} or None
         else:
             lam = float(setting)
         binding = self._smoothing_binding(lam, P)
@@ -761,13 +812,38 @@ class LeastSquaresProgram:
                     break
                 lam = choice.weight
                 binding.evaluator().UpdateCoefficients(lam * P, np.zeros(n))
+            if setting == "auto" and groups is not None:
+                per_group = self._scan_group_weights(z, groups, lam, P).weights
         except Exception:
             self.prog.RemoveCost(binding)
             raise
         finally:
             self.x0, self._uncertainty, self._given, self.options = x0, uncertainty, given, options
-        self._smoothing = {"weight": lam, "P": P, "choice": choice, "rounds": rounds, "x": x, "binding": binding}
+        misfit = self._group_misfit(groups, per_group, lam) if per_group else None
+        self._smoothing = {"weight": lam, "P": P, "choice": choice, "rounds": rounds, "x": x, "binding": binding,
+                           "group_weights": per_group, "misfit": misfit}
         return self._smoothing
+
+    def _scan_group_weights(self, z, groups, lam: float, P):
+        """:func:`~olti_drake.estimation.smoothing.group_weights` on the linearization at the solution z (the
+        prior λP bound there taken out of the program's quadratic costs)."""
+        from olti_drake.estimation import smoothing as sm
+
+        n = len(self.names)
+        r, J = self.residuals(z[:n])
+        w = self._weights(r)
+        J = self._pad(J)
+        H = _normal_matrix(J, w)
+        Q, q = self.quadratic_costs()
+        Q_other = Q.copy()
+        Q_other[:n, :n] -= lam * P
+        g = J.T @ (w * r) + Q_other @ z + q
+        extra = self.n_all - n  # (the user's own variables: no roughness)
+        R_groups = {k: sp.hstack([Rg, sp.csr_matrix((Rg.shape[0], extra))], format="csr") if extra else Rg
+                    for k, Rg in groups.items()}
+        return sm.group_weights(H, Q_other if np.any(Q_other) else None, R_groups, g, z, self._equality_rows()[0],
+                                float(np.sum(w * r * r)), len(r), lam, other0=float(z @ Q_other @ z + 2.0 * q @ z),
+                                floor=self._smoothing_floor())
 
     def _forget_chosen_smoothing(self):
         """Drop a smoothness weight chosen by likelihood (its cost off :attr:`prog`), so that the next fit chooses
@@ -820,8 +896,27 @@ class LeastSquaresProgram:
                          "score": choice.score if np.isfinite(choice.score) else None,
                          "effective_parameters": choice.effective_parameters, "readings": choice.readings,
                          "rounds": state["rounds"]}
-        fit.notes.append(self._smoothing_note(fit, P, lam, choice))
+        if state.get("group_weights"):
+            fit.smoothing["group_weights"] = dict(state["group_weights"])
+            if state.get("misfit") is not None and fit.covariance is not None and fit.sigma2 > 0:
+                self._add_misfit(fit, state["misfit"])
+        fit.notes.append(self._smoothing_note(fit, P, lam, choice, state.get("group_weights")))
         return fit
+
+    def smoothing_misfit(self):
+        """D (n, n) of :meth:`_group_misfit` -- what the maps' own roughness adds to the estimate's normal matrix in
+        its covariance -- or None (one weight serves every map, or no prior yet)."""
+        return (getattr(self, "_smoothing", None) or {}).get("misfit")
+
+    @staticmethod
+    def _add_misfit(fit: "Fit", D) -> None:
+        """The maps' own roughness in the fit's covariance (:meth:`_group_misfit`): C + C D C / σ² (C = σ² H⁻¹ within
+        the gauge): the estimate is the common weight's, its error that of maps rougher than that weight says."""
+        C = np.asarray(fit.covariance)
+        n = D.shape[0]
+        extra = C[:, :n] @ D @ C[:n, :] / fit.sigma2
+        fit.covariance = C + (extra + extra.T) / 2
+        fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
 
     def _scan_smoothing(self, z, P, lam: float, given: bool = False):
         """The choice of the smoothness weight at the solution z (over all decision variables; its data, the
@@ -857,7 +952,7 @@ class LeastSquaresProgram:
         through every reading do not (:func:`~olti_drake.estimation.smoothing.reml_scan`)."""
         return float(self.reading_sigma()[0]) ** 2
 
-    def _smoothing_note(self, fit: "Fit", P, lam: float, choice) -> str:
+    def _smoothing_note(self, fit: "Fit", P, lam: float, choice, group_weights=None) -> str:
         """What the prior did: its weight and how it was chosen, and the map values the readings leave to it."""
         n = len(self.names)
         _, J = self.residuals(fit.x)
@@ -874,6 +969,12 @@ class LeastSquaresProgram:
                 f"{choice.readings} readings)")
         if choice.at_edge and auto:
             text += "; the choice lies at the end of the scanned weights"
+        lighter = {g: w for g, w in (group_weights or {}).items() if w < lam * (1 - 1e-9)}
+        if lighter:
+            from olti_drake.estimation.smoothing import GROUP_RULE
+
+            text += ("; in the u, each map's own roughness (" + GROUP_RULE + "), rougher than the common weight "
+                     "says: " + ", ".join(f"{g} {w:.3g}" for g, w in sorted(lighter.items(), key=lambda kv: kv[1])))
         if unread:
             text += (f"; no reading reaches {_listing(unread)}: their values follow the prior (the neighbours' "
                      f"trend), not the readings")
@@ -1563,6 +1664,7 @@ class LeastSquaresProgram:
         out = [dict(self.reading_label(k), residual_mm=float(r[k]), normalized=float(zr[k]))
                for k in order[np.abs(zr[order]) > self.options.outlier_threshold]]
         fit = self._make_fit(z, np.sqrt(np.maximum(var, 0)), cov_x, r, iterations, cond, out)
+        fit.sigma2 = float(sigma2)
         fit.lack_of_fit_mm = lack[0]
         if lack[1]:
             fit.notes.append(lack[1])
@@ -2275,6 +2377,10 @@ class Calibration(LeastSquaresProgram):
     def roughness(self):
         rows = getattr(self.measurement, "roughness", None)
         return rows() if rows is not None else None
+
+    def roughness_groups(self):
+        groups = getattr(getattr(self.measurement, "model", None), "roughness_groups", None)
+        return groups() if groups is not None else None
 
 
 

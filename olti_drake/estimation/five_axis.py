@@ -145,6 +145,9 @@ class FramedPositionModel:
     def roughness(self, linear: bool = True):
         return self.first.roughness(linear)
 
+    def roughness_groups(self, linear: bool = True):
+        return self.first.roughness_groups(linear)
+
     def gauge_constraints(self, full_turns: bool = True):
         return self.first.gauge_constraints(full_turns)
 

@@ -35,7 +35,8 @@ TRIAL_TOLERANCE_U = 1e-6
 
 def result_options(doc: dict, name: str):
     """The :class:`~olti_drake.estimation.five_axis.FiveAxisOptions` of the identification that wrote the result
-    ``doc`` (file ``name``): its model, grid and tool offsets, its smoothness weight as given (or off), its
+    ``doc`` (file ``name``): its model, grid and tool offsets, its smoothness weights as given (per map when it has
+    them; or off), its
     linear axes: identified (on the result's knots), from its ``--linear`` volumetric result (the file relative to
     the result), or perfect (a result written before linear axes were identified by default)."""
     from olti_drake.estimation.five_axis import LINEAR_IDENTIFY, LINEAR_PERFECT, FiveAxisOptions
@@ -43,6 +44,7 @@ def result_options(doc: dict, name: str):
     settings = doc["error_model"]
     smoothing = doc.get("smoothing") or {}
     weight = smoothing.get("weight") if isinstance(smoothing, dict) else None
+    per_map = smoothing.get("group_weights") if isinstance(smoothing, dict) else None
     linear = (doc.get("linear_from") or {}).get("file")
     if settings.get("linear") == LINEAR_IDENTIFY:
         linear = {"linear": LINEAR_IDENTIFY, "knot_spacing_mm": settings.get("knot_spacing_mm")}
@@ -53,7 +55,9 @@ def result_options(doc: dict, name: str):
         linear = {"linear": LINEAR_PERFECT}
     return FiveAxisOptions(model=doc.get("model", "errormap"), pitch_deg=float(settings["pitch_deg"]),
                            tool_offsets_mm=settings.get("tool_offsets_mm"),
-                           smoothing=float(weight) if isinstance(weight, (int, float)) and weight > 0 else "off",
+                           smoothing=("off" if not (isinstance(weight, (int, float)) and weight > 0) else
+                                      {"weight": float(weight), "group_weights": dict(per_map)}
+                                      if isinstance(per_map, dict) and per_map else float(weight)),
                            **linear)
 
 
@@ -119,15 +123,19 @@ class CanonicalErrors:
 
 
 def identification_sigma(ident, fit) -> float:
-    """s (mm of the campaign's first reading kind) with the fit's covariance C = s² B, B = (JᵀJ + Q)⁻¹ within the
-    gauge (:func:`~olti_drake.estimation.uncertainty._solution_map`): the reading uncertainty the identification
+    """s (mm of the campaign's first reading kind) with the fit's covariance C = s² B (s² (B + B D B) with each
+    map's own roughness D, :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_misfit`),
+    B = (JᵀJ + Q)⁻¹ within the gauge (:func:`~olti_drake.estimation.uncertainty._solution_map`): the reading uncertainty the identification
     formed its u with (its residuals' σ over the readings less the parameters they determine, the smoothing's
     floor)."""
     from olti_drake.estimation.uncertainty import _solution_map
+    from olti_drake.model.propagation import predicted_variance
 
     B = _solution_map(ident, fit.x)[0]
     known = held_out_covariance(ident, fit.x)  # (--linear, the maps' representation: not the readings' part)
-    unit, own = np.diag(B), np.diag(fit.covariance - (0.0 if known is None else known))
+    D = ident.smoothing_misfit()  # (each map's own roughness: C = s² (B + B D B))
+    unit = np.diag(B) if D is None else np.diag(B) + predicted_variance(B[:, :len(D)], D)  # (diag(B D B))
+    own = np.diag(fit.covariance - (0.0 if known is None else known))
     ok = unit > 1e-12 * max(float(unit.max()), 1e-300)
     s2 = float(np.median(own[ok] / unit[ok])) if ok.any() else float("nan")
     if not (np.isfinite(s2) and s2 > 0):
@@ -162,7 +170,8 @@ def reading_errors(ident, fit, budget=None):
 
 
 def smoothing_priors(ident, x):
-    """The fit's quadratic costs (the maps' smoothness prior at its weight) as
+    """The fit's quadratic costs (the maps' smoothness prior at its weight, and each map's own roughness beyond it:
+    :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_misfit`) as
     :class:`~olti_drake.estimation.serial_uncertainty.Priors` over the identification's parameters."""
     from olti_drake.estimation.serial_uncertainty import Priors
 
@@ -170,9 +179,15 @@ def smoothing_priors(ident, x):
     Q = ident.quadratic_costs()[0][:n, :n]
     if not np.any(Q):
         return Priors(None, [])
-    return Priors(Q, ["the result's smoothness prior: its own spread added (a pseudo-reading of the readings' "
-                      "variance, as weighed in the identification); the weight is the result's, not chosen again "
-                      "per trial"])
+    notes = ["the result's smoothness prior: its own spread added (a pseudo-reading of the readings' variance, as "
+             "weighed in the identification); the weight is the result's, not chosen again per trial"]
+    D = ident.smoothing_misfit()
+    if D is not None:  # (the maps rougher than the common weight says: their own prior variance in the spread)
+        Q = Q.copy()
+        Q[:D.shape[0], :D.shape[0]] += D[:n, :n]
+        notes.append("each map's own roughness (the result's group weights) in that spread, as in the "
+                     "identification's covariance")
+    return Priors(Q, notes)
 
 
 def linear_axes_covariance(ident, x):

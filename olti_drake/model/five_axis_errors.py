@@ -627,26 +627,38 @@ class FiveAxisPositionModel:
         (:func:`~olti_drake.model.volumetric3d.motion_roughness`); None without motions. An angular motion (µrad)
         counts at the tool point it moves: times :meth:`roughness_lever_mm` · 10⁻⁶ (mm per µrad), so that one weight
         serves mm and µrad alike (as the 3-axis machine's prior)."""
+        blocks = self._roughness_blocks(linear)
+        return blocks[0] if blocks is not None else None
+
+    def roughness_groups(self, linear: bool = True) -> Optional[Tuple[str, ...]]:
+        """The group of each :meth:`roughness` row: the error motion it smooths (``E_XA``, …; ``linear axes`` for
+        the identified linear axes' rows) -- each its own smoothness weight when the weight is chosen from the
+        data (:func:`~olti_drake.estimation.smoothing.group_weights`: a rough E_CC beside smooth radial motions)."""
+        blocks = self._roughness_blocks(linear)
+        return blocks[1] if blocks is not None else None
+
+    def _roughness_blocks(self, linear: bool):
+        """(R over the free columns, the group label of each row), or None without motions."""
         em = self.errors
-        blocks = []
+        blocks, labels = [], []
         lever = self.roughness_lever_mm() * 1e-6
-        if linear and em.linear_model is not None:  # (the 3-axis machine's prior, same lever)
-            s = em.slices["linear"]
-            R = motion_roughness(em.linear_model, self.roughness_lever_mm())
+
+        def add(label, R, s):
             blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
                                      sp.csr_matrix((R.shape[0], em.n_params - s.stop))]))
+            labels.extend([label] * R.shape[0])
+
+        if linear and em.linear_model is not None:  # (the 3-axis machine's prior, same lever)
+            add("linear axes", motion_roughness(em.linear_model, self.roughness_lever_mm()), em.slices["linear"])
         for (L, c), jm in em.maps.items():
             R = jm.roughness()
-            if unit(c) == "urad":
-                R = R * lever
             if R.shape[0]:
-                s = em.slices[jm.joint]
-                blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
-                                         sp.csr_matrix((R.shape[0], em.n_params - s.stop))]))
+                add(jm.joint, R * lever if unit(c) == "urad" else R, em.slices[jm.joint])
         if not blocks:
             return None
         R = sp.vstack(blocks, format="csr")[:, self.free_cols]
-        return R[np.flatnonzero(R.getnnz(axis=1))]  # (rows on held motions only: none)
+        keep = np.flatnonzero(R.getnnz(axis=1))  # (rows on held motions only: none)
+        return R[keep], tuple(np.asarray(labels, dtype=object)[keep])
 
     def roughness_lever_mm(self) -> float:
         """The lever (mm) at which an angular error motion's roughness counts as the tool point's: half the

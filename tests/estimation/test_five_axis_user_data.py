@@ -99,16 +99,39 @@ def test_one_station_on_the_table(machine, truth, clean, tmp_path):
 
 
 @pytest.mark.xfail(strict=True, reason="known gap (issue 25): on thin campaigns the prior-carried maps' u is "
-                                       "over-confident: 15 % of the unseen coordinates beyond 3 u on 25 commands (5.8 % "
-                                       "with C's maps untied at +-180, whose free trend's u had masked it), 7 % on 60 "
-                                       "(tied or not), 2 % on 100; the truth's C made continuous at +-180 showed it "
-                                       "(its backlash is not the cause: removed, the same 15 %)")
+                                       "over-confident: 12 % of the unseen coordinates beyond 3 u on 25 commands (15 % "
+                                       "before each map's own roughness joined the u), 2.9 % on 60 (7.2 %), 0.3 % on "
+                                       "100 (2.0 %); seeds 2 and 3: 1.0-3.6 %; the estimate follows the common weight, "
+                                       "which the smooth radial motions of C set 8-12 x too heavy for the angular "
+                                       "motions of A, and 100 readings show little of theirs")
 def test_fewer_readings_than_unknowns_converges_with_the_prior(machine, truth, tmp_path):
     cols = distance_campaign(machine, truth, 25, SEED, TABLE_STATIONS, "workpiece")
     ident, fit = identify(machine, cols, tmp_path)
     assert len(cols["displacement_mm"]) < len(ident.names)
     rms, u, share = unseen(machine, ident, fit, truth)
     covered(ident, fit, truth, share)
+
+
+def test_each_maps_own_roughness_joins_the_u_of_a_thin_campaign(machine, truth, tmp_path):
+    """60 commands from 4 stations (240 readings, 456 unknowns): the common smoothness weight is the roughness the
+    readings show on average, set by C's smooth radial motions; the angular motions of A are rougher (truth 8-12 x
+    beyond the common prior). The fit states each map's own weight (one restricted-likelihood step from the
+    common one) and puts it in the u, not in the estimate: the unseen tool points beyond 3 u fall from 7.2 % (the
+    common weight's u) to 2.9 %, the location errors' worst from 1.9 to 1.5 u, the estimate unchanged."""
+    cols = distance_campaign(machine, truth, 60, SEED, TABLE_STATIONS, "workpiece")
+    ident, fit = identify(machine, cols, tmp_path)
+    weights, common = fit.smoothing["group_weights"], fit.smoothing["weight"]
+    assert set(weights) == {f"E_{c}{L}" for c in "XYZABC" for L in "AC"}
+    assert max(weights.values()) <= common and weights["E_CA"] < 0.3 * common, weights
+    assert any("each map's own roughness" in n and "E_CA" in n for n in fit.notes), fit.notes
+    alone, fit_alone = identify(machine, cols, tmp_path, name="common.csv", smoothing=common)
+    assert "group_weights" not in fit_alone.smoothing
+    assert np.all(np.abs(fit.x - fit_alone.x) <= 1e-3 * fit_alone.std), "the estimate is the common weight's"
+    assert np.all(fit.std >= fit_alone.std * (1 - 1e-9))  # (the maps' own roughness only adds to the u)
+    share_alone = unseen(machine, alone, fit_alone, truth)[2]
+    rms, u, share = unseen(machine, ident, fit, truth)
+    assert share <= 0.5 * share_alone, (share, share_alone)
+    assert max(location_z(ident, fit, truth).values()) < 3.0
 
 
 def test_no_direction_columns(machine, truth, clean, tmp_path):
@@ -203,7 +226,12 @@ def test_one_nest_or_ball_holds_the_angular_motions_it_cannot_see(machine, truth
                                        "too (A alone and A+C give two points per A angle) and their truth biases "
                                        "A's location tilts, which no u carries yet")
 def test_one_ball_keeps_the_location_errors_of_a_within_their_u(machine, tmp_path):
-    """Seed 2: E_B0A_urad at 6.0 u (0.4 u when the truth has no angular motions of A)."""
-    t = no_dropped_truth(synthetic_truth(machine, seed=2))
-    ball, cols, ident, fit = one_ball(machine, t, "bk-one-ball", tmp_path, seed=2)
-    assert max(location_z(ident, fit, t).values()) < 3.0
+    """Seeds 1-3. Measured: seed 1 E_B0A_urad at 11.7 u, seed 3 E_C0A_urad at 3.6 u; seed 2 within 2.4 u since
+    each map's own roughness joined the u (E_Y0A_mm at 3.2 u before)."""
+    worst = {}
+    for seed in (1, 2, 3):
+        t = no_dropped_truth(synthetic_truth(machine, seed=seed))
+        (tmp_path / str(seed)).mkdir()
+        ball, cols, ident, fit = one_ball(machine, t, "bk-one-ball", tmp_path / str(seed), seed=seed)
+        worst[seed] = max(location_z(ident, fit, t).values())
+    assert max(worst.values()) < 3.0, worst

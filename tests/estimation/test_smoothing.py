@@ -40,6 +40,44 @@ def test_roughness_is_zero_on_lines_and_the_second_derivative_on_parabolas():
     assert emap.roughness(bidirectional=False).shape == (3, 10)
 
 
+def test_each_group_shows_its_own_roughness_and_none_is_taken_smoother_than_the_common_weight():
+    """smoothing.group_weights on a linear toy: three maps of 20 nodes (second-difference rows), 50 readings, each
+    of two maps at random points (linear interpolation). A smooth map A and a rough map B: the common weight is
+    their average roughness per parameter, so B's own weight is the common one times B's share of the parameters
+    (its roughness is its own, not A's); A keeps the common weight (the readings may show a map rougher, never
+    smoother); C, which no reading sees, keeps it too. The order of the groups changes nothing."""
+    from olti_drake.estimation.smoothing import group_weights, reml_scan
+
+    k = np.arange(20.0)
+    D2 = np.diff(np.eye(20), 2, axis=0)  # (18, 20)
+    R = {name: np.hstack([D2 if j == i else np.zeros((18, 20)) for j in range(3)]) for i, name in enumerate("ABC")}
+    truth = np.concatenate([1e-3 * np.sin(2 * np.pi * k / 40), 1e-3 * np.sin(2 * np.pi * k / 7), np.zeros(20)])
+    rng = np.random.default_rng(4)
+
+    def at_random_points(m):
+        t = rng.uniform(0, 19, m)
+        i = np.minimum(t.astype(int), 18)
+        W = np.zeros((m, 20))
+        W[np.arange(m), i], W[np.arange(m), i + 1] = 1 - (t - i), t - i
+        return W * rng.normal(size=(m, 1))
+
+    J = np.hstack([at_random_points(50), at_random_points(50), np.zeros((50, 20))])
+    sigma = 1e-5
+    y = J @ truth + rng.normal(0, sigma, 50)
+    A_eq = np.zeros((2, 60))
+    A_eq[0, 40:], A_eq[1, 40:] = 1.0, k  # (C's constant and trend: no reading, no roughness -- held)
+    args = (np.zeros(60), A_eq, float(y @ y), 50)
+    H, g = J.T @ J, -J.T @ y
+    common = reml_scan(H, None, sum(Rg.T @ Rg for Rg in R.values()), g, *args, floor=sigma ** 2).weight
+    got = group_weights(H, None, R, g, *args, common, floor=sigma ** 2)
+    e = got.effective
+    assert got.weights["B"] == pytest.approx(common * e["B"] / (e["A"] + e["B"]), rel=0.15), (got, common)
+    assert got.weights["A"] == common and got.weights["C"] == common
+    assert e["C"] < 0.5 and min(e["A"], e["B"]) > 10.0
+    again = group_weights(H, None, {name: R[name] for name in "CBA"}, g, *args, common, floor=sigma ** 2)
+    assert again.weights == pytest.approx(got.weights, rel=1e-9)
+
+
 # -- identification on campaigns the tool did not plan ------------------------------------------------------------
 @pytest.fixture(scope="module")
 def ur5():
