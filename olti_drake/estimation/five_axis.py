@@ -293,12 +293,37 @@ class FiveAxisIdentification(Calibration):
 
         campaign = in_canonical_order(campaign)  # (the file's row order decides nothing, to the last bit)
         o = options or FiveAxisOptions()
-        self._auto_perfect, with_linear = None, None  # (why --linear auto took them as perfect; the model counted)
+        auto_perfect, with_linear = None, None  # (why --linear auto took them as perfect; the model counted)
         if o.linear == LINEAR_AUTO:  # (counted on the model with them, at the default knots)
             with_linear = error_model(machine, campaign, o, LINEAR_IDENTIFY,
                                       float(o.knot_spacing_mm or linear_knot_spacing(machine)))
-            resolved, self._auto_perfect = resolved_linear(o.linear, campaign, with_linear.n_params)
+            resolved, auto_perfect = resolved_linear(o.linear, campaign, with_linear.n_params)
             o = dataclasses.replace(o, linear=resolved)
+        self._build(campaign, machine, o, with_linear, auto_perfect)
+        if with_linear is not None and o.linear == LINEAR_IDENTIFY and not smoothing_on(self._options):
+            unseen = self._undetermined_linear()
+            if unseen:  # (auto chose them, but without the prior the readings alone do not determine them)
+                self._build(campaign, machine, dataclasses.replace(o, linear=LINEAR_PERFECT), None,
+                            f"without the smoothness prior (--smoothing off) the campaign does not determine their "
+                            f"motions (not identifiable: {unseen})")
+
+    def _undetermined_linear(self) -> str:
+        """The linear axes' parameters the identifiability check at the start names (a listing), or '' when it names
+        none of them (a refusal of other parameters is the fit's to state)."""
+        from olti_drake.estimation.calibration import UnidentifiableError
+
+        linear = set(self.errors.names[self.errors.slices["linear"]])
+        try:
+            self.check_identifiability()
+        except UnidentifiableError as e:
+            names = [n for n in e.names if n in linear]
+            return ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "") if names else ""
+        return ""
+
+    def _build(self, campaign, machine, o, with_linear, auto_perfect):
+        """The program of ``campaign`` with the options ``o`` (``linear`` resolved; ``with_linear`` the error model
+        auto counted with identified linear axes, ``auto_perfect`` why auto took them as perfect)."""
+        self._auto_perfect = auto_perfect
         if o.model == "geometric" and o.linear != LINEAR_IDENTIFY:
             o = dataclasses.replace(o, smoothing="off")  # (no maps, no linear motions: nothing to smooth)
         self.campaign, self.machine, self.model_name, self._options = campaign, machine, o.model, o

@@ -7,6 +7,7 @@ field when it cannot be right (:meth:`~olti_drake.model.budget.Budget.validate`)
 tables are chosen when no file is named.
 """
 
+import copy
 import os
 
 from olti_drake.errors import InputError
@@ -34,6 +35,10 @@ def load_budget(path) -> Budget:
 DEFAULT_BUDGETS = {"scara": "000 Table 2 (k = 1), built in", "machine": "001 Table 4 (k = 2), data/budget_paper001.yaml"}
 
 
+#: The shipped budget files, read once: {kind: Budget}.
+_SHIPPED = {}
+
+
 def default_budget(kind: str) -> Budget:
     """The one place the default budget is chosen: ``scara`` -> 000 Table 2, ``machine`` -> 001 Table 4.
 
@@ -44,7 +49,9 @@ def default_budget(kind: str) -> Budget:
     if kind == "machine":
         from olti_drake.io.resources import shipped
 
-        return load_budget(shipped("data", "budget_paper001.yaml"))
+        if kind not in _SHIPPED:  # (parsed once per process: a five-axis fit asked twice, 60 of its 140 ms)
+            _SHIPPED[kind] = load_budget(shipped("data", "budget_paper001.yaml"))
+        return copy.deepcopy(_SHIPPED[kind])  # (a caller's changes stay its own)
     raise InputError(f"budget kind must be one of {', '.join(DEFAULT_BUDGETS)}, got {kind!r}")
 
 
