@@ -31,6 +31,16 @@ def check_exit(code, out: str, err: str, expect) -> None:
         assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
 
 
+def error_line(code, err: str, *needles) -> str:
+    """A refusal of bad input: exit 2, one stderr line ``error: ...`` (no traceback) that names every needle
+    (``str`` of each); returns the line. The one copy of the project's rule for the tests that check a run
+    themselves (:func:`check_exit` with ``expect=2`` does the same inside a call)."""
+    check_exit(code, "", err, 2)
+    for n in needles:
+        assert str(n) in err, (n, err)
+    return err.strip()
+
+
 @contextlib.contextmanager
 def _in(cwd=None, env=None):
     """This process in the folder ``cwd`` and with the environment variables ``env`` set, restored after."""

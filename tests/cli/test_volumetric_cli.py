@@ -20,7 +20,7 @@ from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import ReadingErrors
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, motion_names, motion_unit,
                                            synthetic_truth, tool_positions)
-from olti_calls import olti_in, olti_sub
+from olti_calls import error_line, olti_in, olti_sub
 
 NOMINAL_TOOLS = ((0.0, 0.0, 100.0), (150.0, 0.0, 100.0), (0.0, 150.0, 140.0))
 TOOL_ERRORS = ((0.0, 0.0, 0.0), (0.05, -0.03, 0.02), (-0.02, 0.04, 0.03))
@@ -65,10 +65,6 @@ def _table(path):
     """A CSV written by olti (``#`` comment lines, a header) as a structured array."""
     lines = [line for line in open(path).read().splitlines() if not line.startswith("#")]
     return np.genfromtxt(lines, delimiter=",", names=True)
-
-
-def _one_error_line(err):
-    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +177,7 @@ def test_predict_reproduces_the_truth_within_its_uncertainty(identified, tmp_pat
     code, out, err = olti_in("predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv",
                              capsys=capsys)
     assert code == 2 and "out.csv" in err and "line 3" in err and "X travel" in err and "--outside clamp" in err
-    _one_error_line(err)
+    error_line(code, err)
     assert not (tmp_path / "o.csv").exists()
     code, out, err = olti_in("predict", d / "result.json", tmp_path / "out.csv", "--out", tmp_path / "o.csv",
                              "--outside", "clamp", capsys=capsys)
@@ -234,17 +230,17 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
         f"{j},{i},{10 * i},{5 * i % 7},{0.1 * i + j}\n" for i in range(8) for j in range(4)))
     r = olti_sub("identify", flat, "--model", "volumetric", "--out", tmp_path / "r.json")
     assert r.returncode == 2 and "z_cmd_mm" in r.stderr and "flat.csv" in r.stderr
-    _one_error_line(r.stderr)
+    error_line(r.returncode, r.stderr)
     for bad in ("1,2;3,4,5", "a,b,c", "0,0,nan"):
         code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
                                  bad, "--out", tmp_path / "r.json", capsys=capsys)
         assert code == 2 and "--tool-offsets-mm" in err, err
-        _one_error_line(err)
+        error_line(code, err)
     for offsets, count in ((tools_option(2), "2 offset(s)"), (tools_option(3) + ";1,1,1", "4 offset(s)")):
         code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--tool-offsets-mm",
                                  offsets, "--out", tmp_path / "r.json", capsys=capsys)
         assert code == 2 and "--tool-offsets-mm" in err and count in err and "0..2" in err
-        _one_error_line(err)
+        error_line(code, err)
     # --tool-offsets-mm is optional (cli.md): the 3D multilateration's estimate starts the same fit
     code, out, err = olti_in("identify", d / "campaign.csv", "--model", "volumetric", "--out",
                              tmp_path / "auto.json", capsys=capsys)
@@ -266,12 +262,12 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
     code, out, err = olti_in("predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv",
                              capsys=capsys)
     assert code == 2 and "broken.json" in err and "uncertainty.covariance" in err
-    _one_error_line(err)
+    error_line(code, err)
     # olti report renders a volumetric result (tests/report/test_volumetric_report.py); olti uncertainty refuses it
     for verb in (["uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear"],):
         code, out, err = olti_in(*verb, "--out", tmp_path / "u", capsys=capsys)
         assert code == 2 and ("olti-volumetric/1" in err or "volumetric result" in err), err
-        _one_error_line(err)
+        error_line(code, err)
     del broken["stations_mm"]
     (tmp_path / "broken.json").write_text(json.dumps(broken))
     code, out, err = olti_in("predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv",
@@ -301,7 +297,7 @@ def test_a_campaign_at_one_z_refuses_z_by_name(identified, tmp_path, capsys):
     code, out, err = olti_in("identify", tmp_path / "flat_z.csv", "--model", "volumetric", "--tool-offsets-mm",
                              tools_option(1), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "E_ZZ" in err and "z = 120" in err
-    _one_error_line(err)
+    error_line(code, err)
 
 
 def _pan_tilt_campaign(path, grid):
@@ -337,7 +333,7 @@ def test_too_few_positions_for_the_spline_are_refused_naming_the_axis(tmp_path, 
     code, out, err = olti_in("identify", tmp_path / "campaign.csv", "--model", "volumetric",
                              "--tool-offsets-mm", tools_option(3), "--out", tmp_path / "r.json", capsys=capsys)
     assert code == 2 and "Z is commanded at 3 distinct positions" in err and "E_ZZ" in err and "held" not in err
-    _one_error_line(err)
+    error_line(code, err)
     code, out, err = olti_in("identify", tmp_path / "campaign.csv", "--model", "volumetric",
                              "--tool-offsets-mm", tools_option(3), "--knot-spacing-mm", "40", "--out",
                              tmp_path / "r.json", capsys=capsys)

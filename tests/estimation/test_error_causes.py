@@ -8,7 +8,7 @@ one; readings in metres or with their sign flipped are said to be so, never nump
 from pathlib import Path
 
 import pytest
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMPAIGN = ROOT / "data" / "paper000" / "campaign.csv"
@@ -17,10 +17,7 @@ MACHINE = ROOT / "diagrams" / "machine_3d.yaml"
 
 
 def one_error_line(p) -> str:
-    lines = [x for x in p.stderr.splitlines() if x.strip()]
-    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: "), (p.returncode, p.stderr)
-    assert "Traceback" not in p.stderr
-    return lines[0]
+    return error_line(p.returncode, p.stderr)
 
 
 def _changed(src: Path, dst: Path, change, file_line=None) -> Path:

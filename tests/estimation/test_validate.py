@@ -20,7 +20,7 @@ from olti_drake.estimation.validation import (cross_validate, fit_solution, fold
                                               predict_rows, recommend)
 from olti_drake.io.serial_io import SerialCampaign, load_robot, write_serial_campaign
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 TOOL = (40.0, -25.0, 60.0)
 NOISE_MM = 0.0005
@@ -165,13 +165,6 @@ def test_an_identification_does_not_depend_on_the_order_of_the_rows(chain, truth
 
 
 # -- the command line ----------------------------------------------------------------------------------------------
-def one_line_error(code, err, *needles):
-    assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
-    assert "Traceback" not in err
-    for n in needles:
-        assert n in err, err
-
-
 def test_the_command_line_writes_cv_json_and_refuses_bad_input_in_one_line(tmp_path, capsys, truth):
     camp = synthetic_campaign(truth, 30, seed=10, ranges_deg=RANGES, noise_mm=NOISE_MM)
     path = tmp_path / "campaign.csv"
@@ -190,9 +183,9 @@ def test_the_command_line_writes_cv_json_and_refuses_bad_input_in_one_line(tmp_p
     for argv, needles in ((("--folds", "1"), ("--folds", ">= 2")), (("--folds", "31"), ("30 distinct poses",)),
                           (("--models", "dh,nope"), ("unknown model 'nope'",)),
                           (("--models", "drift"), ("time_s",))):
-        one_line_error(*olti_in("validate", path, *robot, *argv, "--out", bad, capsys=capsys)[::2], *needles)
-    one_line_error(*olti_in("validate", path, "--out", bad, capsys=capsys)[::2], "SCARA campaign", "--robot")
-    one_line_error(*olti_in("identify", path, "--model", "dh", "--cv", "3", "--out", bad, capsys=capsys)[::2],
+        error_line(*olti_in("validate", path, *robot, *argv, "--out", bad, capsys=capsys)[::2], *needles)
+    error_line(*olti_in("validate", path, "--out", bad, capsys=capsys)[::2], "SCARA campaign", "--robot")
+    error_line(*olti_in("identify", path, "--model", "dh", "--cv", "3", "--out", bad, capsys=capsys)[::2],
                    "--cv needs --robot")
     assert not bad.exists()
     # olti identify --cv K: the validation printed, then the model asked identified and written as usual

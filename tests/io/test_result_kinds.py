@@ -15,7 +15,6 @@
 
 import ast
 import json
-import os
 import re
 from pathlib import Path
 
@@ -26,7 +25,7 @@ from numeric_files import json_differences
 from olti_drake.cli.verbs import build_parser, main
 from olti_drake.errors import InputError
 from olti_drake.io.documents import read_result, result_kind, with_kind
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "olti_drake"
@@ -39,12 +38,6 @@ MACHINE_REGIONS = ("regions:\n  - {x_mm: [-400, -200], y_mm: [-300, 600], z_mm: 
                    "  - {x_mm: [600, 800], y_mm: [-300, 600], z_mm: [0, 400]}\n"
                    "  - {x_mm: [0, 400], y_mm: [-400, -300], z_mm: [0, 400]}\n")
 FLOOR_REGIONS = "regions:\n  - {x_mm: [-1500, 1500], y_mm: [-1500, 1500], z_mm: -400}\n"
-
-
-def one_line_error(code, err, *needles):
-    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
-    for n in needles:
-        assert str(n) in err, (n, err)
 
 
 # -- the campaigns and the results of every kind -----------------------------------------------------------------
@@ -142,19 +135,19 @@ def test_an_unknown_kind_or_format_is_refused_in_one_line_naming_the_file(doc, n
                  ["uncertainty", bad, PAPER, "--method", "linear", "--out", out],
                  ["design", bad, "--regions", SCARA_REGIONS, "--out", out], ["report", bad, "--out", out]):
         code, _, err = olti_in(*argv, capsys=capsys)
-        one_line_error(code, err, bad, *needles)
+        error_line(code, err, bad, *needles)
         assert not out.exists()
 
 
 def test_a_verb_refuses_a_kind_it_does_not_take_naming_file_kind_and_what_it_takes(results, capsys, tmp_path):
     ml, vol = results["multilateration"][0], results["volumetric"][0]
     code, _, err = olti_in("predict", ml, PAPER, "--out", tmp_path / "p.csv", capsys=capsys)
-    one_line_error(code, err, ml, "multilateration result", "'format' 'olti-multilateration/1'",
+    error_line(code, err, ml, "multilateration result", "'format' 'olti-multilateration/1'",
                    "olti predict takes SCARA, serial-robot, volumetric and five-axis machine results")
     code, _, err = olti_in("compensate", ml, PAPER, "--out", tmp_path / "p.csv", capsys=capsys)
-    one_line_error(code, err, ml, "olti compensate takes")
+    error_line(code, err, ml, "olti compensate takes")
     code, _, err = olti_in("uncertainty", vol, PAPER, "--method", "linear", "--out", tmp_path / "u.json", capsys=capsys)
-    one_line_error(code, err, vol, "a volumetric result carries its linear uncertainties")
+    error_line(code, err, vol, "a volumetric result carries its linear uncertainties")
 
 
 # -- old result files still load in every verb -------------------------------------------------------------------
@@ -332,7 +325,7 @@ def test_the_option_table_names_real_options_and_their_defaults_as_not_given():
 ])
 def test_an_option_for_another_kind_is_refused_in_one_line(argv, needles, tmp_path, capsys):
     code, _, err = olti_in(*argv, "--out", tmp_path / "r.json", capsys=capsys)
-    one_line_error(code, err, *needles)
+    error_line(code, err, *needles)
     assert not (tmp_path / "r.json").exists()
 
 
@@ -350,7 +343,7 @@ def test_options_for_another_result_kind_are_refused_by_the_table(results, campa
             (["design", scara, "--regions", SCARA_REGIONS, "--workspace-poses", "20"],
              "--workspace-poses applies to robots from a model file")):
         code, _, err = olti_in(*argv, "--out", out, capsys=capsys)
-        one_line_error(code, err, needle)
+        error_line(code, err, needle)
         assert not out.exists()
 
 

@@ -24,6 +24,7 @@ from olti_drake.report.iso230 import STATISTICS, axis_statistics, map_statistics
 from olti_drake.report.html import write_report
 from olti_drake.io.result import load_result, write_result
 from olti_drake.sim.scenario import Robot
+from olti_calls import error_line, olti_in
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -260,11 +261,7 @@ def test_map_statistics_of_a_result_and_refusal_of_a_dh_model(paper):
 
 # -- command line: bad input -------------------------------------------------------------------------------
 def _one_line_error(capsys, argv, *needles):
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1, err
-    for n in needles:
-        assert n in err, (n, err)
+    error_line(*olti_in(*argv, capsys=capsys)[::2], *needles)
 
 
 def test_cli_bad_input_is_one_line_and_writes_nothing(paper, tmp_path, capsys):
