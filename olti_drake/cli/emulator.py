@@ -87,11 +87,9 @@ def _emulator(a, faults):
     if a.robot is None and a.scenario is not None:
         from olti_drake.sim.serial_scenario import scenario_kind
 
-        kind = scenario_kind(a.scenario)
-        if kind == "machine3d":
-            return _machine3d_emulator(a, common)
-        if kind == "machine5":
-            return _machine5_emulator(a, common)
+        machine = {"machine3d": _machine3d_emulator, "machine5": _machine5_emulator}.get(scenario_kind(a.scenario))
+        if machine is not None:  # (a machine tool: its axes' controller and a head per station)
+            return machine(a, common)
     if a.robot is None:
         if a.tool_frame is not None:
             raise ValueError("--tool-frame needs --robot")

@@ -136,7 +136,7 @@ def _add_scenario_options(p) -> None:
 
 
 def cmd_simulate(args) -> int:
-    from olti_drake.sim.serial_scenario import scenario_kind
+    from olti_drake.sim.serial_scenario import scenario_function, scenario_kind
 
     kind = scenario_kind(args.scenario, args.scenario_name)  # (sim.serial_scenario: the one place)
     if kind == "serial":  # a six-axis scenario (it has a `scheme`)
@@ -146,15 +146,9 @@ def cmd_simulate(args) -> int:
         if args.meshcat and sys.stdin.isatty():
             input("press Enter to close the Meshcat view: ")
         return 0
-    if kind == "machine5":  # a five-axis machine tool (it has `machine_model`)
-        from olti_drake.sim.five_axis_station import simulate_five_axis_command
-        print(simulate_five_axis_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
-                                         args.seed, args.meshcat))
-        return 0
-    if kind == "machine3d":  # a 3D machine tool (it has `heads_mm`)
-        from olti_drake.sim.machine3d_station import simulate_machine3d_command
-        print(simulate_machine3d_command(args.scenario, args.scenario_name, args.scenario_text, args.out,
-                                         args.seed, args.meshcat))
+    simulate = scenario_function(kind, "simulate")  # (a machine tool's: sim.serial_scenario.SCENARIO_TYPES)
+    if simulate is not None:
+        print(simulate(args.scenario, args.scenario_name, args.scenario_text, args.out, args.seed, args.meshcat))
         return 0
     t0 = time.perf_counter()
     setup, campaign, paths = _simulate(args, args.scenario, args.out, args.seed, view=lambda: _meshcat_view(args))

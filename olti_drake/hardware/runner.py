@@ -470,26 +470,10 @@ def load_run_scenario(path, name: Optional[str] = None, text: Optional[str] = No
     """The scenario ``olti run`` takes: a six-axis one (``SerialScenario``) when the file (or its named
     scenario, or a base) has a ``scheme``, a 3D machine-tool one (``Machine3DScenarioFile``) when it has
     ``heads_mm``, a five-axis one (``FiveAxisScenarioFile``) when it has ``machine_model``, else the SCARA's
-    (``load_scenario``)."""
-    from olti_drake.sim.scenario import load_scenario
-    from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
+    (``load_scenario``): :func:`~olti_drake.sim.serial_scenario.load_any_scenario`."""
+    from olti_drake.sim.serial_scenario import load_any_scenario
 
-    kind = scenario_kind(path, name)
-    if kind == "machine5":
-        from olti_drake.sim.five_axis_station import load_five_axis_scenario
-
-        doc = load_five_axis_scenario(path, name, text)
-        doc.source_file = os.fspath(path)
-        return doc
-    if kind == "machine3d":
-        from olti_drake.sim.machine3d_station import load_machine3d_scenario
-
-        doc = load_machine3d_scenario(path, name, text)
-        doc.source_file = os.fspath(path)
-        return doc
-    if kind == "serial":
-        return load_serial_scenario(path, name, text)
-    return load_scenario(path, name, text)
+    return load_any_scenario(path, name, text)
 
 
 def _campaign_kind(scenario):

@@ -325,8 +325,38 @@ def _vector(name, v, size, nonzero=False):
         raise InputError(f"{name} must be {size} finite numbers" + (", not all zero" if nonzero else ""))
 
 
+#: What differs by scenario kind (:func:`scenario_kind`), the one table: its loader ((path, name, text) -> the
+#: scenario document) and its ``olti simulate`` body ((path, name, text, out_dir, seed, meshcat) -> the summary;
+#: None: the SCARA's and the six-axis robot's, which the command line runs with their live views), as
+#: "module:function", imported when asked (:func:`scenario_function`: ``olti --help`` stays fast).
+SCENARIO_TYPES = {
+    "scara": {"load": "olti_drake.sim.scenario:load_scenario", "simulate": None},
+    "serial": {"load": "olti_drake.sim.serial_scenario:load_serial_scenario", "simulate": None},
+    "machine3d": {"load": "olti_drake.sim.machine3d_station:load_machine3d_scenario",
+                  "simulate": "olti_drake.sim.machine3d_station:simulate_machine3d_command"},
+    "machine5": {"load": "olti_drake.sim.five_axis_station:load_five_axis_scenario",
+                 "simulate": "olti_drake.sim.five_axis_station:simulate_five_axis_command"},
+}
 #: The kinds of scenario (:func:`scenario_kind`).
-SCENARIO_KINDS = ("scara", "serial", "machine3d", "machine5")
+SCENARIO_KINDS = tuple(SCENARIO_TYPES)
+
+
+def scenario_function(kind: str, role: str):
+    """The function of ``role`` (``load``, ``simulate``) for scenarios of ``kind`` (:data:`SCENARIO_TYPES`), or
+    None when the kind has none."""
+    import importlib
+
+    where = SCENARIO_TYPES[kind][role]
+    if where is None:
+        return None
+    module, _, name = where.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def load_any_scenario(path, name: Optional[str] = None, text: Optional[str] = None):
+    """The scenario document of the file ``path`` (its scenario ``name``, overrides ``text``), loaded as its kind
+    (:func:`scenario_kind`) says."""
+    return scenario_function(scenario_kind(path, name), "load")(path, name, text)
 
 
 def scenario_kind(scenario, name: Optional[str] = None) -> str:
