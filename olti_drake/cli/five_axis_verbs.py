@@ -47,7 +47,7 @@ def predict(args) -> int:
     (:func:`olti_drake.model.propagation.predicted_std`; 0 when the result stores no covariance) with the
     result's lack of fit (``covariance.lack_of_fit_mm``) in quadrature."""
     from olti_drake.io.five_axis_io import load_machine5_result, read_five_axis_points, write_predictions
-    from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
+    from olti_drake.model.propagation import with_lack_of_fit
     from olti_drake.model.propagation import predicted_std
 
     res = load_machine5_result(args.result)

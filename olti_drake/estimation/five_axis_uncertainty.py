@@ -246,8 +246,8 @@ def tool_point_u(ident, fit, commands, directions=None, tool=None):
     """(tool points (M, 3), their u (M, 3)) mm, k = 1, workpiece frame, at ``commands`` (mm, deg) on the fit of
     ``ident`` (:class:`~olti_drake.estimation.five_axis.FiveAxisIdentification`): the covariance propagated
     (:func:`~olti_drake.model.propagation.predicted_std`) and the fit's lack of fit added in quadrature
-    (:func:`~olti_drake.estimation.serial_uncertainty.with_lack_of_fit`) -- as ``olti predict`` does."""
-    from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
+    (:func:`~olti_drake.model.propagation.with_lack_of_fit`) -- as ``olti predict`` does."""
+    from olti_drake.model.propagation import with_lack_of_fit
     from olti_drake.model.five_axis_errors import FiveAxisPositionModel
     from olti_drake.model.propagation import predicted_std
 

@@ -22,7 +22,7 @@ from typing import Optional
 import numpy as np
 
 from olti_drake.errors import InputError
-from olti_drake.model.propagation import predicted_std
+from olti_drake.model.propagation import predicted_std, with_lack_of_fit
 
 
 def calibration_at_result(result, campaign):
@@ -318,12 +318,6 @@ def predicted_reading_std(result, commands, dirs, station, time_s=None):
     r, J = meas.residuals(x)
     C = result.covariance_of(meas.names)
     return r, (None if C is None else with_lack_of_fit(predicted_std(J, C), result.lack_of_fit_mm))
-
-
-def with_lack_of_fit(u, lack_of_fit_mm: float):
-    """u (any shape, mm) with the fit's model error (mm) added in quadrature: the u of a predicted point
-    coordinate or reading (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.lack_of_fit`)."""
-    return np.sqrt(np.square(u) + float(lack_of_fit_mm) ** 2)
 
 
 def predicted_point_std(result, commands, dirs):

@@ -282,6 +282,9 @@ class VolumetricIdentification(Calibration):
 
     rank_hint = "add stations, tool offsets or commands spread over the travel"
     untouched_hint = "every station needs readings of targets spread over the travel"
+    #: The residuals beyond the readings' u are a model error every predicted tool point shares
+    #: (:meth:`Calibration.lack_of_fit`): motions the splines between their knots do not follow.
+    predicts_lack_of_fit = True
 
     def __init__(self, data: MachineCampaign, options: VolumetricOptions = None):
         o = options or VolumetricOptions()

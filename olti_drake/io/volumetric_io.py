@@ -18,7 +18,7 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.io.csvio import json_numbers, read_json, write_table
-from olti_drake.model.propagation import predicted_std
+from olti_drake.model.propagation import predicted_std, with_lack_of_fit
 from olti_drake.model.volumetric3d import (ALL_MOTIONS, FORMAT, SQUARENESS, MachineConfig, VolumetricModel,
                                            axis_tables, error_grid, model_from_document, motions_document)
 
@@ -70,7 +70,8 @@ def volumetric_result_dict(model: VolumetricModel, params, covariance, pitch_mm:
            "stations_mm": np.asarray(stations_std_mm, float).tolist(),
            "dead_paths_mm": np.asarray(dead_paths_std_mm, float).tolist(),
            "parameter_names": list(model.parameter_names()),
-           "covariance": C.tolist()}
+           "covariance": C.tolist(),
+           "lack_of_fit_mm": float(getattr(fit, "lack_of_fit_mm", 0.0) or 0.0)}
     return documents.result_document("volumetric", doc, fit, gauge=gauge, uncertainty=unc, method=method,
                                      campaign=campaign, empty_notes=True)
 
@@ -90,13 +91,23 @@ class VolumetricDocument:
     def motions(self):
         return self.model.motions(self.params)
 
+    @property
+    def lack_of_fit_mm(self) -> float:
+        """The model error every predicted point shares (mm, k = 1): ``uncertainty.lack_of_fit_mm`` (0 when absent:
+        a result written before it was stated)."""
+        value = self.doc["uncertainty"].get("lack_of_fit_mm", 0.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+            raise InputError(f"{self.source}: key 'uncertainty.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
+        return float(value)
+
     def position_std(self, commands_mm, tool) -> np.ndarray:
         """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm: J C Jᵀ per point (linear, JCGM 100),
-        J the model's Jacobian at the command (clamped into the travel), C the result's covariance."""
+        J the model's Jacobian at the command (clamped into the travel), C the result's covariance, and the
+        result's lack of fit in quadrature (:attr:`lack_of_fit_mm`)."""
         from olti_drake.model.volumetric3d import clamp_commands
 
         _, J = self.model.jacobian(clamp_commands(self.model.config, commands_mm), tool, self.params)
-        return predicted_std(J, self.covariance)
+        return with_lack_of_fit(predicted_std(J, self.covariance), self.lack_of_fit_mm)
 
 
 def load_volumetric_result(path) -> VolumetricDocument:

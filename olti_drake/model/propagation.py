@@ -62,6 +62,12 @@ def predicted_std(J, covariance=None, *, factor=None, dim=None) -> np.ndarray:
     return np.sqrt(predicted_variance(J, covariance, factor=factor, dim=dim))
 
 
+def with_lack_of_fit(u, lack_of_fit_mm: float):
+    """u (any shape, mm) with the fit's model error (mm) added in quadrature: the u of a predicted point
+    coordinate or reading (:meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.lack_of_fit`)."""
+    return np.sqrt(np.square(u) + float(lack_of_fit_mm) ** 2)
+
+
 def _row_sums(J, B, squared: bool) -> np.ndarray:
     """Σ_j (J B)_kj² (``squared``) or Σ_j (J B)_kj J_kj per row k, a block of rows at a time (CHUNK_VALUES)."""
     rows = J.shape[0]

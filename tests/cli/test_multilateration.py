@@ -1,9 +1,6 @@
 """Self-calibrating multilateration of paper 001 (Eq. 2-6) on simulated machine-tool campaigns."""
 
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -15,8 +12,7 @@ from olti_drake.estimation.calibration import UnidentifiableError
 from olti_drake.model.machine import MachineScenario, simulate_machine_campaign, square_targets
 from olti_drake.estimation.multilateration import (MultilaterationOptions, align_to_commands, load_machine_campaign,
                                         machine_campaign, multilaterate)
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from olti_calls import olti_sub
 
 
 def _campaign(tmp_path, name="c.csv", **kw):
@@ -117,10 +113,8 @@ def test_loader_errors_name_file_line_and_column(tmp_path):
 def test_cli_writes_the_formats_result(tmp_path):
     cols, _ = simulate_machine_campaign(MachineScenario())
     write_machine_campaign(cols, tmp_path / "c.csv")
-    r = subprocess.run([sys.executable, "-m", "olti_drake.cli", "multilaterate", str(tmp_path / "c.csv"),
-                        "--out", str(tmp_path / "r.json"), "--stations-mm", "-120,-80;220,-60;50,240"],
-                       capture_output=True, text=True, cwd=ROOT)
-    assert r.returncode == 0, r.stderr
+    r = olti_sub("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", "--stations-mm",
+                 "-120,-80;220,-60;50,240", expect=0)
     out = json.loads((tmp_path / "r.json").read_text())
     assert out["format"] == "olti-multilateration/1"
     assert len(out["targets_mm"]) == len(square_targets()) and len(out["stations_mm"]) == 3
@@ -131,15 +125,11 @@ def test_cli_writes_the_formats_result(tmp_path):
 def test_uncertainty_verb_on_a_multilateration_result(tmp_path):
     cols, _ = simulate_machine_campaign(MachineScenario())
     write_machine_campaign(cols, tmp_path / "c.csv")
-    run = [sys.executable, "-m", "olti_drake.cli"]
-    assert subprocess.run(run + ["multilaterate", str(tmp_path / "c.csv"), "--out", str(tmp_path / "r.json")],
-                          capture_output=True, cwd=ROOT).returncode == 0
+    olti_sub("multilaterate", tmp_path / "c.csv", "--out", tmp_path / "r.json", expect=0)
     out = {}
     for method in ("linear", "mc"):
-        r = subprocess.run(run + ["uncertainty", str(tmp_path / "r.json"), str(tmp_path / "c.csv"), "--method",
-                                  method, "--trials", "1000", "--map", str(tmp_path / f"{method}.png"),
-                                  "--out", str(tmp_path / f"{method}.json")], capture_output=True, text=True, cwd=ROOT)
-        assert r.returncode == 0, r.stderr
+        olti_sub("uncertainty", tmp_path / "r.json", tmp_path / "c.csv", "--method", method, "--trials", "1000",
+                 "--map", tmp_path / f"{method}.png", "--out", tmp_path / f"{method}.json", expect=0)
         out[method] = json.loads((tmp_path / f"{method}.json").read_text())
         assert (tmp_path / f"{method}.png").stat().st_size > 5000
     lin, mc = (np.array(out[m]["targets_mm"]) for m in ("linear", "mc"))

@@ -8,8 +8,6 @@ positions at unseen commands; the direct positions agree too, both gauges puttin
 """
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +20,7 @@ from olti_drake.io.serial_io import load_robot, read_serial_campaign
 from olti_drake.model.chain import base_parameter_set, load_serial_chain, planar_axis
 from olti_drake.model.scara import JointCommands, forward_kinematics
 from olti_drake.sim.plant import scara_sdf_text
+from olti_calls import olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "olti_drake" / "models"
@@ -139,9 +138,8 @@ def test_serial_engine_on_the_scara_equals_the_scara_path_errormap():
 
 def test_identify_cli_on_a_scara_campaign_writes_the_serial_result(tmp_path):
     out = tmp_path / "dh.json"
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", str(CAMPAIGN), "--robot", "scara",
-                          "--tool-frame", "beam", "--model", "dh", "--out", str(out)], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    olti_sub("identify", CAMPAIGN, "--robot", "scara", "--tool-frame", "beam", "--model", "dh", "--out", out,
+             expect=0)
     res = json.loads(out.read_text())
     assert res["robot"]["tool_frame"] == "beam" and res["robot"]["joints"] == ["J1", "J2"]
     reasons = {d["parameter"]: d["reason"] for d in res["dropped"]}
@@ -154,8 +152,7 @@ def test_identify_cli_on_a_scara_campaign_writes_the_serial_result(tmp_path):
     pred, unc = tmp_path / "pred.csv", tmp_path / "unc.json"
     for verb in (["predict", str(out), str(CAMPAIGN), "--out", str(pred)],
                  ["uncertainty", str(out), str(CAMPAIGN), "--method", "linear", "--out", str(unc)]):
-        run = subprocess.run([sys.executable, "-m", "olti_drake.cli"] + verb, capture_output=True, text=True)
-        assert run.returncode == 0, run.stderr
+        olti_sub(*verb, expect=0)
     lines = [ln for ln in pred.read_text().splitlines() if not ln.startswith("#")]
     head = lines[0].split(",")
     rows = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
@@ -194,11 +191,8 @@ def test_a_planar_robot_measured_from_stations_off_its_plane_is_identified_in_3d
     assert np.sqrt(np.mean(ident.fit.residuals ** 2)) < 0.03
     P = np.array(ident.measurement.layout(ident.fit.x)["stations_mm"])
     assert np.abs(P - truth.stations_mm).max() < 3.0
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", str(tmp_path / "d.csv"), "--robot",
-                          "scara", "--tool-frame", "beam", "--tool-offset-mm", "30,10,0", "--model", "errormap",
-                          "--grid-step-deg", "30",
-                          "--out", str(tmp_path / "r.json")], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    run = olti_sub("identify", tmp_path / "d.csv", "--robot", "scara", "--tool-frame", "beam", "--tool-offset-mm",
+                   "30,10,0", "--model", "errormap", "--grid-step-deg", "30", "--out", tmp_path / "r.json", expect=0)
     assert "stations off its plane" in run.stdout
     cal, _ = calibration_at_result(load_serial_result(tmp_path / "r.json"), data)
     assert "tool_z_mm" in cal.gauge and "translation along z" in cal.gauge
@@ -305,8 +299,7 @@ def test_a_tilted_planar_robot_measured_from_stations_in_its_plane(tmp_path):
                   "30,10,0", "--model", "errormap", "--grid-step-deg", "30", "--out", str(out)],
                  ["predict", str(out), str(csv), "--out", str(pred)],
                  ["uncertainty", str(out), str(csv), "--method", "linear", "--out", str(unc)]):
-        run = subprocess.run([sys.executable, "-m", "olti_drake.cli"] + verb, capture_output=True, text=True)
-        assert run.returncode == 0, run.stderr
+        olti_sub(*verb, expect=0)
     res = json.loads(out.read_text())
     assert np.abs(np.array(res["stations_mm"]) @ n - level).max() < 1e-6
     lines = [ln for ln in pred.read_text().splitlines() if not ln.startswith("#")]

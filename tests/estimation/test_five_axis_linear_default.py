@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from olti_drake.estimation.serial_uncertainty import with_lack_of_fit
+from olti_drake.model.propagation import with_lack_of_fit
 from olti_drake.io.five_axis_io import load_machine5_result, write_five_axis_campaign
 from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_errors import RelocatedMotions, carriage_offsets, linear_config

@@ -2,8 +2,6 @@
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -121,10 +119,8 @@ def test_a_planar_robot_is_designed_in_its_plane(tmp_path):
     root = os.path.dirname(PACKAGE_DIR)
     campaign = os.path.join(root, "data", "paper000", "campaign.csv")
     result = tmp_path / "scara.json"
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", campaign, "--robot", "scara",
-                          "--tool-frame", "beam", "--model", "errormap", "--grid-step-deg", "20", "--out",
-                          str(result)], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    olti_sub("identify", campaign, "--robot", "scara", "--tool-frame", "beam", "--model", "errormap",
+             "--grid-step-deg", "20", "--out", result, expect=0)
     from olti_drake.io.serial_io import load_serial_result
 
     res = load_serial_result(result, outside="clamp")

@@ -432,22 +432,16 @@ def test_monte_carlo_refuses_trials_that_do_not_converge(small):
 def test_a_trial_count_beyond_reason_is_refused_before_any_work(tmp_path):
     """Hang and memory class of issue 24: ``--trials 10000000000`` ran silently for ever. The option has an upper
     bound, and below it the library refuses samples that would not fit in memory, naming the count and the size."""
-    import subprocess
-    import sys
-
     from olti_drake.errors import InputError
     from olti_drake.estimation.uncertainty import MAX_SAMPLE_BYTES, _check_sample_size
 
     result = tmp_path / "r.json"
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "identify", "data/paper000/campaign.csv", "--model",
-                          "dh", "--out", str(result)], capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
+    olti_sub("identify", "data/paper000/campaign.csv", "--model", "dh", "--out", result, timeout=120, expect=0)
     for trials, message in (("10000000000", "argument --trials: must be a whole number in [2, 100000000]"),
                             ("90000000", "trials 90000000: the Monte Carlo samples of 12 parameters would take")):
-        run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "uncertainty", str(result),
-                              "data/paper000/campaign.csv", "--method", "mc", "--trials", trials, "--out",
-                              str(tmp_path / "u.json")], capture_output=True, text=True, timeout=120)
-        assert run.returncode == 2 and message in run.stderr and run.stderr.count("\n") == 1, run.stderr
+        run = olti_sub("uncertainty", result, "data/paper000/campaign.csv", "--method", "mc", "--trials", trials,
+                       "--out", tmp_path / "u.json", timeout=120, expect=2)
+        assert message in run.stderr, run.stderr
         assert not (tmp_path / "u.json").exists()
     _check_sample_size(MAX_SAMPLE_BYTES // (8 * 49), 49, "trials")  # (just at the bound: taken)
     with pytest.raises(InputError, match="max_trials 10956550: .* 49 parameters"):

@@ -19,6 +19,7 @@ from olti_drake.hardware.serial_emulator import SerialEmulator
 from olti_drake.model.aiming3d import pan_tilt_commands
 from olti_drake.model.errormap import approach_directions
 from olti_drake.model.instrument import InterferometerOptions
+from olti_calls import olti_sub
 
 EXACT = InterferometerOptions(noise=False, quantization=False, cosine_error=False, beam_loss=False)
 POSES = np.array([[10.0, -80.0, 95.0, -30.0, -90.0, 45.0], [20.0, -70.0, 80.0, -40.0, -80.0, 30.0],
@@ -362,9 +363,7 @@ def test_six_axis_run_refuses_what_it_cannot_do_in_one_line(tmp_path):
                                   ("!Hardware {robot_port: /dev/null, head_ports: [a, b]}", [],
                                    "4 in station order (got 2)"),
                                   ("!Emulated {}", ["--meshcat"], "--meshcat: olti run shows the live view of SCARA")):
-        proc = subprocess.run([sys.executable, "-m", "olti_drake.cli", "run", _six_axis(tmp_path, station), "--out",
-                               str(tmp_path / "x"), *extra], capture_output=True, text=True, timeout=120)
-        assert proc.returncode == 2 and proc.stderr.startswith("error: ") and proc.stderr.count("\n") == 1, proc.stderr
+        proc = olti_sub("run", _six_axis(tmp_path, station), "--out", tmp_path / "x", *extra, timeout=120, expect=2)
         assert match in proc.stderr and not os.path.exists(tmp_path / "x")
 
 

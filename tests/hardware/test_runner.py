@@ -17,6 +17,7 @@ import pytest
 
 from olti_drake.errors import InputError
 from olti_drake.io.csvio import read_table
+from olti_calls import olti_sub
 
 PLANNED = 1056
 COLS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "valid", "step", "session",
@@ -37,8 +38,7 @@ def _table(out_dir):
 
 
 def _run(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "olti_drake.cli", "run", *args], capture_output=True,
-                          text=True, timeout=300, **kw)
+    return olti_sub("run", *args, timeout=300, **kw)
 
 
 @pytest.fixture(scope="module")

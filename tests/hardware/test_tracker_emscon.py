@@ -21,6 +21,7 @@ import pytest
 
 from olti_drake.hardware import emscon as E
 from olti_drake.hardware.tracker_emulator import TrackerEmulator
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SIX_AXIS = os.path.join(ROOT, "diagrams", "six_axis.yaml")
@@ -372,9 +373,7 @@ def test_a_tracker_and_a_robot_started_apart_as_a_real_bench(tmp_path):
     (["--reflector-mm", "1,2"], "expected v,v,v"),
 ])
 def test_tracker_emulator_refuses_bad_input_in_one_line(args, match):
-    r = subprocess.run([sys.executable, "-m", "olti_drake.cli", "tracker-emulator", "--port", "0", *args],
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+    r = olti_sub("tracker-emulator", "--port", "0", *args, timeout=60, expect=2)
     assert match in r.stderr
 
 

@@ -36,7 +36,7 @@ from tests.io.test_result_kinds import campaigns  # noqa: E402,F401 (the same se
 
 def _library_document(kind, campaigns) -> dict:
     """The result document of ``kind`` by the library call of its writer (test_result_kinds' route)."""
-    from test_result_kinds import _todays_route
+    from tests.io.test_result_kinds import _todays_route
 
     return _todays_route(kind, campaigns, None)
 

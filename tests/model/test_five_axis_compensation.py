@@ -152,7 +152,7 @@ def identified(machine, tmp_path_factory):
     linear axes identified with the rotary ones (``linear="auto"``: a distance campaign)."""
     from olti_drake.model.five_axis_errors import RelocatedMotions, carriage_offsets, linear_config
     from olti_drake.model.volumetric3d import MachineConfig, synthetic_truth as linear_truth
-    from test_five_axis_linear import TOOLS
+    from tests.model.test_five_axis_linear import TOOLS
 
     d = tmp_path_factory.mktemp("bk")
     cfg = linear_config(machine)

@@ -106,7 +106,7 @@ def test_each_carriage_swings_what_it_carries(name, swings):
 def test_the_drake_diagram_reads_what_the_numpy_twin_reads():
     """The 3D campaign's Drake diagram on the table-y stacking: the rows, readings (to 1e-9 mm) and truth of the
     numpy twin (tests/sim/test_machine3d_diagram.py's check, on this chain)."""
-    from test_machine3d_diagram import test_diagram_reads_what_the_numpy_twin_reads as diagram_reads_the_twin
+    from tests.sim.test_machine3d_diagram import test_diagram_reads_what_the_numpy_twin_reads as diagram_reads_the_twin
 
     diagram_reads_the_twin(TOPOLOGIES["table-y"])
 
@@ -190,7 +190,7 @@ def test_a_result_of_another_topology_is_refused_in_one_line(trunnion_result, tm
     from olti_drake.io.five_axis_io import load_linear_from, write_five_axis_campaign
     from olti_drake.model.five_axis import FiveAxisMachine
     from olti_drake.model.five_axis_truth import synthetic_truth as five_truth
-    from test_five_axis_identify import distance_campaign
+    from tests.estimation.test_five_axis_identify import distance_campaign
 
     swivel = FiveAxisMachine.from_file(SWIVEL)
     write_five_axis_campaign(tmp_path / "c.csv", distance_campaign(swivel, five_truth(swivel, seed=1), 6, 1))
@@ -212,7 +212,7 @@ def test_olti_identify_takes_the_table_y_result_for_the_trunnion(trunnion, trunn
     from olti_drake.model.five_axis_errors import (FiveAxisErrors, FiveAxisPositionModel, RelocatedMotions,
                                                    carriage_offsets)
     from olti_drake.model.five_axis_truth import synthetic_truth as five_truth
-    from test_five_axis_identify import TABLE_STATIONS, distance_campaign, no_dropped_truth
+    from tests.estimation.test_five_axis_identify import TABLE_STATIONS, distance_campaign, no_dropped_truth
 
     truth = no_dropped_truth(five_truth(trunnion, seed=2, motions=False))
     truth.linear = RelocatedMotions(trunnion_result[1], carriage_offsets(trunnion))

@@ -6,10 +6,9 @@ own test (tests/package/test_tutorial.py); every doc's other commands are run or
 
 import os
 import re
-import subprocess
-import sys
 
 import pytest
+from olti_calls import olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -27,9 +26,7 @@ def _quoted():
 
 def test_the_six_axis_doc_quotes_what_the_demo_prints(tmp_path):
     residual, unseen = _quoted()
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "demo", "--robot", "six_axis", "--out",
-                          str(tmp_path / "demo")], capture_output=True, text=True, timeout=600, cwd=ROOT)
-    assert run.returncode == 0, run.stderr
+    run = olti_sub("demo", "--robot", "six_axis", "--out", tmp_path / "demo", timeout=600, expect=0)
     printed = [float(v) for v in re.findall(r"residual RMS ([\d.]+) um", run.stdout)]
     assert len(printed) == 2, run.stdout
     for quoted, got in zip((residual["dh"], residual["errormap"]), printed):
@@ -97,10 +94,7 @@ def test_the_machine_3d_walk_through_quotes_what_it_prints(tmp_path):
 
     move, ratio, inflation, before, max_before, after, max_after = _machine_3d_quoted()
     (n_readings, n_targets, knots, move_max), (rms, rms_250, within_250, max_250) = _machine_3d_finer_quoted()
-    olti = [sys.executable, "-m", "olti_drake.cli"]
-    run = subprocess.run(olti + ["simulate", "diagrams/machine_3d.yaml", "--out", str(tmp_path)], capture_output=True,
-                         text=True, timeout=600, cwd=ROOT)
-    assert run.returncode == 0, run.stderr
+    run = olti_sub("simulate", "diagrams/machine_3d.yaml", "--out", tmp_path, timeout=600, expect=0)
     counts = rf"{n_readings:.0f} readings \(\d+ valid, \d+ beam lost\) of {n_targets:.0f} targets"
     assert re.search(counts, run.stdout), run.stdout
     out = run_block("docs/machine_3d.md", "olti multilaterate DIR/campaign.csv", ROOT, subst=tmp_path)

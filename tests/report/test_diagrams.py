@@ -1,10 +1,9 @@
 """The committed diagram pictures and wiring files match the diagrams the code builds (olti diagrams)."""
 
 import shutil
-import subprocess
-import sys
 
 import pytest
+from olti_calls import olti_sub
 
 from olti_drake.report.diagram_pictures import (DIAGRAMS_DIR, SCENARIOS, campaign_diagram, graphviz_source, read_wiring,
                                          render_svg, wiring_lines)
@@ -60,9 +59,6 @@ def test_svg_renders_with_the_system_names(built):
 
 
 def test_missing_dot_is_one_line(tmp_path):
-    env = {"PATH": str(tmp_path), "PYTHONPATH": str(DIAGRAMS_DIR.parent)}
-    run = subprocess.run([sys.executable, "-m", "olti_drake.cli", "diagrams", "--out", str(tmp_path)],
-                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
-    assert run.returncode == 2
+    run = olti_sub("diagrams", "--out", tmp_path, env={"PATH": str(tmp_path)}, cwd=tmp_path, timeout=60, expect=2)
     assert run.stderr.strip() == "error: graphviz 'dot' not found; install Debian package graphviz"
     assert not list(tmp_path.iterdir())

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from figure_capture import (annotations, captured_figures, errorbar, legend_labels, line, lines_with, points,
                             same_points, suptitle)
+from olti_calls import olti_sub
 
 from olti_drake.report import validation as v
 from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
@@ -225,9 +226,7 @@ def test_fig11_says_which_rms_is_a_prediction_and_which_an_accuracy(paper, tmp_p
 
 def test_demo_prints_the_comparison_and_writes_everything(paper, tmp_path):
     _, _, report = paper
-    r = subprocess.run([sys.executable, "-m", "olti_drake.cli", "demo", "--out", str(tmp_path)],
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
+    r = olti_sub("demo", "--out", tmp_path, timeout=60, expect=0)
     row = re.search(r"\(c\) 500 random commands\s+500\s+([\d.]+) /\s+[\d.]+\s+([\d.]+) /", r.stdout)
     assert row, r.stdout
     dh, em = map(float, row.groups())
@@ -252,9 +251,7 @@ def test_clamped_model_differs_only_outside_the_grid(paper):
 def test_example_script_validates_a_simulated_campaign_file(tmp_path):
     """examples/validate_paper_models.py on the files of `olti simulate`, with figures."""
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    sim = subprocess.run([sys.executable, "-m", "olti_drake.cli", "simulate", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=60)
-    assert sim.returncode == 0, sim.stderr
+    olti_sub("simulate", "--out", tmp_path, timeout=60, expect=0)
     r = subprocess.run([sys.executable, os.path.join(root, "examples", "validate_paper_models.py"),
                         "--campaign", str(tmp_path / "campaign.csv"), "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=60)
