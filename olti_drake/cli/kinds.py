@@ -22,6 +22,7 @@ HANDLERS = {
     "uncertainty": {"scara": "olti_drake.cli.scara_verbs:uncertainty",
                     "serial": "olti_drake.cli.serial_uncertainty:uncertainty",
                     "multilateration": "olti_drake.cli.machine_verbs:uncertainty",
+                    "volumetric": "olti_drake.cli.volumetric_verbs:uncertainty",
                     "machine5": "olti_drake.cli.five_axis_uncertainty:uncertainty"},
     "design": {"scara": "olti_drake.cli.scara_verbs:design",
                "serial": "olti_drake.cli.serial_design:design",
@@ -51,11 +52,7 @@ CAMPAIGN_REFUSED = {
 }
 
 #: A verb's own sentence for a result kind it does not take ({path}: the file), instead of read_result's.
-REFUSED = {
-    ("uncertainty", "volumetric"): "{path}: a volumetric result carries its linear uncertainties (key "
-                                   "'uncertainty', k = 1); olti uncertainty takes SCARA, serial-robot, "
-                                   "multilateration and five-axis results",
-}
+REFUSED: Dict[Tuple[str, str], str] = {}  # (none now: every verb takes every result kind it lists)
 
 _SCARA_PATH = "the SCARA path uses --nominal-mm and --grid1-deg/--grid2-deg"
 _ROBOT = "needs --robot FILE --tool-frame NAME (a serial robot)"

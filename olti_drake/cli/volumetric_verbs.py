@@ -153,3 +153,74 @@ def compensate(args) -> int:
         for path in write_tables(args.tables, res.motions, cfg, args.pitch_mm or 10.0, args.grid_pitch_mm or 50.0):
             print(f"wrote {path}")
     return 0
+
+
+def uncertainty(args) -> int:
+    """``olti uncertainty R.json CAMPAIGN.csv``: the volumetric result re-solved on its campaign, then propagated
+    linearly (JCGM 100) or by Monte Carlo (JCGM 101; batched trials, ``VolumetricIdentification.residual_rows``)
+    with the budget's reading errors (default 001 Table 4); written in the result's uncertainty keys (mm, µrad)."""
+    import time
+
+    from olti_drake.cli.propagate import campaign_note, propagate
+    from olti_drake.estimation.multilateration import load_machine_campaign
+    from olti_drake.estimation.serial_uncertainty import Priors, prior_spread
+    from olti_drake.estimation.volumetric import identification_at_result, volumetric_campaign
+    from olti_drake.formats import UNCERTAINTY
+    from olti_drake.io.budget import budget_or_default
+    from olti_drake.io.csvio import check_campaign_matches
+    from olti_drake.io.five_axis_io import file_sha256
+    from olti_drake.io.outputs import write_json
+    from olti_drake.io.volumetric_io import load_volumetric_result, uncertainty_block
+    from olti_drake.model.budget import ReadingErrors
+    from olti_drake.model.volumetric3d import ALL_MOTIONS
+
+    t0 = time.perf_counter()
+    res = load_volumetric_result(args.result)
+    data = volumetric_campaign(load_machine_campaign(args.campaign))
+    note = check_campaign_matches(res.doc, data, args.result)
+    budget = budget_or_default(args.budget, "machine")
+    ident, solved = identification_at_result(res, data, budget)
+    x, errors = solved.fit.x, ReadingErrors(budget)
+    std, cov, samples, extra, every = propagate(ident, x, errors, args)
+    notes = list(extra.get("notes", []))
+    Q = ident.quadratic_costs()[0][:len(x), :len(x)]
+    if np.any(Q):  # (the smoothness prior's own spread, as the identification weighed it)
+        u2 = float(np.mean(errors.std(ident.beam_lengths(x)) ** 2))
+        priors = Priors(Q, ["the result's smoothness prior: its own spread added (its weight, not chosen again)"])
+        if cov is not None:
+            cov = prior_spread(ident, x, priors, u2, cov=cov)
+        else:
+            every = prior_spread(ident, x, priors, u2, samples=every, seed=args.seed)
+        notes += priors.notes
+    C = cov if cov is not None else np.cov(every, rowvar=False)
+    n, nj = ident.n_model, data.n_stations
+    E = np.zeros((res.model.n_params, len(x)))  # the model's parameters from x (held: 0)
+    E[ident.free_cols, np.arange(n)] = 1.0
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    positions = {name[3]: res.doc["error_motions"][name]["positions_mm"] for name in ALL_MOTIONS}
+    block = uncertainty_block(res.model, E @ C @ E.T, positions, std[n:n + 3 * nj].reshape(nj, 3),
+                              std[n + 3 * nj:n + 4 * nj])
+    inflation = (res.doc.get("resolution_check") or {}).get("inflation", 1.0)
+    if inflation > 1.0:
+        notes.append(f"the result's u carries the under-resolution check's inflation ({inflation:.3g} x, its knots too "
+                     f"coarse for the motions); this propagation holds the readings' errors alone")
+    extra.update(notes=notes)
+    campaign_note(extra, note)
+    out = {"format": UNCERTAINTY, "method": args.method, "k": 1, **block,
+           "expanded": dict(k=args.k, **uncertainty_block(res.model, E @ C @ E.T, positions,
+                                                          std[n:n + 3 * nj].reshape(nj, 3),
+                                                          std[n + 3 * nj:n + 4 * nj], scale=args.k)),
+           "budget": budget.name, "parameters": {"names": list(ident.names), "std": std.tolist()}, **extra,
+           "result": args.result, "result_sha256": file_sha256(args.result), "campaign": args.campaign,
+           "elapsed_s": round(time.perf_counter() - t0, 3)}
+    write_json(args.out, out)
+    print(f"uncertainty ({args.method}) of the volumetric result {args.result} on {len(data)} readings; budget "
+          f"{budget.name!r}" + (f"; {len(every)} trials, seed {args.seed}" if every is not None else ""))
+    for name, u in block["error_motions"].items():
+        scale, unit = (1e3, "um") if name[2] in "XYZ" else (1.0, "urad")
+        if max(u) > 0:
+            print(f"  {name:6s} U (k = {args.k:g}) <= {scale * args.k * max(u):.3f} {unit}")
+    for line in notes:
+        print(f"  note: {line}")
+    print(f"wrote {args.out}")
+    return 0

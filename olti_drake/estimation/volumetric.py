@@ -396,6 +396,12 @@ class VolumetricIdentification(Calibration):
         _, P, L0 = self.measurement.split(np.asarray(x, float))
         return self.theta(x), P, L0
 
+    def residual_rows(self, X, displacement_mm=None):
+        """001 Eq. (3) residuals of T parameter vectors at once, the Jacobian row-compressed
+        (:meth:`~olti_drake.model.measurements.StationDistanceMeasurement.residual_rows`): the batched trials of
+        :func:`~olti_drake.estimation.uncertainty.monte_carlo`. X (T, n), readings (K,) or (T, K) mm."""
+        return self.measurement.residual_rows(X, displacement_mm)
+
     def reading_label(self, k: int) -> dict:
         d = self.data
         return {"line": int(d.line[k]), "station": int(d.station[k]), "target": int(d.target[k])}
@@ -567,3 +573,51 @@ class VolumetricResult:
 def identify_volumetric(data: MachineCampaign, options: VolumetricOptions = None, budget=None) -> VolumetricResult:
     """Identify the 21 error motions from a 3D distance campaign (see the module docstring)."""
     return VolumetricIdentification(data, options).solve(budget)
+
+
+#: A Monte Carlo trial's steps converge below this share of each parameter's u.
+TRIAL_TOLERANCE_U = 1e-6
+#: The re-solved motion coefficients must reproduce the result's within this share of their u (else: not its
+#: campaign, or other options).
+REPRODUCE_U = 0.05
+
+
+def result_options(doc: dict) -> VolumetricOptions:
+    """The :class:`VolumetricOptions` of the identification that wrote the ``olti-volumetric/1`` result ``doc``:
+    its topology, knots, pitch, the tools as given (the identified offsets less their identified errors) and its
+    smoothness weight as given (or off)."""
+    from olti_drake.model.volumetric3d import TOPOLOGIES
+
+    chains = (tuple(doc["topology"]["tool_chain"]), tuple(doc["topology"]["work_chain"]))
+    topology = next((k for k, v in TOPOLOGIES.items() if tuple(map(tuple, v)) == chains), None)
+    if topology is None:
+        raise InputError(f"volumetric result: topology {chains} is none of {', '.join(TOPOLOGIES)}")
+    tools = np.asarray(doc["tool_offsets_mm"], float) - np.asarray(doc.get("tool_offset_errors_mm", 0.0), float)
+    smoothing = doc.get("smoothing") or {}
+    weight = smoothing.get("weight") if isinstance(smoothing, dict) else None
+    return VolumetricOptions(tool_offsets_mm=tools.tolist(), knot_spacing_mm=float(doc["representation"]["knot_spacing_mm"]),
+                             topology=topology, pitch_mm=float(doc.get("pitch_mm", 10.0)),
+                             smoothing=float(weight) if isinstance(weight, (int, float)) and weight > 0 else "off",
+                             check_resolution=False)  # (the estimate is the same; the check only inflates the u)
+
+
+def identification_at_result(res, data, budget):
+    """(identification, its result): the volumetric result ``res`` (:class:`~olti_drake.io.volumetric_io.
+    VolumetricDocument`) re-solved on ``data``, the campaign it came from (digest checked by the caller), with its
+    options (:func:`result_options`). Refused in one line when the re-solved motions are not the result's."""
+    ident = VolumetricIdentification(data, result_options(res.doc))
+    solved = ident.solve(budget)
+    names = list(res.model.parameter_names())
+    motion = np.array([not n.startswith("tool") for n in names])  # (tool errors: relative to the tools as given)
+    u = np.sqrt(np.maximum(np.diag(res.covariance), 0.0))
+    z = np.abs(solved.params - res.params)[motion] / np.maximum(u[motion], 1e-12)
+    if z.size and float(z.max()) > REPRODUCE_U:
+        worst = np.asarray(names)[motion][int(np.argmax(z))]
+        raise InputError(f"{res.source}: re-solved on its campaign, {worst} is {float(z.max()):.3g} u from the "
+                         f"result's value (at most {REPRODUCE_U:g} u): not this campaign's result, or its options "
+                         f"(loss, solver) were not the defaults")
+    # A Monte Carlo trial converges to a millionth of each u (stations of 500 mm beside µrad coefficients: one
+    # absolute tolerance would sit below the small ones' rounding floor)
+    f = solved.fit
+    ident.trial_tolerance = np.maximum(TRIAL_TOLERANCE_U * f.std, 1e-13 * max(1.0, float(np.max(np.abs(f.x)))))
+    return ident, solved

@@ -36,6 +36,25 @@ def motion_std(model: VolumetricModel, covariance, positions: dict) -> dict:
     return out
 
 
+def uncertainty_block(model: VolumetricModel, covariance, positions: dict, stations_std_mm, dead_paths_std_mm,
+                      scale: float = 1.0) -> dict:
+    """The standard uncertainties (k = 1, times ``scale``: k of an expanded one) in a volumetric result's keys:
+    every motion at ``positions[axis]`` (mm, :func:`motion_std`), the squareness (µrad), the tool offsets, the
+    stations and dead paths (mm); ``covariance`` (P, P) over ``model.parameter_names()`` -- a result's, or one
+    propagated by ``olti uncertainty``."""
+    C = np.asarray(covariance, float)
+    std = motion_std(model, C, positions)
+    tool_std = np.zeros((len(model.config.tools), 3))
+    for m, g in enumerate(model.tool_groups, start=1):
+        tool_std[m] = np.sqrt(np.maximum(np.diag(C)[model.slices[g]], 0))
+    return {"error_motions": {n: (scale * v).tolist() for n, v in std.items()},
+            "squareness_urad": {s: scale * float(np.sqrt(max(C[model.slices[s], model.slices[s]][0, 0], 0.0)))
+                                for s in SQUARENESS},
+            "tool_offsets_mm": (scale * tool_std).tolist(),
+            "stations_mm": (scale * np.asarray(stations_std_mm, float)).tolist(),
+            "dead_paths_mm": (scale * np.asarray(dead_paths_std_mm, float)).tolist()}
+
+
 def volumetric_result_dict(model: VolumetricModel, params, covariance, pitch_mm: float, fit, *, stations_mm,
                            dead_paths_mm, stations_std_mm, dead_paths_std_mm, gauge: str, gauge_conditions,
                            held: dict, observability: str, method: str, campaign: dict) -> dict:
@@ -50,28 +69,18 @@ def volumetric_result_dict(model: VolumetricModel, params, covariance, pitch_mm:
     C = np.asarray(covariance, float)
     C = (C + C.T) / 2  # symmetric to the last bit (the propagation B Jᵀ U J B is, up to rounding)
     positions = {name[3]: doc["error_motions"][name]["positions_mm"] for name in ALL_MOTIONS}
-    std = motion_std(model, C, positions)
     for name, entry in doc["error_motions"].items():
         entry["identified"] = name not in held
         if name in held:
             entry["note"] = held[name]
-    tool_std = np.zeros((len(model.config.tools), 3))
-    for m, g in enumerate(model.tool_groups, start=1):
-        tool_std[m] = np.sqrt(np.maximum(np.diag(C)[model.slices[g]], 0))
     doc.update({
         "pitch_mm": float(pitch_mm),
         "stations_mm": np.asarray(stations_mm, float).tolist(),
         "dead_paths_mm": np.asarray(dead_paths_mm, float).tolist(),
         "gauge_conditions": list(gauge_conditions), "held_motions": dict(held), "observability": observability})
-    unc = {"error_motions": {n: v.tolist() for n, v in std.items()},
-           "squareness_urad": {s: float(np.sqrt(max(C[model.slices[s], model.slices[s]][0, 0], 0.0)))
-                               for s in SQUARENESS},
-           "tool_offsets_mm": tool_std.tolist(),
-           "stations_mm": np.asarray(stations_std_mm, float).tolist(),
-           "dead_paths_mm": np.asarray(dead_paths_std_mm, float).tolist(),
-           "parameter_names": list(model.parameter_names()),
-           "covariance": C.tolist(),
-           "lack_of_fit_mm": float(getattr(fit, "lack_of_fit_mm", 0.0) or 0.0)}
+    unc = dict(uncertainty_block(model, C, positions, stations_std_mm, dead_paths_std_mm),
+               parameter_names=list(model.parameter_names()), covariance=C.tolist(),
+               lack_of_fit_mm=float(getattr(fit, "lack_of_fit_mm", 0.0) or 0.0))
     return documents.result_document("volumetric", doc, fit, gauge=gauge, uncertainty=unc, method=method,
                                      campaign=campaign, empty_notes=True)
 

@@ -69,7 +69,7 @@ def _table(path):
 
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory):
-    """{k: (directory, truth config, truth, stdout, result document)} for 3- and 1-tool campaigns."""
+    """{k: (directory, truth config, truth, result document)} for 3- and 1-tool campaigns."""
     out = {}
     for k in (3, 1):
         d = tmp_path_factory.mktemp(f"tools{k}")
@@ -263,11 +263,11 @@ def test_bad_input_is_one_line_exit_2(identified, tmp_path, capsys):
                              capsys=capsys)
     assert code == 2 and "broken.json" in err and "uncertainty.covariance" in err
     error_line(code, err)
-    # olti report renders a volumetric result (tests/report/test_volumetric_report.py); olti uncertainty refuses it
-    for verb in (["uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear"],):
-        code, out, err = olti_in(*verb, "--out", tmp_path / "u", capsys=capsys)
-        assert code == 2 and ("olti-volumetric/1" in err or "volumetric result" in err), err
-        error_line(code, err)
+    # olti uncertainty of a broken result: the same one line, nothing written
+    code, out, err = olti_in("uncertainty", tmp_path / "broken.json", d / "campaign.csv", "--method", "linear",
+                             "--out", tmp_path / "u.json", capsys=capsys)
+    error_line(code, err, "broken.json", "uncertainty.covariance")
+    assert not (tmp_path / "u.json").exists()
     del broken["stations_mm"]
     (tmp_path / "broken.json").write_text(json.dumps(broken))
     code, out, err = olti_in("predict", tmp_path / "broken.json", tmp_path / "p.csv", "--out", tmp_path / "o.csv",
@@ -380,3 +380,30 @@ def test_knots_too_coarse_for_the_motions_state_their_lack_of_fit_in_every_predi
     del doc["uncertainty"]["lack_of_fit_mm"]
     (tmp_path / "old.json").write_text(json.dumps(doc))
     assert load_volumetric_result(tmp_path / "old.json").lack_of_fit_mm == 0.0
+
+
+def test_olti_uncertainty_takes_a_volumetric_result(identified, tmp_path):
+    """Issue 22 (every capability built once: VolumetricIdentification.residual_rows): ``olti uncertainty`` re-solves
+    a volumetric result on its campaign and propagates the budget's reading errors -- linear (JCGM 100): the
+    result's own u of every motion value, to rounding; Monte Carlo (JCGM 101, batched trials): within 10 % of it
+    (measured 0.92-1.08, 5-95 %, 200 trials); another campaign is refused in one line naming it."""
+    d, _, _, doc = identified[3]
+    lin, mc = tmp_path / "lin.json", tmp_path / "mc.json"
+    olti_in("uncertainty", d / "result.json", d / "campaign.csv", "--method", "linear", "--out", lin, expect=0)
+    olti_in("uncertainty", d / "result.json", d / "campaign.csv", "--method", "mc", "--trials", "200", "--seed", "3",
+            "--out", mc, expect=0)
+    lin, mc = json.loads(lin.read_text()), json.loads(mc.read_text())
+    own = doc["uncertainty"]
+    assert lin["format"] == mc["format"] == "olti-uncertainty/1" and lin["k"] == 1
+    ratios = []
+    for name in ALL_MOTIONS:
+        np.testing.assert_allclose(lin["error_motions"][name], own["error_motions"][name], rtol=1e-6, atol=1e-15)
+        u, m = np.asarray(lin["error_motions"][name]), np.asarray(mc["error_motions"][name])
+        ratios += list(m[u > 0] / u[u > 0])
+    np.testing.assert_allclose(lin["stations_mm"], own["stations_mm"], rtol=1e-6)
+    assert 0.9 < np.median(ratios) < 1.1 and np.percentile(ratios, 95) < 1.25, np.percentile(ratios, [5, 50, 95])
+    other = tmp_path / "other.csv"
+    write_campaign(*truth_machine(3), 3, other, 120, 7)
+    code, _, err = olti_in("uncertainty", d / "result.json", other, "--method", "linear", "--out", tmp_path / "u.json")
+    error_line(code, err, "other.csv", "not the campaign")
+    assert not (tmp_path / "u.json").exists()
