@@ -30,6 +30,7 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(1, os.path.join(ROOT, "tests"))  # (the tests' campaigns import their olti_calls)
 
 from olti_drake.errors import InputError  # noqa: E402
 from olti_drake.estimation.five_axis import FiveAxisIdentification, FiveAxisOptions  # noqa: E402
