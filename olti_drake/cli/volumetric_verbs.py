@@ -198,8 +198,8 @@ def uncertainty(args) -> int:
     E[ident.free_cols, np.arange(n)] = 1.0
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     positions = {name[3]: res.doc["error_motions"][name]["positions_mm"] for name in ALL_MOTIONS}
-    block = uncertainty_block(res.model, E @ C @ E.T, positions, std[n:n + 3 * nj].reshape(nj, 3),
-                              std[n + 3 * nj:n + 4 * nj])
+    own = (res.model, E @ C @ E.T, positions, std[n:n + 3 * nj].reshape(nj, 3), std[n + 3 * nj:n + 4 * nj])
+    block = uncertainty_block(*own)
     inflation = (res.doc.get("resolution_check") or {}).get("inflation", 1.0)
     if inflation > 1.0:
         notes.append(f"the result's u carries the under-resolution check's inflation ({inflation:.3g} x, its knots too "
@@ -207,9 +207,7 @@ def uncertainty(args) -> int:
     extra.update(notes=notes)
     campaign_note(extra, note)
     out = {"format": UNCERTAINTY, "method": args.method, "k": 1, **block,
-           "expanded": dict(k=args.k, **uncertainty_block(res.model, E @ C @ E.T, positions,
-                                                          std[n:n + 3 * nj].reshape(nj, 3),
-                                                          std[n + 3 * nj:n + 4 * nj], scale=args.k)),
+           "expanded": dict(k=args.k, **uncertainty_block(*own, scale=args.k)),
            "budget": budget.name, "parameters": {"names": list(ident.names), "std": std.tolist()}, **extra,
            "result": args.result, "result_sha256": file_sha256(args.result), "campaign": args.campaign,
            "elapsed_s": round(time.perf_counter() - t0, 3)}

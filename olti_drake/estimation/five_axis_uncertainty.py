@@ -125,9 +125,9 @@ class CanonicalErrors:
 def identification_sigma(ident, fit) -> float:
     """s (mm of the campaign's first reading kind) with the fit's covariance C = s² B (s² (B + B D B) with each
     map's own roughness D, :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_misfit`),
-    B = (JᵀJ + Q)⁻¹ within the gauge (:func:`~olti_drake.estimation.uncertainty._solution_map`): the reading uncertainty the identification
-    formed its u with (its residuals' σ over the readings less the parameters they determine, the smoothing's
-    floor)."""
+    B = (JᵀJ + Q)⁻¹ within the gauge (:func:`~olti_drake.estimation.uncertainty._solution_map`): the reading
+    uncertainty the identification formed its u with (its residuals' σ over the readings less the parameters they
+    determine, the smoothing's floor)."""
     from olti_drake.estimation.uncertainty import _solution_map
     from olti_drake.model.propagation import predicted_variance
 
