@@ -163,7 +163,7 @@ def uncertainty(args) -> int:
 
     from olti_drake.cli.propagate import campaign_note, propagate
     from olti_drake.estimation.multilateration import load_machine_campaign
-    from olti_drake.estimation.serial_uncertainty import Priors, prior_spread
+    from olti_drake.estimation.serial_uncertainty import prior_spread, smoothing_priors
     from olti_drake.estimation.volumetric import identification_at_result, volumetric_campaign
     from olti_drake.formats import UNCERTAINTY
     from olti_drake.io.budget import budget_or_default
@@ -183,10 +183,9 @@ def uncertainty(args) -> int:
     x, errors = solved.fit.x, ReadingErrors(budget)
     std, cov, samples, extra, every = propagate(ident, x, errors, args)
     notes = list(extra.get("notes", []))
-    Q = ident.quadratic_costs()[0][:len(x), :len(x)]
-    if np.any(Q):  # (the smoothness prior's own spread, as the identification weighed it)
+    priors = smoothing_priors(ident, x)
+    if priors.Q is not None:  # (the smoothness prior's own spread, as the identification weighed it)
         u2 = float(np.mean(errors.std(ident.beam_lengths(x)) ** 2))
-        priors = Priors(Q, ["the result's smoothness prior: its own spread added (its weight, not chosen again)"])
         if cov is not None:
             cov = prior_spread(ident, x, priors, u2, cov=cov)
         else:

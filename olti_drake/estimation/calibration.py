@@ -825,25 +825,16 @@ class LeastSquaresProgram:
         return self._smoothing
 
     def _scan_group_weights(self, z, groups, lam: float, P):
-        """:func:`~olti_drake.estimation.smoothing.group_weights` on the linearization at the solution z (the
-        prior λP bound there taken out of the program's quadratic costs)."""
+        """:func:`~olti_drake.estimation.smoothing.group_weights` on the linearization at the solution z
+        (:meth:`_linearized`: the prior λP bound there taken out of the program's quadratic costs)."""
         from olti_drake.estimation import smoothing as sm
 
-        n = len(self.names)
-        r, J = self.residuals(z[:n])
-        w = self._weights(r)
-        J = self._pad(J)
-        H = _normal_matrix(J, w)
-        Q, q = self.quadratic_costs()
-        Q_other = Q.copy()
-        Q_other[:n, :n] -= lam * P
-        g = J.T @ (w * r) + Q_other @ z + q
-        extra = self.n_all - n  # (the user's own variables: no roughness)
+        lin = self._linearized(z, lam, P)
+        extra = self.n_all - len(self.names)  # (the user's own variables: no roughness)
         R_groups = {k: sp.hstack([Rg, sp.csr_matrix((Rg.shape[0], extra))], format="csr") if extra else Rg
                     for k, Rg in groups.items()}
-        return sm.group_weights(H, Q_other if np.any(Q_other) else None, R_groups, g, z, self._equality_rows()[0],
-                                float(np.sum(w * r * r)), len(r), lam, other0=float(z @ Q_other @ z + 2.0 * q @ z),
-                                floor=self._smoothing_floor())
+        return sm.group_weights(lin["H"], lin["other"], R_groups, lin["g"], z, lin["A"], lin["rss"], lin["m"], lam,
+                                other0=lin["other0"], floor=self._smoothing_floor())
 
     def _forget_chosen_smoothing(self):
         """Drop a smoothness weight chosen by likelihood (its cost off :attr:`prog`), so that the next fit chooses
@@ -918,13 +909,11 @@ class LeastSquaresProgram:
         fit.covariance = C + (extra + extra.T) / 2
         fit.std = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0))
 
-    def _scan_smoothing(self, z, P, lam: float, given: bool = False):
-        """The choice of the smoothness weight at the solution z (over all decision variables; its data, the
-        program's other quadratic costs and equalities) by restricted maximum likelihood
-        (:func:`~olti_drake.estimation.smoothing.reml_scan`); ``given``: only the statement of the weight ``lam``
-        (its effective parameters)."""
-        from olti_drake.estimation import smoothing as sm
-
+    def _linearized(self, z, lam: float, P) -> dict:
+        """The smoothing scans' linearization at the solution z (all decision variables): ``H`` = JᵀWJ, ``Q`` the
+        program's quadratic costs, ``Pn`` the prior's P over all variables, ``other`` the quadratic costs but the
+        prior λP (None when there are none), ``g_data`` and ``g`` (the data's gradient; with the other costs'),
+        ``A`` the linear equalities, ``rss`` = Σ w r², ``m`` readings, ``other0`` twice the other costs at z."""
         n = len(self.names)
         r, J = self.residuals(z[:n])
         w = self._weights(r)
@@ -935,16 +924,23 @@ class LeastSquaresProgram:
         Pn = np.zeros_like(Q)
         Pn[:n, :n] = P
         Q_other = Q - lam * Pn
-        g = g_data + Q_other @ z + q
-        other = Q_other if np.any(Q_other) else None
-        A = self._equality_rows()[0]
-        rss = float(np.sum(w * r * r))
+        return {"H": H, "Q": Q, "Pn": Pn, "other": Q_other if np.any(Q_other) else None, "g_data": g_data,
+                "g": g_data + Q_other @ z + q, "A": self._equality_rows()[0], "rss": float(np.sum(w * r * r)),
+                "m": len(r), "other0": float(z @ Q_other @ z + 2.0 * q @ z)}
+
+    def _scan_smoothing(self, z, P, lam: float, given: bool = False):
+        """The choice of the smoothness weight at the solution z (over all decision variables; its data, the
+        program's other quadratic costs and equalities) by restricted maximum likelihood
+        (:func:`~olti_drake.estimation.smoothing.reml_scan`); ``given``: only the statement of the weight ``lam``
+        (its effective parameters)."""
+        from olti_drake.estimation import smoothing as sm
+
+        lin = self._linearized(z, lam, P)
         if given:
-            tr = sm.effective_parameters(H, H + Q, A)
-            return sm.SmoothingChoice(lam, float("nan"), tr, rss, len(r), method="given")
-        other0 = float(z @ Q_other @ z + 2.0 * q @ z)
-        return sm.reml_scan(H, other, Pn, g, z, A, rss, len(r), g_data=g_data, other0=other0,
-                            floor=self._smoothing_floor())
+            tr = sm.effective_parameters(lin["H"], lin["H"] + lin["Q"], lin["A"])
+            return sm.SmoothingChoice(lam, float("nan"), tr, lin["rss"], lin["m"], method="given")
+        return sm.reml_scan(lin["H"], lin["other"], lin["Pn"], lin["g"], z, lin["A"], lin["rss"], lin["m"],
+                            g_data=lin["g_data"], other0=lin["other0"], floor=self._smoothing_floor())
 
     def _smoothing_floor(self) -> float:
         """The reading variance (mm²) below which the smoothed fit's σ² is not taken: :meth:`reading_sigma`'s

@@ -11,8 +11,8 @@ the linear method (JCGM 100) or Monte Carlo (JCGM 101) of :mod:`olti_drake.estim
   without a budget the identification's own reading uncertainty s, the one its covariance was formed with
   (C = s² (JᵀJ + Q)⁻¹ within the gauge). The draws are made in an order of the readings that does not depend on
   the file's row order (:class:`CanonicalErrors`), so neither does a Monte Carlo result.
-* :func:`smoothing_priors` -- the maps' smoothness prior of the fit as the :class:`Priors` whose own spread
-  :func:`~olti_drake.estimation.serial_uncertainty.prior_spread` adds (the propagation holds the prior's centre):
+* :func:`~olti_drake.estimation.serial_uncertainty.smoothing_priors` -- the maps' smoothness prior of the fit as the
+  ``Priors`` whose own spread :func:`~olti_drake.estimation.serial_uncertainty.prior_spread` adds (the propagation holds the prior's centre):
   with s, the linear method then gives the identification's covariance.
 
 The Monte Carlo re-simulates the campaign's readings from the identified model (the readings at x̂) plus seeded
@@ -169,27 +169,6 @@ def reading_errors(ident, fit, budget=None):
     return CanonicalErrors(ReadingErrors(budget), order, scale), budget, what
 
 
-def smoothing_priors(ident, x):
-    """The fit's quadratic costs (the maps' smoothness prior at its weight, and each map's own roughness beyond it:
-    :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_misfit`) as
-    :class:`~olti_drake.estimation.serial_uncertainty.Priors` over the identification's parameters."""
-    from olti_drake.estimation.serial_uncertainty import Priors
-
-    n = len(x)
-    Q = ident.quadratic_costs()[0][:n, :n]
-    if not np.any(Q):
-        return Priors(None, [])
-    notes = ["the result's smoothness prior: its own spread added (a pseudo-reading of the readings' variance, as "
-             "weighed in the identification); the weight is the result's, not chosen again per trial"]
-    D = ident.smoothing_misfit()
-    if D is not None:  # (the maps rougher than the common weight says: their own prior variance in the spread)
-        Q = Q.copy()
-        Q[:D.shape[0], :D.shape[0]] += D[:n, :n]
-        notes.append("each map's own roughness (the result's group weights) in that spread, as in the "
-                     "identification's covariance")
-    return Priors(Q, notes)
-
-
 def linear_axes_covariance(ident, x):
     """The covariance (n, n) the linear axes of an earlier volumetric result (``olti identify --linear``) add to
     the estimate, as the identification states it (S C_θ Sᵀ: the volumetric result's own covariance, held fixed in
@@ -218,6 +197,8 @@ def with_prior_spread(ident, x, errors, std, cov, samples, every, seed: int = 0)
     axes' of ``--linear`` (:func:`linear_axes_covariance`; Monte Carlo: seeded normal draws of it). Unchanged
     without either."""
     from olti_drake.estimation.serial_uncertainty import prior_spread
+
+    from olti_drake.estimation.serial_uncertainty import smoothing_priors
 
     priors, known = smoothing_priors(ident, x), held_out_covariance(ident, x)
     notes = list(priors.notes)

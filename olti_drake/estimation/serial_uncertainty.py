@@ -150,6 +150,25 @@ def _add_cost(cal, Q, idx, x, description):
     binding.evaluator().set_description(description)
 
 
+def smoothing_priors(ident, x):
+    """The fit's quadratic costs (the maps' smoothness prior at its weight, and each map's own roughness beyond it:
+    :meth:`~olti_drake.estimation.calibration.LeastSquaresProgram.smoothing_misfit`) as
+    :class:`~olti_drake.estimation.serial_uncertainty.Priors` over the identification's parameters."""
+    n = len(x)
+    Q = ident.quadratic_costs()[0][:n, :n]
+    if not np.any(Q):
+        return Priors(None, [])
+    notes = ["the result's smoothness prior: its own spread added (a pseudo-reading of the readings' variance, as "
+             "weighed in the identification); the weight is the result's, not chosen again per trial"]
+    D = ident.smoothing_misfit()
+    if D is not None:  # (the maps rougher than the common weight says: their own prior variance in the spread)
+        Q = Q.copy()
+        Q[:D.shape[0], :D.shape[0]] += D[:n, :n]
+        notes.append("each map's own roughness (the result's group weights) in that spread, as in the "
+                     "identification's covariance")
+    return Priors(Q, notes)
+
+
 def prior_spread(cal, x, priors: Priors, reading_variance_mm2: float, cov=None, samples=None, seed: int = 0):
     """The priors' own uncertainty added to a propagation through the program (which holds their centres fixed):
     each quadratic prior is a pseudo-reading weighed as the identification weighed it, with the budget's reading
