@@ -8,9 +8,10 @@ refuses here the options that do not apply to the kind (:data:`OPTIONS`, :func:`
 the kind's body (:data:`HANDLERS`). Only the standard library is imported: ``olti --help`` stays fast.
 """
 
-import importlib
 from dataclasses import dataclass
 from typing import Dict, Optional, Tuple
+
+from olti_drake.named import resolve
 
 #: The body of each verb for each result kind it takes ("module:function", imported when run; the function
 #: takes the parsed ``args``). A kind missing here is refused by :func:`result_kind_of`.
@@ -194,8 +195,7 @@ def refuse_inapplicable(verb: str, kind: str, args) -> None:
 
 def handler(verb: str, kind: str):
     """The body of ``verb`` for ``kind`` (:data:`HANDLERS`)."""
-    module, _, name = HANDLERS[verb][kind].partition(":")
-    return getattr(importlib.import_module(module), name)
+    return resolve(HANDLERS[verb][kind])
 
 
 def campaign_handler(verb: str, args):
@@ -213,8 +213,7 @@ def campaign_handler(verb: str, args):
     if kind not in CAMPAIGN_HANDLERS[verb]:
         raise ValueError(CAMPAIGN_REFUSED[verb].format(campaign=args.campaign, what=what))
     refuse_inapplicable(verb, kind, args)
-    module, _, name = CAMPAIGN_HANDLERS[verb][kind].partition(":")
-    return getattr(importlib.import_module(module), name)
+    return resolve(CAMPAIGN_HANDLERS[verb][kind])
 
 
 def result_kind_of(args, verb: str) -> str:

@@ -21,10 +21,10 @@ N joints; the displacement in mm (formats.md).
 
 from __future__ import annotations
 
-import importlib
 from typing import Protocol, Sequence
 
 from olti_drake.errors import InputError
+from olti_drake.named import resolve
 from olti_drake.hardware.protocol import (SCARA_LAYOUT, AxisLayout, NakError, Pong, Position, ProtocolError, Reading,
                        Transport, decode_alarms, decode_axis, decode_info, decode_pong, decode_position,
                        decode_position_n, decode_reading, expect_ack, wait_fields)
@@ -295,6 +295,6 @@ def driver_class(name: str, kind: int):
     if not module or not cls:
         raise ValueError(f"driver {name!r}: expected {' or '.join(repr(k) for k in DRIVERS)} or 'package.module:Class'")
     try:
-        return getattr(importlib.import_module(module), cls)
+        return resolve(name)
     except (ImportError, AttributeError) as e:
         raise ValueError(f"driver {name!r}: cannot import ({type(e).__name__}: {e})") from None

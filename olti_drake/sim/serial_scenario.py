@@ -344,13 +344,10 @@ SCENARIO_KINDS = tuple(SCENARIO_TYPES)
 def scenario_function(kind: str, role: str):
     """The function of ``role`` (``load``, ``simulate``) for scenarios of ``kind`` (:data:`SCENARIO_TYPES`), or
     None when the kind has none."""
-    import importlib
+    from olti_drake.named import resolve
 
     where = SCENARIO_TYPES[kind][role]
-    if where is None:
-        return None
-    module, _, name = where.partition(":")
-    return getattr(importlib.import_module(module), name)
+    return None if where is None else resolve(where)
 
 
 def load_any_scenario(path, name: Optional[str] = None, text: Optional[str] = None):
