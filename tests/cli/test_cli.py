@@ -5,7 +5,7 @@ import subprocess
 import sys
 
 import pytest
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -30,8 +30,7 @@ def test_bad_scenario_is_one_line_error(tmp_path):
     bad = tmp_path / "s.yaml"
     bad.write_text("robot: {L1_mm: -1}\n")
     r = olti_sub("simulate", str(bad), "--out", str(tmp_path / "o"))
-    assert r.returncode == 2
-    assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1 and "robot.L1_mm" in r.stderr
+    error_line(r.returncode, r.stderr, "robot.L1_mm")
 
 
 def test_bad_plan_file_is_one_line_error(tmp_path):

@@ -18,15 +18,11 @@ import time
 import pytest
 
 from olti_drake.cli import main
-from olti_calls import olti_in, olti_sub
+from olti_calls import error_line, olti_in, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
 REGIONS = os.path.join(ROOT, "data", "regions_paper000.yaml")
-
-
-def _one_error_line(err: str):
-    assert err.startswith("error: ") and err.count("\n") == 1, err
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +82,7 @@ def _snapshot(ws):
 def _check_refused(capsys, ws, argv, message, keep):
     before = _snapshot(ws)
     code, out, err = olti_in(*argv, capsys=capsys)
-    assert code == 2, (code, out, err)
-    _one_error_line(err)
+    error_line(code, err)
     assert _fill([message], ws)[0] in err, err
     assert _snapshot(ws) == before          # nothing written, nothing replaced, no temporary file left
     if keep:
@@ -212,8 +207,8 @@ def test_force_never_replaces_what_is_not_a_regular_file(capsys, ws):
         for name, what in kinds.items():
             code, out, err = olti_in("identify", CAMPAIGN, "--model", "dh", "--out", ws / name, "--force",
                                      capsys=capsys)
-            assert code == 2 and out == "", (name, out)
-            _one_error_line(err)
+            error_line(code, err)
+            assert out == "", (name, out)
             assert f"is {what}, not a regular file" in err, err
         with pytest.raises(outputs.OutputError, match="a FIFO, not a regular file"):
             outputs.write_text(ws / "fifo", "x")  # (the write checks again)
@@ -273,12 +268,11 @@ def test_oserror_and_interrupted_import_are_one_line(capsys, monkeypatch):
 
 def test_argparse_errors_are_one_line_and_help_still_works():
     r = olti_sub("identify", CAMPAIGN, "--model", "nonsense", "--out", "x.json")
-    assert r.returncode == 2 and r.stdout == ""
-    _one_error_line(r.stderr)
+    error_line(r.returncode, r.stderr)
+    assert r.stdout == ""
     assert "--model" in r.stderr and "nonsense" in r.stderr
     r = olti_sub()
-    assert r.returncode == 2
-    _one_error_line(r.stderr)
+    error_line(r.returncode, r.stderr)
     r = olti_sub("identify", "--help")
     assert r.returncode == 0 and r.stdout.startswith("usage: olti identify") and r.stderr == ""
 
@@ -317,8 +311,7 @@ def test_scenario_errors_name_the_field_inside_tagged_subtrees(tmp_path):
         assert old in text
         (tmp_path / "s.yaml").write_text(text.replace(old, new, 1).replace("../data/", os.path.join(ROOT, "data/")))
         r = olti_sub("simulate", tmp_path / "s.yaml", "--out", tmp_path / "o")
-        assert r.returncode == 2, r.stderr
-        _one_error_line(r.stderr)
+        error_line(r.returncode, r.stderr)
         assert message in r.stderr and "robot: " not in r.stderr, r.stderr
 
 
@@ -326,8 +319,7 @@ def test_simulate_refuses_a_hardware_scenario_before_opening_a_port(tmp_path):
     (tmp_path / "hw.yaml").write_text("reflector_estimate: !ExactEstimate {}\nstation: !Hardware "
                                       f"{{robot_port: {tmp_path}/robot, counter_port: {tmp_path}/counter}}\n")
     r = olti_sub("simulate", tmp_path / "hw.yaml", "--out", tmp_path / "o")
-    assert r.returncode == 2
-    _one_error_line(r.stderr)
+    error_line(r.returncode, r.stderr)
     assert "runs the simulated station" in r.stderr and "olti run" in r.stderr
     assert not (tmp_path / "o").exists()
 
@@ -337,8 +329,8 @@ def test_demo_into_a_directory_with_a_campaign_is_refused_before_simulating(tmp_
     before = (tmp_path / "campaign.csv").read_bytes()
     t0 = time.perf_counter()
     r = olti_sub("demo", "--out", tmp_path)
-    assert r.returncode == 2 and r.stdout == ""
-    _one_error_line(r.stderr)
+    error_line(r.returncode, r.stderr)
+    assert r.stdout == ""
     assert "holds measured data" in r.stderr and time.perf_counter() - t0 < 30
     assert (tmp_path / "campaign.csv").read_bytes() == before and sorted(os.listdir(tmp_path)) == ["campaign.csv"]
 
@@ -357,7 +349,6 @@ def test_demo_into_a_directory_with_a_campaign_is_refused_before_simulating(tmp_
 def test_a_directory_given_for_an_input_file_is_one_line(capsys, ws, argv):
     before = _snapshot(ws)
     code, out, err = olti_in(*_fill(argv, ws), capsys=capsys)
-    assert code == 2, (code, out, err)
-    _one_error_line(err)
+    error_line(code, err)
     assert f"{ws}/adir: " in err and "directory" in err.lower(), err
     assert _snapshot(ws) == before and not (ws / "sim").exists() and not (ws / "rep").exists()

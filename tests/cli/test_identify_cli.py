@@ -14,15 +14,12 @@ from olti_drake.sim.campaign import prepare, run_campaign, write_campaign
 from olti_drake.io.csvio import load_campaign, load_commands
 from olti_drake.io.result import load_result
 from olti_drake.sim.scenario import Scenario
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 
 def assert_one_line_error(r, *needles):
     """Exit 2, nothing but one line ``error: ...`` on stderr, mentioning every needle."""
-    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
-    assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
-    for n in needles:
-        assert str(n) in r.stderr, f"{n!r} not in {r.stderr!r}"
+    error_line(r.returncode, r.stderr, *needles)
 
 
 def read_csv(path):

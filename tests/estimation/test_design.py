@@ -21,7 +21,7 @@ from olti_drake.estimation.identification import UnidentifiableError
 from olti_drake.model.scara import ScaraModel, forward_kinematics
 from olti_drake.io.result import _values
 from olti_drake.sim.scenario import Scenario
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 REGIONS = os.path.join(ROOT, "data", "regions_paper000.yaml")
@@ -278,7 +278,7 @@ def test_cli_design(tmp_path, paper):
     # Bad regions: one line naming the field; never overwrite an input.
     (tmp_path / "bad.yaml").write_text("regions:\n  - {x_mm: [900, 650], y_mm: [0, 1]}\n")
     r = olti_sub("design", "result.json", "--regions", "bad.yaml", "--out", "d2.json", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr)
     assert "regions[0].x_mm" in r.stderr
     r = olti_sub("design", "result.json", "--regions", REGIONS, "--out", "result.json", cwd=tmp_path)
     assert r.returncode == 2 and "overwrite an input" in r.stderr

@@ -14,7 +14,7 @@ from olti_drake.estimation.multilateration import Multilateration, Multilaterati
 from olti_drake.io.budget import default_budget
 from olti_drake.io.csvio import write_machine_campaign
 from olti_drake.model.budget import ReadingErrors
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 STATIONS = np.array([[-300, -200, 0], [700, -250, 50], [600, 600, 300], [-200, 500, 400], [200, 150, 900.]])
 DEAD_PATHS = np.array([0.3, 1.2, -0.4, 2.0, 0.7])
@@ -113,7 +113,7 @@ def test_olti_design_on_a_3d_multilateration_result(tmp_path, capsys):
     (tmp_path / "flat.yaml").write_text("regions:\n  - {x_mm: [-400, 800], y_mm: [-400, 600], z_mm: 0}\n")
     code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "flat.yaml", "--stations",
                            5, "--step-mm", 300, "--out", tmp_path / "d2.json", capsys=capsys)
-    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "flat.yaml" in err
+    error_line(code, err, "flat.yaml")
     assert "one plane" in err and not (tmp_path / "d2.json").exists()
     code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations",
                            3, "--step-mm", 300, "--out", tmp_path / "d3.json", capsys=capsys)

@@ -16,7 +16,7 @@ from olti_drake.errors import InputError
 from olti_drake.estimation.identification import ONE_DIRECTIONAL_NOTE, IdentificationOptions, identify
 from olti_drake.io.csvio import load_campaign, load_commands
 from olti_drake.io.result import load_result, write_result
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CAMPAIGN = os.path.join(ROOT, "data", "paper000", "campaign.csv")
@@ -121,7 +121,7 @@ def test_cli_identify_and_predict_without_directions(campaigns):
     np.testing.assert_allclose(rows[:, 2:], model.positions(cmd), atol=1e-6)
     # the bidirectional result needs the directions: refused in one line, by name
     r = olti_sub("predict", "both.json", "cmd.csv", "--out", "pred2.csv", cwd=d)
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+    error_line(r.returncode, r.stderr)
     assert "dir1" in r.stderr and "bidirectional" in r.stderr
     # a one-directional result also takes commands with directions (ignored)
     (d / "cmd2.csv").write_text("theta1_deg,theta2_deg,dir1,dir2\n0,20,1,-1\n-40,60,-1,1\n")

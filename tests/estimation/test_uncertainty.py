@@ -23,7 +23,7 @@ from olti_drake.sim.scenario import Scenario
 from olti_drake.estimation.uncertainty import (BATCH, ROUND_BATCHES, draw_by_content, linear_covariance,
                                     monte_carlo, prediction_std, uncertainty_dict)
 from olti_drake.report.validation import campaign_data, random_commands
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: Independent campaigns and Monte Carlo trials of the key test.
@@ -318,7 +318,7 @@ def test_cli_bad_input_is_one_line_exit_2(files, tmp_path):
     missing = str(tmp_path / "no_budget.yaml")
     r = olti_sub("uncertainty", result, csv, "--method", "linear", "--budget", missing, "--out",
                  str(tmp_path / "u.json"))
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr)
     assert missing in r.stderr and not (tmp_path / "u.json").exists()
 
     from olti_drake.cli import main

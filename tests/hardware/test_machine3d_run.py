@@ -16,6 +16,7 @@ import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
+from olti_calls import error_line
 from run_files import kill_twice, olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -365,7 +366,7 @@ def test_bad_station_and_options_are_one_line_and_write_nothing(tmp_path):
             ("!Simulated {}", ["--resume"], "no campaign to resume")):
         out = tmp_path / "x"
         code, _, err = olti_here("run", _scenario(tmp_path, station), "--out", out, *extra)
-        assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (station, err)
+        error_line(code, err)
         assert match in err and "Traceback" not in err, (station, err)
         assert not (out / "campaign.csv").exists()
     # a finished campaign is never written again: resume only

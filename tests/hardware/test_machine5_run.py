@@ -18,6 +18,7 @@ import pytest
 import serial
 
 from olti_drake.hardware import protocol as P
+from olti_calls import error_line
 from run_files import kill_twice, olti_here, run_events, run_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -305,15 +306,15 @@ def test_bad_stations_and_scenarios_are_one_line_and_write_nothing(tmp_path):
             out = tmp_path / "x"
             flags = ["--resume"] if "resume" in match else ["--meshcat"] if "meshcat" in match else []
             code, _, err = olti_here("run", path, "--out", out, *flags)
-            assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (path, err)
+            error_line(code, err)
             assert match in err and "Traceback" not in err, (path, err)
             assert not (out / "campaign.csv").exists()
     from olti_drake.cli.emulator import main as emulator
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err):      # the emulator program: one line, before any line is opened
-        assert emulator([_scenario(tmp_path), "--reflector", "1"]) == 2
-    assert err.getvalue().startswith("error: ") and err.getvalue().count("\n") == 1
+        code = emulator([_scenario(tmp_path), "--reflector", "1"])
+    error_line(code, err.getvalue())
     assert "a five-axis scenario: --tool-frame and --reflector do not apply" in err.getvalue()
     code, _, err = olti_here("run", _scenario(tmp_path, "!Simulated {}"), "--out", tmp_path / "ok", "--no-fsync")
     assert code == 0, err

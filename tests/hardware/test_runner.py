@@ -17,7 +17,7 @@ import pytest
 
 from olti_drake.errors import InputError
 from olti_drake.io.csvio import read_table
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 PLANNED = 1056
 COLS = ("reflector", "theta1_deg", "theta2_deg", "dir1", "dir2", "displacement_mm", "valid", "step", "session",
@@ -241,8 +241,7 @@ def test_bad_starts_and_resumes_are_one_line_errors(tmp_path):
         run(scenario, out, resume=True)
     run(scenario, out)
     r = _run(scenario, "--out", out)
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "exists: continue that campaign with --resume" \
-        in r.stderr and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr, "exists: continue that campaign with --resume")
     other_plan = tmp_path / "other_plan.yaml"
     other_plan.write_text(open(scenario).read() + "plan: !BidirectionalGrid {theta1_step: 40.0}\n")
     with pytest.raises(InputError, match=r"command sequence differs"):
@@ -457,7 +456,7 @@ def test_olti_run_takes_a_named_scenario_and_overrides(tmp_path):
     manifest = json.load(open(out / "run.json"))
     assert manifest["seed"] == 5 and manifest["readings_planned"] < PLANNED / 4
     r = _run(str(named), "--scenario", "nope", "--out", str(tmp_path / "other"))
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "no scenario named 'nope'" in r.stderr
+    error_line(r.returncode, r.stderr, "no scenario named 'nope'")
 
 
 def test_the_bench_driver_sends_refl_so_a_hardware_scenario_runs_on_a_separate_emulator(tmp_path, reference):

@@ -15,7 +15,7 @@ from olti_drake.io.volumetric_io import load_volumetric_result
 from olti_drake.model.volumetric3d import ALL_MOTIONS, AXES, SQUARENESS, MachineConfig, synthetic_truth
 from olti_drake.report.volumetric_report import grid_pitch_mm, volumetric_figures
 
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 from tests.cli.test_volumetric_cli import DEAD_PATHS, STATIONS, write_campaign
 from tests.cli.test_volumetric_cli import NOMINAL_TOOLS as TOOLS
 
@@ -108,7 +108,7 @@ def test_bad_input_is_one_error_line(identified, tmp_path, capsys):
     d3, d1 = identified[3], identified[1]
     code, out, err = olti_in("report", d3 / "result.json", "--campaign", d1 / "campaign.csv", "--out",
                            tmp_path / "a", capsys=capsys)
-    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and "campaign.csv" in err
+    error_line(code, err, "campaign.csv")
     (tmp_path / "u.json").write_text("{}")
     code, out, err = olti_in("report", d3 / "result.json", tmp_path / "u.json", "--out", tmp_path / "b", capsys=capsys)
     assert code == 2 and "u.json" in err and "volumetric" in err and err.count("\n") == 1

@@ -17,7 +17,7 @@ import pytest
 from olti_drake.errors import InputError
 from olti_drake.sim import serial_station as ss
 from olti_drake.sim.serial_scenario import load_serial_scenario, scenario_kind
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 SIX_AXIS = ROOT / "diagrams" / "six_axis.yaml"
@@ -82,7 +82,7 @@ def test_simulate_refuses_bad_six_axis_input_in_one_line(tmp_path):
     """A scenario problem found with the robot is one `error:` line naming the scenario, exit 2, no output."""
     for extra in (["--scenario-text", "{robot: {tool_frame: nope}}"],):
         r = olti_sub("simulate", SIX_AXIS, *extra, "--out", tmp_path / "x")
-        assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("error: "), r.stderr
+        error_line(r.returncode, r.stderr)
         assert "six_axis.yaml" in r.stderr and not (tmp_path / "x").exists()
 
 
@@ -103,7 +103,7 @@ def test_simulate_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     assert lines[0] == (["station"] + [f"theta{i}_deg" for i in range(1, 7)] + [f"dir{i}" for i in range(1, 7)]
                         + ["displacement_mm", "valid"])
     r = olti_sub("simulate", SIX_AXIS, "--scenario-text", SMALL, "--out", tmp_path / "a")
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "campaign.csv" in r.stderr
+    error_line(r.returncode, r.stderr, "campaign.csv")
     assert (tmp_path / "a" / "campaign.csv").read_bytes() == outs["a"][0]
 
 
