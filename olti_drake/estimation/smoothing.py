@@ -176,11 +176,11 @@ def group_weights(H_data, Q_other, R_groups: dict, g, x, A_eq, rss0: float, m: i
 
     ``R_groups`` {group: R_g (rows, n) sparse or dense} over all variables; the rest as :func:`reml_scan`."""
     K = H_data if Q_other is None else H_data + Q_other
-    P_all = sum(_dense(R).T @ _dense(R) for R in R_groups.values())
-    Ns, _ = _reduced(K, P_all, A_eq)
     names = list(R_groups)
-    B = [_dense(R_groups[k]) @ Ns for k in names]  # R_g within the equalities: P_g,r = B_gᵀB_g
-    Bz = [_dense(R_groups[k]) @ x for k in names]
+    R = [_dense(R_groups[k]) for k in names]
+    Ns, _ = _reduced(K, sum(r.T @ r for r in R), A_eq)
+    B = [r @ Ns for r in R]  # R_g within the equalities: P_g,r = B_gᵀB_g
+    Bz = [r @ x for r in R]
     p0 = Ns.shape[1] - np.linalg.matrix_rank(np.vstack(B))
     H = Ns.T @ K @ Ns + cap * sum(b.T @ b for b in B)
     c = scipy.linalg.cho_factor(H)

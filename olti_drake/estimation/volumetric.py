@@ -600,7 +600,8 @@ def result_options(doc: dict) -> VolumetricOptions:
     smoothing = doc.get("smoothing") or {}
     weight = smoothing.get("weight") if isinstance(smoothing, dict) else None
     return VolumetricOptions(tool_offsets_mm=tools.tolist(),
-                             knot_spacing_mm=float(doc["representation"]["knot_spacing_mm"]), topology=topology, pitch_mm=float(doc.get("pitch_mm", 10.0)),
+                             knot_spacing_mm=float(doc["representation"]["knot_spacing_mm"]), topology=topology,
+                             pitch_mm=float(doc.get("pitch_mm", 10.0)),
                              smoothing=float(weight) if isinstance(weight, (int, float)) and weight > 0 else "off",
                              check_resolution=False)  # (the estimate is the same; the check only inflates the u)
 

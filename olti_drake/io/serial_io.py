@@ -509,9 +509,15 @@ def lack_of_fit_of(document: dict) -> float:
     """A result document's ``covariance.lack_of_fit_mm`` (mm, k = 1; 0 when absent), checked: a number >= 0,
     else one line naming the key (every result kind that states one: serial robots, five-axis machines)."""
     entry = document.get("covariance")
-    value = entry.get("lack_of_fit_mm", 0.0) if isinstance(entry, dict) else 0.0
+    return checked_lack_of_fit(entry.get("lack_of_fit_mm", 0.0) if isinstance(entry, dict) else 0.0,
+                               "covariance.lack_of_fit_mm")
+
+
+def checked_lack_of_fit(value, key: str) -> float:
+    """A result's stated lack of fit ``value`` (mm, k = 1) as a float: a number >= 0, else one line naming the
+    ``key`` it was read from."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-        raise InputError(f"key 'covariance.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
+        raise InputError(f"key '{key}': a number >= 0 (mm), got {value!r}")
     return float(value)
 
 

@@ -104,10 +104,12 @@ class VolumetricDocument:
     def lack_of_fit_mm(self) -> float:
         """The model error every predicted point shares (mm, k = 1): ``uncertainty.lack_of_fit_mm`` (0 when absent:
         a result written before it was stated)."""
-        value = self.doc["uncertainty"].get("lack_of_fit_mm", 0.0)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-            raise InputError(f"{self.source}: key 'uncertainty.lack_of_fit_mm': a number >= 0 (mm), got {value!r}")
-        return float(value)
+        from olti_drake.io.serial_io import checked_lack_of_fit
+
+        try:
+            return checked_lack_of_fit(self.doc["uncertainty"].get("lack_of_fit_mm", 0.0), "uncertainty.lack_of_fit_mm")
+        except InputError as e:
+            raise InputError(f"{self.source}: {e}") from None
 
     def position_std(self, commands_mm, tool) -> np.ndarray:
         """Standard uncertainty (k = 1) of the predicted x, y, z (M, 3) mm: J C Jᵀ per point (linear, JCGM 100),
