@@ -21,6 +21,8 @@ def _preflight(args, files, inputs, dirs=()):
 def summary(res, doc: dict, data) -> str:
     """A short account of a volumetric identification: sizes, what was held and why, every motion's
     largest value and standard uncertainty, squareness, tools, stations, fit."""
+    from olti_drake.estimation.resolution import summary_line
+
     cfg = res.model.config
     f = res.fit
     lines = [f"volumetric model (21 ISO 230-1 error motions): {len(data)} readings, {len(data.commands_mm)} targets, "
@@ -47,15 +49,8 @@ def summary(res, doc: dict, data) -> str:
     lines.append(f"  residual RMS {1e3 * res.residual_rms_mm:.3f} um, {f.iterations} iterations, condition number "
                  f"{f.condition_number:.3g}, {f.solver}; converged: {f.converged_by}")
     lines.append(f"  gauge: {res.gauge}")
-    res_check = getattr(res, "resolution", None)
-    if res_check and res_check.get("done"):
-        lines.append(f"  resolution check: the fit on <= {res_check['finer_knot_spacing_mm']:g} mm knots moves the "
-                     f"tool points by RMS {1e3 * res_check['difference_rms_mm']:.2f} um "
-                     f"({res_check['difference_over_u_rms']:.2f} x the stated u) -- "
-                     + ("resolved" if res_check["resolved"] else
-                        f"too coarse: u inflated {res_check['inflation']:.3g} x"))
-    elif res_check:
-        lines.append(f"  resolution check not possible: {res_check['why']}")
+    check = summary_line(getattr(res, "resolution", None))
+    lines += [check] if check else []
     lines += [f"  warning: {w}" for w in f.warnings]
     if f.outliers:
         lines.append(f"  {len(f.outliers)} suspect reading(s): "

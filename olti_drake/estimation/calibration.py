@@ -260,6 +260,9 @@ class Fit:
     #: The model's own error (mm, k = 1) that every prediction shares: the residuals' σ beyond the readings' u
     #: (:meth:`LeastSquaresProgram.lack_of_fit`); a predicted point's or reading's u adds it in quadrature.
     lack_of_fit_mm: float = 0.0
+    #: The under-resolution check of a map model (:func:`olti_drake.estimation.resolution.resolution_check`: the
+    #: result's ``resolution_check``); None when none ran.
+    resolution: dict = None
 
 
 def _covariance_get(fit):

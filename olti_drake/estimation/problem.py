@@ -35,7 +35,6 @@ result as ``result``) -- by the same identifiability check, covariance and accep
 not succeed is refused, never reported).
 """
 
-import math
 import os
 from dataclasses import dataclass
 from typing import Callable, Optional
@@ -108,7 +107,8 @@ def _scara(campaign, o: dict):
 
 
 def _serial(campaign, o: dict):
-    from olti_drake.estimation.serial_identification import SerialIdentificationOptions, serial_problem
+    from olti_drake.estimation.serial_identification import (SerialIdentificationOptions, check_serial_map_size,
+                                                             serial_problem)
     from olti_drake.io.serial_io import load_robot, read_serial_campaign
 
     robot, frame = o.pop("robot"), o.pop("tool_frame", None)
@@ -120,35 +120,6 @@ def _serial(campaign, o: dict):
     data = read_serial_campaign(campaign, chain.n_joints, robot=robot)
     check_serial_map_size(data, options)
     return serial_problem(chain, data, options) + (data,)
-
-
-def check_serial_map_size(data, options) -> None:
-    """Refuse (:func:`olti_drake.limits.check_allocation`), before the model is built, a ``grid_step_deg`` whose
-    maps would need more than the limit: the identification's peak is the dense normal matrix (n, n) of the n
-    parameters (every map node, twice when bidirectional, plus the geometry), and the Jacobian (rows, n). An upper
-    bound: it counts a map on every joint (the model leaves out a joint no reading depends on, e.g. the UR5's
-    wrist 3 for a tool point on its axis: n is then ~1.4x smaller)."""
-    from olti_drake.limits import check_allocation
-
-    if options.model != "errormap" or options.grids is not None:
-        return
-    from olti_drake.estimation.serial_identification import grid_step
-
-    step = grid_step(options)
-    if not (math.isfinite(step) and step > 0):
-        return  # refused by name where the grid is made
-    th = np.asarray(data.commands, float)
-    if th.ndim != 2 or not th.size or not np.all(np.isfinite(th)):
-        return
-    lo, hi = th.min(axis=0), th.max(axis=0)
-    nodes = np.ceil(hi / step - 1e-9) - np.floor(lo / step + 1e-9) + 1
-    n = float(np.sum(nodes)) * (1 if data.dirs is None else 2) + 6 * th.shape[1] + 3
-    rows = 3.0 * len(th)
-    value = f"{step:g} deg"
-    check_allocation("--grid-step-deg", value, [n, n], what="parameters squared (the dense normal matrix)",
-                     hint="use a coarser --grid-step-deg")
-    check_allocation("--grid-step-deg", value, [rows, n], what="Jacobian entries (readings x map parameters)",
-                     hint="use a coarser --grid-step-deg")
 
 
 def _multilateration(campaign, o: dict):

@@ -28,6 +28,7 @@ solution still exceeds the bound. Units: mm and degrees.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Sequence
 
@@ -36,6 +37,8 @@ import numpy as np
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import Calibration, station_fit
 from olti_drake.estimation.calibration import FitRefused, SolverOptions, UnidentifiableError
+from olti_drake.estimation.resolution import Finer, inflate, resolution_check as compare_representations
+from olti_drake.estimation.resolution import summary_line
 from olti_drake.model.chain import plane_frame, robot_plane
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
@@ -67,6 +70,33 @@ def grid_step(options) -> float:
     return PLAIN_GRID_STEP_DEG if options.smoothing == "off" else SMOOTH_GRID_STEP_DEG
 
 
+def check_serial_map_size(data, options) -> None:
+    """Refuse (:func:`olti_drake.limits.check_allocation`), before the model is built, a ``grid_step_deg`` whose
+    maps would need more than the limit: the identification's peak is the dense normal matrix (n, n) of the n
+    parameters (every map node, twice when bidirectional, plus the geometry), and the Jacobian (rows, n). An upper
+    bound: it counts a map on every joint (the model leaves out a joint no reading depends on, e.g. the UR5's
+    wrist 3 for a tool point on its axis: n is then ~1.4x smaller)."""
+    from olti_drake.limits import check_allocation
+
+    if options.model != "errormap" or options.grids is not None:
+        return
+    step = grid_step(options)
+    if not (math.isfinite(step) and step > 0):
+        return  # refused by name where the grid is made
+    th = np.asarray(data.commands, float)
+    if th.ndim != 2 or not th.size or not np.all(np.isfinite(th)):
+        return
+    lo, hi = th.min(axis=0), th.max(axis=0)
+    nodes = np.ceil(hi / step - 1e-9) - np.floor(lo / step + 1e-9) + 1
+    n = float(np.sum(nodes)) * (1 if data.dirs is None else 2) + 6 * th.shape[1] + 3
+    rows = 3.0 * len(th)
+    value = f"{step:g} deg"
+    check_allocation("--grid-step-deg", value, [n, n], what="parameters squared (the dense normal matrix)",
+                     hint="use a coarser --grid-step-deg")
+    check_allocation("--grid-step-deg", value, [rows, n], what="Jacobian entries (readings x map parameters)",
+                     hint="use a coarser --grid-step-deg")
+
+
 @dataclass
 class SerialIdentificationOptions(SolverOptions):
     """What to identify (mm, deg), plus the solver options of :class:`SolverOptions`.
@@ -90,6 +120,10 @@ class SerialIdentificationOptions(SolverOptions):
     smoothing: object = "auto"
     #: 'auto' (as ``olti identify --robot``): l2 unless its residuals show outliers, then Huber (SolverOptions.loss).
     loss: str = "auto"
+    #: Run the under-resolution check (:func:`resolution_check`) on an error-map fit whose grid the user chose or
+    #: that has no smoothness prior (with the prior on the default grid the prior, not the grid, sets what the maps
+    #: hold).
+    check_resolution: bool = True
 
 
 @dataclass
@@ -480,8 +514,54 @@ def serial_problem(chain, campaign, options: SerialIdentificationOptions, above=
             raise FitRefused(f"{campaign.source}: refused, nothing written -- {start_error}; solved anyway: "
                              f"{str(e).split(' -- ', 1)[-1]}") from None
         ident = SerialIdentification(meas, fit, cal.gauge, said, off_plane, tuple(above))
-        return _refined(chain, campaign, options, ident) if pristine else ident
+        if not pristine:
+            return ident
+        ident = _refined(chain, campaign, options, ident)
+        inflate(ident.fit, resolution_check(chain, campaign, options, ident))
+        return ident
     return cal, finish
+
+
+def resolution_check(chain, campaign, options, ident: SerialIdentification) -> Optional[dict]:
+    """The engine's under-resolution check (:func:`olti_drake.estimation.resolution.resolution_check`) of an
+    error-map fit: the campaign identified again with every map's grid halved (a node between each two; 000 Eq. 9
+    interpolates between them) and the tool points of the two at the campaign's commands compared against their
+    stated u. None when there is nothing to check (a geometric model, no map, the check off, or the smoothness
+    prior on the default grid -- see :attr:`SerialIdentificationOptions.check_resolution`)."""
+    from olti_drake.model.propagation import predicted_std
+
+    if options.model != "errormap" or not options.check_resolution or not ident.model.maps or (
+            options.smoothing != "off" and options.grid_step_deg is None and options.grids is None):
+        return None
+    step = grid_step(options)
+    finer_options = dataclasses.replace(options, check_resolution=False, grid_step_deg=step / 2, grids=None if
+                                        options.grids is None else {j: _halved(g) for j, g in options.grids.items()})
+    this, finer = ((f"a {step:g} deg grid", f"a {step / 2:g} deg grid") if options.grids is None else
+                   ("the given grids", "the given grids with a node between each two"))
+    check = Finer(this=this, finer=finer, rerun=f"--grid-step-deg {step / 2:g}" if options.grids is None else
+                  "a node between each two of the given grids", extra={"grid_step_deg": step})
+    meas = ident.measurement
+
+    def points(result, m):
+        model = m.model
+        idx = [list(result.fit.names).index(n) for n in model.names]
+        C = result.fit.covariance[np.ix_(idx, idx)]
+        p, jac = model.with_vector(result.fit.x[idx]).jacobian(meas.commands, meas.dirs)
+        return p, predicted_std(jac.tocsr(), C, dim=3)
+
+    def finer_points():
+        check_serial_map_size(campaign, finer_options)
+        other = _identify_once(chain, campaign, finer_options, ident.above)
+        return points(other, other.measurement)
+    check.points = finer_points
+    check.extra["finer_grid_step_deg"] = step / 2
+    return compare_representations(*points(ident, meas), check)
+
+
+def _halved(grid) -> list:
+    """A map grid (deg) with a node half-way between each two."""
+    g = np.asarray(grid, float)
+    return np.union1d(g, (g[:-1] + g[1:]) / 2).tolist()
 
 
 def summary(ident: SerialIdentification) -> str:
@@ -506,6 +586,8 @@ def summary(ident: SerialIdentification) -> str:
     lines.append(f"  gauge: {ident.gauge}")
     for note in list(fit.notes) + list(ident.notes):
         lines.append(f"  note: {note}")
+    check = summary_line(fit.resolution)
+    lines += [check] if check else []
     for w in fit.warnings:
         lines.append(f"  warning: {w}")
     if fit.outliers:

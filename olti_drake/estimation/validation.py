@@ -286,7 +286,7 @@ def _candidates(chain, campaign, options, models):
 
 
 def _validate_one(chain, campaign, fold, k, candidate, options) -> dict:
-    from olti_drake.estimation.problem import check_serial_map_size
+    from olti_drake.estimation.serial_identification import check_serial_map_size
 
     t0 = time.perf_counter()
     rows = dict(fold_rms_mm=[], train_rms_mm=[], refused=[], parameters=[], clamped_readings=0, clamped_poses=0)

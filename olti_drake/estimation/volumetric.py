@@ -49,6 +49,7 @@ from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import station_starts
 from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError, smoothing_on
 from olti_drake.estimation.multilateration import MachineCampaign
+from olti_drake.estimation.resolution import Finer, inflate, resolution_check as compare_representations
 from olti_drake.io.csvio import campaign_digest
 from olti_drake.model.gauges import VOLUMETRIC_GAUGE, VOLUMETRIC_GAUGE_CONDITIONS, volumetric_gauge
 from olti_drake.model.measurements import StationDistanceMeasurement
@@ -100,10 +101,6 @@ class VolumetricOptions(SolverOptions):
     check_resolution: bool = True
 
 
-#: The under-resolution check fires when the tool points of the fit on finer knots differ from this fit's by an
-#: RMS (over the targets' coordinates) above this many times sqrt(u² + u_finer²): with the budget right and the
-#: truth in the coarser family the nested fits differ by sqrt(u_finer² − u²) in expectation, always below it.
-RESOLUTION_RATIO = 1.0
 
 
 def default_knot_spacing(commands_mm) -> float:
@@ -431,20 +428,7 @@ class VolumetricIdentification(Calibration):
         # 400 mm knots on the tests' truth had 11 % of unseen tool points beyond 3 u unchecked)
         check = self.options.check_resolution and (f.smoothing is None or self.options.knot_spacing_mm is not None)
         resolution = self.resolution_check(f, budget) if check else None
-        if resolution:
-            f.resolution = resolution  # (the result's ``resolution_check``: io.documents.result_document)
-        if resolution and resolution.get("inflation", 1.0) > 1.0:
-            # Too coarse for the data: the stated u is made to cover what the finer knots show it misses.
-            g = resolution["inflation"]
-            f.covariance = f.covariance * g * g
-            f.std = f.std * g
-            f.warnings = list(f.warnings) + [resolution["warning"]]
-            if f.lack_of_fit_mm:  # (one misfit -- knots too coarse -- in the u once, as the five-axis maps')
-                f.notes = [n for n in f.notes if not n.startswith("lack of fit")] + [
-                    f"lack of fit: the residuals' {1e3 * f.lack_of_fit_mm:.3g} um beyond the readings' u are the "
-                    f"knots' misfit the under-resolution check's inflation already holds: not added to the "
-                    f"predicted u again"]
-                f.lack_of_fit_mm = 0.0
+        inflate(f, resolution)  # (too coarse for the data: the stated u made to cover what the finer knots show)
         E = np.zeros((self.model.n_params, len(self.names)))  # the model's parameters from x (held: 0)
         E[self.free_cols, np.arange(self.n_model)] = 1.0
         theta, P, L0 = self.split(f.x)
@@ -460,79 +444,43 @@ class VolumetricIdentification(Calibration):
                                 self.options.pitch_mm, resolution=resolution)
 
     def resolution_check(self, fit, budget) -> Optional[dict]:
-        """Does the representation hold what the data resolve? The same campaign refitted on finer knots.
-
-        The residual cannot tell: the budget's reading u (001 Table 4: ~1 µm) is above the misfit of a too
-        coarse spline, while the stated u of the tool points (a fraction of it) is below. Here the campaign is
-        identified again on the finest knots in [s/2, s) it can identify (:func:`finer_knot_spacing`; same
-        tools, budget and gauge -- fixed in the representation, so both fits are in one frame), and the tool
-        points of the two at every target are compared: their difference d against c = sqrt(u² + u_f²) (u
-        this fit's stated, u_f the finer's). With the truth in this family the nested fits differ by about
-        sqrt(u_f² − u²) < c; ``ratio`` = RMS(d / c) above :data:`RESOLUTION_RATIO` says the representation
-        is too coarse for the data. Then the stated u misses d too: every u (the covariance) is inflated by
-        ``inflation`` = sqrt(1 + mean((d / u)²)), the factor that makes its RMS cover d besides the noise,
-        and the warning names the knot spacing that holds more (re-run with it: its own check says whether
-        it is enough). Inflating rather than refusing: the fit is still the best this representation gives,
-        and its u is then honest about what it misses. Returns {"done": False, "why": ...} when no finer
-        knots can be identified or their fit is refused; None when the campaign has no target to compare.
-        """
+        """Does the representation hold what the data resolve? The engine's check
+        (:func:`~olti_drake.estimation.resolution.resolution_check`) of the tool points at every target against
+        the campaign identified again on the finest knots in [s/2, s) it can identify (:func:`finer_knot_spacing`;
+        same tools, budget and gauge -- fixed in the representation, so both fits are in one frame). None when the
+        campaign has no target to compare."""
         import dataclasses
 
         from olti_drake.model.propagation import predicted_std
 
         s = float(self.config.knot_spacing_mm)
+        finer = Finer(this=f"<= {s:g} mm knots", extra={"knot_spacing_mm": s})
         own = (getattr(self, "_smoothing", None) or {}).get("binding")  # (the engine's prior: the refit has its own)
         users = [b for b in self._user_costs() if own is None or b.evaluator() is not own.evaluator()]
+        f_s = finer_knot_spacing(self.config, self.data.commands_mm)
         if self.n_all > len(self.names) or self.prog.GetAllConstraints() or users:
-            return {"method": f"refit on finer knots than {s:g} mm", "done": False, "knot_spacing_mm": s,
-                    "why": "the program carries the user's own variables, constraints or costs: a refit on other "
-                           "knots cannot carry them"}
-        finer = finer_knot_spacing(self.config, self.data.commands_mm)
-        if finer is None:
+            finer.why = ("the program carries the user's own variables, constraints or costs: a refit on other "
+                         "knots cannot carry them")
+        elif f_s is None:
             distinct = ", ".join(f"{a} {len(np.unique(np.round(self.data.commands_mm[:, k], 6)))}"
                                  for k, a in enumerate(AXES))
-            return {"method": f"refit on finer knots than {s:g} mm", "done": False, "knot_spacing_mm": s,
-                    "why": f"no finer knot spacing in [{s / 2:g}, {s:g}) mm is identifiable from the commanded "
-                           f"positions ({distinct} distinct): more positions along the axes would allow it"}
-        how = (f"the campaign refitted on <= {finer:g} mm knots (this fit: <= {s:g} mm); the tool points of the "
-               f"two compared at its {len(self.data.commands_mm)} targets against their stated u")
-        options = dataclasses.replace(self.options, knot_spacing_mm=finer, check_resolution=False,
-                                      tool_offsets_mm=[list(t) for t in self.config.tools])
-        try:
-            other = VolumetricIdentification(self.data, options).solve(budget)
-        except InputError as e:  # unidentifiable or refused on the finer knots: say so, do not fail
-            return {"method": how, "done": False, "knot_spacing_mm": s, "finer_knot_spacing_mm": finer,
-                    "why": " ".join(str(e).split())}
-        cmd, tool = self.data.commands_mm, self.data.tool
+            finer.why = (f"no finer knot spacing in [{s / 2:g}, {s:g}) mm is identifiable from the commanded "
+                         f"positions ({distinct} distinct): more positions along the axes would allow it")
+        else:
+            options = dataclasses.replace(self.options, knot_spacing_mm=f_s, check_resolution=False,
+                                          tool_offsets_mm=[list(t) for t in self.config.tools])
+            cmd, tool = self.data.commands_mm, self.data.tool
+
+            def points():
+                other = VolumetricIdentification(self.data, options).solve(budget)
+                p_f, J_f = other.model.jacobian(cmd, tool, other.params)
+                return p_f, predicted_std(J_f, other.covariance)
+            finer.finer, finer.rerun, finer.points = f"<= {f_s:g} mm knots", f"--knot-spacing-mm {f_s:g}", points
+            finer.extra["finer_knot_spacing_mm"] = f_s
         E = np.zeros((self.model.n_params, len(self.names)))
         E[self.free_cols, np.arange(self.n_model)] = 1.0
-        theta, _, _ = self.split(fit.x)
-        p, J = self.model.jacobian(cmd, tool, theta)
-        u = predicted_std(J, E @ fit.covariance @ E.T)
-        p_f, J_f = other.model.jacobian(cmd, tool, other.params)
-        u_f = predicted_std(J_f, other.covariance)
-        d = p - p_f
-        seen = u > 1e-9 * max(float(u.max()), 1e-300)  # (tool 0 at the travel start is the origin: u = 0)
-        if not seen.any():
-            return None
-        ratio = float(np.sqrt(np.mean((d[seen] / np.hypot(u[seen], u_f[seen])) ** 2)))
-        missed = float(np.sqrt(np.mean((d[seen] / u[seen]) ** 2)))
-        out = {"method": how, "done": True, "knot_spacing_mm": s, "finer_knot_spacing_mm": finer,
-               "targets": int(len(cmd)), "difference_rms_mm": float(np.sqrt(np.mean(d ** 2))),
-               "difference_max_mm": float(np.abs(d).max()), "u_rms_mm": float(np.sqrt(np.mean(u[seen] ** 2))),
-               "ratio": ratio, "threshold": RESOLUTION_RATIO, "difference_over_u_rms": missed,
-               "resolved": ratio <= RESOLUTION_RATIO, "inflation": 1.0}
-        if ratio > RESOLUTION_RATIO:
-            g = float(np.sqrt(1.0 + missed ** 2))
-            out["inflation"] = g
-            out["warning"] = (
-                f"under-resolution check: the tool points of the fit on <= {finer:g} mm knots differ from this "
-                f"fit's (<= {s:g} mm) by RMS {1e3 * out['difference_rms_mm']:.2f} um, max "
-                f"{1e3 * out['difference_max_mm']:.2f} um, {missed:.2f} x the stated u (RMS over the {len(cmd)} "
-                f"targets; {ratio:.2f} x their combined u, above {RESOLUTION_RATIO:g}): the knots are too coarse "
-                f"for the data -- every stated u (motions, squareness, tool offsets, stations, dead paths, "
-                f"covariance) is inflated {g:.3g} x to cover it; re-run with --knot-spacing-mm {finer:g}")
-        return out
+        p, J = self.model.jacobian(self.data.commands_mm, self.data.tool, self.split(fit.x)[0])
+        return compare_representations(p, predicted_std(J, E @ fit.covariance @ E.T), finer)
 
 
 @dataclass
