@@ -19,6 +19,7 @@ def uncertainty(args) -> int:
     import numpy as np
 
     from olti_drake.cli.propagate import propagate
+    from olti_drake.estimation.resolution import inflation_note
     from olti_drake.estimation.serial_uncertainty import (CoordinateErrors, calibration_at_result, prior_spread,
                                                           restore_priors, result_budget, workspace_uncertainty,
                                                           zero_held_uncertainties)
@@ -54,7 +55,7 @@ def uncertainty(args) -> int:
             std = every.std(axis=0, ddof=1)
         priors.notes.append(f"the priors' own spread added: each a pseudo-reading of the budget's reading variance "
                             f"({1e3 * np.sqrt(u2):.3f} um RMS), as weighed in the identification")
-    extra["notes"] = list(extra.get("notes", [])) + priors.notes
+    extra["notes"] = list(extra.get("notes", [])) + priors.notes + [t for t in [inflation_note(res.data)] if t]
     if note:
         extra["notes"] = list(extra.get("notes", [])) + [note]
     n = res.model.n_params

@@ -158,6 +158,7 @@ def uncertainty(args) -> int:
 
     from olti_drake.cli.propagate import campaign_note, propagate
     from olti_drake.estimation.multilateration import load_machine_campaign
+    from olti_drake.estimation.resolution import inflation_note
     from olti_drake.estimation.serial_uncertainty import prior_spread, smoothing_priors
     from olti_drake.estimation.volumetric import identification_at_result, volumetric_campaign
     from olti_drake.formats import UNCERTAINTY
@@ -194,10 +195,7 @@ def uncertainty(args) -> int:
     positions = {name[3]: res.doc["error_motions"][name]["positions_mm"] for name in ALL_MOTIONS}
     own = (res.model, E @ C @ E.T, positions, std[n:n + 3 * nj].reshape(nj, 3), std[n + 3 * nj:n + 4 * nj])
     block = uncertainty_block(*own)
-    inflation = (res.doc.get("resolution_check") or {}).get("inflation", 1.0)
-    if inflation > 1.0:
-        notes.append(f"the result's u carries the under-resolution check's inflation ({inflation:.3g} x, its knots too "
-                     f"coarse for the motions); this propagation holds the readings' errors alone")
+    notes += [t for t in [inflation_note(res.doc)] if t]
     extra.update(notes=notes)
     campaign_note(extra, note)
     out = {"format": UNCERTAINTY, "method": args.method, "k": 1, **block,

@@ -127,3 +127,13 @@ def summary_line(check: Optional[dict]) -> str:
     return (f"  resolution check: the fit on {check['finer']} moves the tool points by RMS "
             f"{1e3 * check['difference_rms_mm']:.2f} um ({check['difference_over_u_rms']:.2f} x the stated u) -- "
             + ("resolved" if check["resolved"] else f"too coarse: u inflated {check['inflation']:.3g} x"))
+
+
+def inflation_note(doc: dict) -> str:
+    """What ``olti uncertainty`` says of a result ``doc`` whose u the check inflated ("" when it did not): its
+    propagation holds the readings' errors alone, not the representation's misfit."""
+    g = (doc.get("resolution_check") or {}).get("inflation", 1.0)
+    if g <= 1.0:
+        return ""
+    return (f"the result's u carries the under-resolution check's inflation ({g:.3g} x, its representation too "
+            f"coarse for the data); this propagation holds the readings' errors alone")

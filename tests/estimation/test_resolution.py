@@ -152,3 +152,30 @@ def test_given_grids_are_refined_by_a_node_between_each_two():
     from olti_drake.estimation.serial_identification import _halved
 
     assert _halved([-90, -30, 0, 90]) == [-90, -60, -30, -15, 0, 45, 90]
+
+
+def test_the_cli_states_the_check_and_olti_uncertainty_says_what_it_holds(ur5, tmp_path, capsys):
+    """olti identify --grid-step-deg 20: the result's resolution_check and inflated u, the summary's line and
+    warning; olti uncertainty of that result says its propagation holds the readings' errors alone."""
+    import json
+
+    from olti_drake.cli import main
+    from olti_drake.io.serial_io import write_serial_campaign
+
+    _, camp, _, _ = ur5
+    write_serial_campaign(tmp_path / "c.csv", camp.commands, camp.dirs, station=camp.station,
+                          displacement_mm=camp.displacement_mm)
+    common = ["--robot", "ur5", "--tool-frame", "tool0", "--tool-offset-mm", ",".join(f"{v:g}" for v in TOOL),
+              "--model", "errormap", "--grid-step-deg", "20"]
+    assert main(["identify", str(tmp_path / "c.csv"), *common, "--out", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    assert "resolution check: the fit on a 10 deg grid moves the tool points" in out and "u inflated" in out
+    assert "warning: under-resolution check" in out and "--grid-step-deg 10" in out
+    doc = json.loads((tmp_path / "r.json").read_text())
+    check = doc["resolution_check"]
+    assert check["grid_step_deg"] == 20.0 and check["finer_grid_step_deg"] == 10.0 and check["inflation"] > 1.1
+    assert any("under-resolution check" in w for w in doc["warnings"])
+    assert main(["uncertainty", str(tmp_path / "r.json"), str(tmp_path / "c.csv"), "--method", "linear",
+                 "--workspace-poses", "20", "--out", str(tmp_path / "u.json")]) == 0
+    notes = json.loads((tmp_path / "u.json").read_text())["notes"]
+    assert any("under-resolution check's inflation" in n and "readings' errors alone" in n for n in notes), notes
