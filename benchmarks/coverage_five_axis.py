@@ -1,6 +1,7 @@
 """Does a five-axis identification's stated u cover its error (issue 25 "must show")?
 
-    python benchmarks/coverage_five_axis.py [--seeds N] [--grids 15,30] [--kinds distance,rtest,mixed]
+    python benchmarks/coverage_five_axis.py [--seeds N] [--grids 15,30] [--kinds distance,rtest,mixed] [--linear-truth]
+                                            [--knot-spacing-mm S]
 
 Per seeded truth outside the model family (:func:`olti_drake.model.five_axis_truth.synthetic_truth`: harmonic error
 motions with backlash, location errors of 10-50 µm / 20-100 µrad), campaign kind (``distance``: 150 random commands
@@ -15,7 +16,8 @@ from 4 table stations plus the R-test paths; readings 1 µm) and grid pitch, the
   bound of that motion branch (:func:`representation_bound`: the truth sampled at the nodes and interpolated as
   the model does, the largest deviation from the truth over the travel); ``map med z``: the median |error| / u;
 * ``tool max z`` / ``tool >3u``: |error| / u of the predicted tool points (workpiece frame, each coordinate) at 200
-  unseen random commands, the result's own u (covariance and lack of fit, :func:`tool_point_u`).
+  unseen random commands, the result's own u (covariance and lack of fit, :func:`tool_point_u`); ``tool rms um``:
+  their RMS error.
 
 The campaigns are the tests' (``tests/estimation/test_five_axis_identify.py``: not planned by the tool). Units: mm, µrad.
 """
@@ -56,17 +58,22 @@ def columns(machine, truth, kind: str, seed: int) -> dict:
                  rtest_campaign(machine, truth, seed=seed + 5))
 
 
+#: The linear axes' knot spacing (mm) of the identifications; None: the default (--knot-spacing-mm).
+KNOTS = None
+
+
 def identify(machine, truth, kind, seed, pitch, folder, tag=""):
     path = os.path.join(folder, f"{kind}-{seed}-{pitch}{tag}.csv")
     write_five_axis_campaign(path, columns(machine, truth, kind, seed))
     ident = FiveAxisIdentification(read_five_axis_campaign(path, machine), machine,
-                                   FiveAxisOptions(model="errormap", pitch_deg=pitch))
+                                   FiveAxisOptions(model="errormap", pitch_deg=pitch, knot_spacing_mm=KNOTS))
     return ident, ident.fit()
 
 
-def case(machine, seed: int, kind: str, pitch: float, folder: str) -> dict:
-    """The coverage measures of one case (module docstring)."""
-    truth = no_dropped_truth(synthetic_truth(machine, seed=seed))
+def case(machine, seed: int, kind: str, pitch: float, folder: str, linear: bool = False) -> dict:
+    """The coverage measures of one case (module docstring); ``linear``: the truth's linear axes have error motions
+    too (:func:`olti_drake.model.volumetric3d.synthetic_truth`'s)."""
+    truth = no_dropped_truth(synthetic_truth(machine, seed=seed, linear=linear))
     ident, fit = identify(machine, truth, kind, seed, pitch, folder)
     dropped = tuple(n for n in ident.dropped if n in truth.location and truth.location[n] != 0.0)
     if dropped:  # (what a campaign drops depends on its commands only: the truth with those at 0, read again)
@@ -98,10 +105,11 @@ def coverage(machine, ident, fit, truth, n_unseen: int = 200, seed: int = 77) ->
             zs.append(err / u)
     cmd, d = random_commands(machine, n_unseen, seed)
     p, u = tool_point_u(ident, fit, cmd, d)
-    tool_z = (np.abs(p - truth.truth_positions(cmd, d)) / u).ravel()
+    err = p - truth.truth_positions(cmd, d)
+    tool_z = (np.abs(err) / u).ravel()
     return {"loc_z": loc_z, "map_excess": float(np.mean(np.concatenate(excess))) if excess else float("nan"),
             "map_z": np.concatenate(zs) if zs else np.zeros(0), "tool_z": tool_z,
-            "lack_um": 1e3 * float(getattr(fit, "lack_of_fit_mm", 0.0))}
+            "lack_um": 1e3 * float(getattr(fit, "lack_of_fit_mm", 0.0)), "tool_rms_um": 1e3 * float(np.sqrt(np.mean(err ** 2)))}
 
 
 def main(argv=None) -> int:
@@ -112,26 +120,33 @@ def main(argv=None) -> int:
     ap.add_argument("--kinds", default="distance,rtest,mixed")
     ap.add_argument("--without-representation", action="store_true",
                     help="the u as before: FiveAxisIdentification.representation left out (zero)")
+    ap.add_argument("--linear-truth", action="store_true",
+                    help="truths whose linear axes have error motions and squareness too")
+    ap.add_argument("--knot-spacing-mm", type=float, default=None, help="the linear axes' knots (default: the tool's)")
     args = ap.parse_args(argv)
+    global KNOTS
+    KNOTS = args.knot_spacing_mm
     if args.without_representation:
         FiveAxisIdentification.representation = lambda self, x: (np.zeros((len(self.names),) * 2), 0.0)
     machine = FiveAxisMachine.from_file(TRUNNION, "workpiece", "tool")
     print(f"{'kind':9s}{'grid':>5s}{'seed':>5s}{'loc max z':>10s}{'map >3u+b':>10s}{'map med z':>10s}"
-          f"{'tool max z':>11s}{'tool >3u':>9s}{'tool med z':>11s}{'lack um':>8s}{'s':>6s}{'loc med z':>10s}  worst")
+          f"{'tool max z':>11s}{'tool >3u':>9s}{'tool med z':>11s}{'lack um':>8s}{'s':>6s}{'loc med z':>10s}"
+          f"{'tool rms um':>12s}  worst")
     with tempfile.TemporaryDirectory() as folder:
         for kind in args.kinds.split(","):
             for pitch in (float(g) for g in args.grids.split(",")):
                 for seed in range(args.first_seed, args.first_seed + args.seeds):
                     t0 = time.perf_counter()
                     try:
-                        r = case(machine, seed, kind, pitch, folder)
+                        r = case(machine, seed, kind, pitch, folder, args.linear_truth)
                     except InputError as e:  # (a refused fit is a result too: said, not counted)
                         print(f"{kind:9s}{pitch:5.0f}{seed:5d}  refused: {str(e)[:110]}", flush=True)
                         continue
                     print(f"{kind:9s}{pitch:5.0f}{seed:5d}{max(r['loc_z'].values()):10.2f}{r['map_excess']:10.3f}"
                           f"{np.median(r['map_z']) if r['map_z'].size else float('nan'):10.2f}"
                           f"{r['tool_z'].max():11.2f}{np.mean(r['tool_z'] > 3):9.3f}{np.median(r['tool_z']):11.2f}"
-                          f"{r['lack_um']:8.2f}{time.perf_counter() - t0:6.1f}{np.median(list(r['loc_z'].values())):10.2f}  "
+                          f"{r['lack_um']:8.2f}{time.perf_counter() - t0:6.1f}{np.median(list(r['loc_z'].values())):10.2f}"
+                          f"{r['tool_rms_um']:12.2f}  "
                           f"{max(r['loc_z'], key=r['loc_z'].get)}", flush=True)
     return 0
 

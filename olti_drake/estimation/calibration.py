@@ -815,6 +815,10 @@ class LeastSquaresProgram:
                     break
                 lam = choice.weight
                 binding.evaluator().UpdateCoefficients(lam * P, np.zeros(n))
+            if setting == "auto" and choice.weight != lam:  # (settled: the estimate is at lam, so is its tr A --
+                # the u then equals that of the same weight given, as olti uncertainty re-adds it)
+                at = self._scan_smoothing(z, P, lam, given=True)
+                choice = dataclasses.replace(choice, effective_parameters=at.effective_parameters)
             if setting == "auto" and groups is not None:
                 per_group = self._scan_group_weights(z, groups, lam, P).weights
         except Exception:

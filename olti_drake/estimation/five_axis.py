@@ -189,14 +189,19 @@ def _n_components(campaign) -> int:
     return int(np.sum(np.where(campaign.kind == "distance", 1, 3)))
 
 
+#: Knot intervals of the default linear-axis splines over the longest linear travel (:func:`linear_knot_spacing`).
+LINEAR_INTERVALS = 6
+
+
 def linear_knot_spacing(machine) -> float:
-    """The default knot spacing (mm) of linear axes identified with the rotary ones: 3 intervals over the
-    longest linear travel (6 coefficients per motion), rounded up to 1 mm. A five-axis campaign reads the linear
-    axes through the rotary ones' lever arms, each position seldom twice: finer knots trade with the rotary maps
-    (measured, docs/five_axis.md, "Linear axes identified with the rotary ones")."""
+    """The default knot spacing (mm) of linear axes identified with the rotary ones: :data:`LINEAR_INTERVALS`
+    intervals over the longest linear travel (9 coefficients per motion), rounded up to 1 mm. The smoothness
+    prior carries what a five-axis campaign reads of them (each position seldom twice, through the rotary axes'
+    lever arms); 3 intervals could not hold a truth whose linear axes have error motions, which then went into the
+    rotary location errors (measured, docs/five_axis.md, "Linear axes identified with the rotary ones")."""
     k = [machine.axes.index(a) for a in machine.linear]
     travel = max((float(machine.upper[i] - machine.lower[i]) for i in k), default=0.0)
-    return float(max(1.0, np.ceil(travel / 3.0 - 1e-9)))
+    return float(max(1.0, np.ceil(travel / LINEAR_INTERVALS - 1e-9)))
 
 
 def error_model(machine, campaign, options: FiveAxisOptions, linear=None, knot_spacing_mm=None) -> FiveAxisErrors:

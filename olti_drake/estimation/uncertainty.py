@@ -150,13 +150,17 @@ def _travelling_program(ident):
     return measurement if measurement is not None and type(ident).residuals is Calibration.residuals else ident
 
 
+#: The most chord iterations a Monte Carlo trial takes to converge (then refused as not converging).
+TRIAL_ITERATIONS = 100
+
+
 def _tolerance(x, tol=None):
     """The convergence tolerance of a trial's steps: ``tol`` (scalar or per parameter (n,), in the parameters'
     units) or by default 1e-13 of the largest |x| (at least 1e-13)."""
     return 1e-13 * max(1.0, np.max(np.abs(x))) if tol is None else np.asarray(tol, float)
 
 
-def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30, tol=None):
+def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=TRIAL_ITERATIONS, tol=None):
     """:func:`_solve_trials` for a program without batched residuals (e.g. a
     :class:`~olti_drake.estimation.calibration.Calibration`): the same chord iteration on the exact gradient,
     trial by trial (each stops at its own convergence). Here a trial's row of D is r(x̂) + its errors, so that
@@ -190,12 +194,14 @@ def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=30, tol=None):
     return out
 
 
-def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=30, tol=None):
+def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=TRIAL_ITERATIONS, tol=None):
     """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
 
     Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
     step is not below the tolerance after ``max_iter`` iterations (or not finite) did not converge: its
-    row is NaN, for :func:`monte_carlo` to refuse.
+    row is NaN, for :func:`monte_carlo` to refuse. The iteration contracts linearly, at the rate the
+    problem's curvature beside its information sets: a tolerance of 1e-6 u at a rate of 0.65 takes ~32
+    iterations (a five-axis campaign with its linear axes identified on 6 knot intervals).
     """
     X = np.tile(x, (len(D), 1))
     tol = _tolerance(x, tol)

@@ -49,7 +49,7 @@ def default_result(machine, tmp_path_factory):
 
 def test_identified_by_default_and_named(default_result):
     _, _, doc, out = default_result
-    assert doc["error_model"]["linear"] == "identify" and doc["error_model"]["knot_spacing_mm"] == 200.0
+    assert doc["error_model"]["linear"] == "identify" and doc["error_model"]["knot_spacing_mm"] == 100.0
     lin, unc = doc["linear"], doc["uncertainty"]["linear"]
     assert len(lin["error_motions"]) == 18 and set(lin["squareness_urad"]) == {"E_C0Y", "E_B0Z", "E_A0Z"}
     for name, e in lin["error_motions"].items():
@@ -194,5 +194,8 @@ def test_without_the_prior_auto_keeps_them_perfect_where_the_readings_alone_do_n
     assert "linear axes: taken as perfect" in out and "--smoothing off" in out, out
     assert "linear" not in json.loads((tmp_path / "r.json").read_text())
     _, _, err = olti_in(*base, "--linear", "identify", "--out", tmp_path / "i.json", expect=2)
-    assert "not identifiable" in err and "E_XX[1]" in err and len(err.strip().splitlines()) == 1, err
+    import re
+
+    named = re.search(r"not identifiable: .*E_[XYZ][XYZ]\[\d+\]", err)  # (a linear motion's coefficient, by name)
+    assert named and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "i.json").exists()
