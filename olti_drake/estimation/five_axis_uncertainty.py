@@ -25,12 +25,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from olti_drake.errors import InputError
+from olti_drake.estimation.uncertainty import trial_tolerance
 from olti_drake.estimation.five_axis import residual_rows  # noqa: F401  (the readings' rows, here since issue 25)
 
 #: The re-solved model values must reproduce the result's within this share of their u (else: not its campaign).
 REPRODUCE_U = 0.05
-#: A Monte Carlo trial's steps converge below this share of each parameter's u.
-TRIAL_TOLERANCE_U = 1e-6
 
 
 def result_options(doc: dict, name: str):
@@ -81,9 +80,7 @@ def identification_at_result(res, campaign, result_path):
         raise InputError(f"{campaign.source}: not the campaign of {name}: its identification has {what}")
     fit = ident.solve()
     _check_reproduced(ident, fit, res, name)
-    # A Monte Carlo trial converges to a millionth of each u: one absolute tolerance for stations of 500 mm and
-    # angles in µrad would sit below the µrad parameters' rounding floor (estimation.uncertainty._tolerance).
-    ident.trial_tolerance = np.maximum(TRIAL_TOLERANCE_U * fit.std, 1e-13 * max(1.0, float(np.max(np.abs(fit.x)))))
+    ident.trial_tolerance = trial_tolerance(fit)  # (a millionth of each u: estimation.uncertainty)
     return ident, fit, note
 
 

@@ -152,6 +152,15 @@ def _travelling_program(ident):
 
 #: The most chord iterations a Monte Carlo trial takes to converge (then refused as not converging).
 TRIAL_ITERATIONS = 100
+#: A Monte Carlo trial of a result re-solved on its campaign converges below this share of each parameter's u.
+TRIAL_TOLERANCE_U = 1e-6
+
+
+def trial_tolerance(fit) -> np.ndarray:
+    """The per-parameter convergence tolerance (:func:`_tolerance`) of Monte Carlo trials about ``fit``:
+    :data:`TRIAL_TOLERANCE_U` of each u, not below 1e-13 of the largest |x| -- one absolute tolerance for stations
+    of 500 mm and angles in µrad would sit below the µrad parameters' rounding floor."""
+    return np.maximum(TRIAL_TOLERANCE_U * np.asarray(fit.std, float), 1e-13 * max(1.0, float(np.max(np.abs(fit.x)))))
 
 
 def _tolerance(x, tol=None):

@@ -49,6 +49,7 @@ from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import station_starts
 from olti_drake.estimation.calibration import Calibration, SolverOptions, UnidentifiableError, smoothing_on
 from olti_drake.estimation.multilateration import MachineCampaign
+from olti_drake.estimation.uncertainty import trial_tolerance
 from olti_drake.estimation.resolution import Finer, inflate, resolution_check as compare_representations
 from olti_drake.io.csvio import campaign_digest
 from olti_drake.model.gauges import VOLUMETRIC_GAUGE, VOLUMETRIC_GAUGE_CONDITIONS, volumetric_gauge
@@ -527,8 +528,6 @@ def identify_volumetric(data: MachineCampaign, options: VolumetricOptions = None
     return VolumetricIdentification(data, options).solve(budget)
 
 
-#: A Monte Carlo trial's steps converge below this share of each parameter's u.
-TRIAL_TOLERANCE_U = 1e-6
 #: The re-solved motion coefficients must reproduce the result's within this share of their u (else: not its
 #: campaign, or other options).
 REPRODUCE_U = 0.05
@@ -569,8 +568,5 @@ def identification_at_result(res, data, budget):
         raise InputError(f"{res.source}: re-solved on its campaign, {worst} is {float(z.max()):.3g} u from the "
                          f"result's value (at most {REPRODUCE_U:g} u): not this campaign's result, or its options "
                          f"(loss, solver) were not the defaults")
-    # A Monte Carlo trial converges to a millionth of each u (stations of 500 mm beside µrad coefficients: one
-    # absolute tolerance would sit below the small ones' rounding floor)
-    f = solved.fit
-    ident.trial_tolerance = np.maximum(TRIAL_TOLERANCE_U * f.std, 1e-13 * max(1.0, float(np.max(np.abs(f.x)))))
+    ident.trial_tolerance = trial_tolerance(solved.fit)  # (a millionth of each u: estimation.uncertainty)
     return ident, solved
