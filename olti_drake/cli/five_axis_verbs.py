@@ -5,7 +5,10 @@ import numpy as np
 
 
 def summary(ident, fit, doc) -> str:
-    """A few lines: readings, residual RMS (µm), every identified location error with its u (k = 1), what is held."""
+    """A few lines: readings, residual RMS (µm), every identified location error with its u (k = 1), what is held,
+    the fit's warnings and suspect readings (by file line)."""
+    from olti_drake.estimation.calibration import suspect_readings_line
+
     lines = [f"five-axis machine {doc['machine']['file']} ({', '.join(doc['machine']['axes'])}), model "
              f"{doc['model']}: {doc['n_readings']} readings, residual RMS {1e3 * doc['residual_rms_mm']:.3f} um",
              "location errors (u, k = 1):"]
@@ -21,6 +24,8 @@ def summary(ident, fit, doc) -> str:
     if doc.get("error_motions"):
         lines.append(f"error motions: {', '.join(doc['error_motions'])} on their grids")
     lines.append(_linear_line(doc))
+    lines += [f"  warning: {w}" for w in doc.get("warnings", ())]
+    lines += [t for t in [suspect_readings_line(doc.get("outliers"))] if t]
     return "\n".join(lines)
 
 

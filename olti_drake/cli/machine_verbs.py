@@ -27,9 +27,9 @@ def summary(res, data) -> str:
     lines.append(f"  gauge: {res.gauge}")
     lines += [f"  note: {note}" for note in res.fit.notes if note.startswith("tool offsets")]
     lines += [f"  warning: {warning}" for warning in res.fit.warnings]
-    if res.fit.outliers:
-        lines.append(f"  {len(res.fit.outliers)} suspect reading(s): "
-                     + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in res.fit.outliers[:10]))
+    from olti_drake.estimation.calibration import suspect_readings_line
+
+    lines += [t for t in [suspect_readings_line(res.fit.outliers)] if t]
     return "\n".join(lines)
 
 

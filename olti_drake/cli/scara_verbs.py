@@ -18,6 +18,8 @@ def identification_summary(ident) -> str:
     olti identify, olti demo)."""
     import numpy as np
 
+    from olti_drake.estimation.calibration import suspect_readings_line
+
     m = ident.model
     u = {n: s for n, s in zip(ident.names, ident.std)}
     lines = [f"model {'errormap' if m.is_errormap else 'dh'}: {ident.n_readings} readings, "
@@ -47,10 +49,7 @@ def identification_summary(ident) -> str:
         lines.append(f"  resolution check not possible: {res['why']}")
     for warning in getattr(ident, "warnings", []):
         lines.append(f"  warning: {warning}")
-    if ident.outliers:
-        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in ident.outliers[:10])
-        more = f" and {len(ident.outliers) - 10} more" if len(ident.outliers) > 10 else ""
-        lines.append(f"  {len(ident.outliers)} suspect reading(s) beyond the outlier threshold: {shown}{more}")
+    lines += [t for t in [suspect_readings_line(ident.outliers)] if t]
     return "\n".join(lines)
 
 

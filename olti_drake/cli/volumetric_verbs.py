@@ -21,6 +21,7 @@ def _preflight(args, files, inputs, dirs=()):
 def summary(res, doc: dict, data) -> str:
     """A short account of a volumetric identification: sizes, what was held and why, every motion's
     largest value and standard uncertainty, squareness, tools, stations, fit."""
+    from olti_drake.estimation.calibration import suspect_readings_line
     from olti_drake.estimation.resolution import summary_line
 
     cfg = res.model.config
@@ -52,9 +53,7 @@ def summary(res, doc: dict, data) -> str:
     check = summary_line(getattr(res, "resolution", None))
     lines += [check] if check else []
     lines += [f"  warning: {w}" for w in f.warnings]
-    if f.outliers:
-        lines.append(f"  {len(f.outliers)} suspect reading(s): "
-                     + ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in f.outliers[:10]))
+    lines += [t for t in [suspect_readings_line(f.outliers)] if t]
     return "\n".join(lines)
 
 

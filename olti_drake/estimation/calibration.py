@@ -265,6 +265,17 @@ class Fit:
     resolution: dict = None
 
 
+def suspect_readings_line(outliers, limit: int = 10) -> str:
+    """A summary's line of a fit's suspect readings (:attr:`Fit.outliers`, each by its file line, and its coordinate
+    for a point reading) and their normalized residual: "" when there are none."""
+    if not outliers:
+        return ""
+    shown = ", ".join(f"line {o['line']}" + (f" {o['coordinate']}" if "coordinate" in o else "")
+                      + f" ({o['normalized']:+.1f} sigma)" for o in outliers[:limit])
+    more = f" and {len(outliers) - limit} more" if len(outliers) > limit else ""
+    return f"  {len(outliers)} suspect reading(s) beyond the outlier threshold: {shown}{more}"
+
+
 def _covariance_get(fit):
     """Fit.covariance: large problems form the (n, n) matrix from the factorization on first use only."""
     cov = fit.__dict__["_covariance"]

@@ -312,6 +312,16 @@ class FiveAxisIdentification(Calibration):
                             f"without the smoothness prior (--smoothing off) the campaign does not determine their "
                             f"motions (not identifiable: {unseen})")
 
+    def reading_label(self, k: int) -> dict:
+        """Residual row k by its campaign file line, its kind and, for a nest or tracker point, its coordinate."""
+        rows = getattr(self, "_rows", None)
+        if rows is None:
+            rows = self._rows = residual_rows(self)
+        i = int(rows[0][k])
+        kind = str(self.campaign.kind[i])
+        return {"line": int(self.campaign.line[i]), "kind": kind,
+                **({} if kind == "distance" else {"coordinate": "xyz"[int(rows[1][k])]})}
+
     def _undetermined_linear(self) -> str:
         """The linear axes' parameters the identifiability check at the start names (a listing), or '' when it names
         none of them (a refusal of other parameters is the fit's to state)."""

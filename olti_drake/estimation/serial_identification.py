@@ -36,7 +36,7 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import Calibration, station_fit
-from olti_drake.estimation.calibration import FitRefused, SolverOptions, UnidentifiableError
+from olti_drake.estimation.calibration import FitRefused, SolverOptions, UnidentifiableError, suspect_readings_line
 from olti_drake.estimation.resolution import Finer, inflate, resolution_check as compare_representations
 from olti_drake.estimation.resolution import summary_line
 from olti_drake.model.chain import plane_frame, robot_plane
@@ -590,7 +590,5 @@ def summary(ident: SerialIdentification) -> str:
     lines += [check] if check else []
     for w in fit.warnings:
         lines.append(f"  warning: {w}")
-    if fit.outliers:
-        shown = ", ".join(f"line {o['line']} ({o['normalized']:+.1f} sigma)" for o in fit.outliers[:10])
-        lines.append(f"  {len(fit.outliers)} suspect reading(s) beyond the outlier threshold: {shown}")
+    lines += [t for t in [suspect_readings_line(fit.outliers)] if t]
     return "\n".join(lines)

@@ -214,3 +214,16 @@ def test_uncertainty_with_a_user_variable_follows_its_constraint(data):
     assert u[k0] == pytest.approx(u[k1], rel=1e-9)
     assert mc.samples.std(axis=0) == pytest.approx(u, rel=0.2)
 
+
+
+def test_suspect_readings_are_named_by_file_line_and_coordinate():
+    """The summaries' one line of a fit's outliers (every kind's): file line, a point's coordinate, sigma; the rest
+    counted."""
+    from olti_drake.estimation.calibration import suspect_readings_line
+
+    assert suspect_readings_line([]) == "" and suspect_readings_line(None) == ""
+    out = [{"line": 12, "normalized": -9.1}, {"line": 40, "coordinate": "y", "normalized": 5.04}]
+    assert suspect_readings_line(out) == ("  2 suspect reading(s) beyond the outlier threshold: line 12 (-9.1 sigma), "
+                                          "line 40 y (+5.0 sigma)")
+    many = [{"line": k, "normalized": 4.0} for k in range(13)]
+    assert suspect_readings_line(many).endswith("line 9 (+4.0 sigma) and 3 more")

@@ -86,6 +86,14 @@ def test_gross_outliers_are_down_weighted_and_the_smoothness_chosen_without_them
     # The weight is chosen on the robust fit: not the one the outliers made (λ 1.6e4 against 10 clean).
     assert fit.smoothing["weight"] < 0.2 * 1.585e4
     covered(ident, fit, truth, share)
+    # The suspect readings are named by their file line (row i of the file written from cols is its line
+    # first + i; the campaign is read in canonical order): the worst flagged are corrupted ones, and most corrupted
+    # ones are flagged (a few clean readings where the model misfits are flagged beside them).
+    lines = set((int(ident.campaign.line.min()) + bad).tolist())
+    worst = sorted(fit.outliers, key=lambda o: -abs(o["normalized"]))[:len(lines) // 2]
+    assert worst and {o["line"] for o in worst} <= lines, (worst, sorted(lines))
+    assert len(lines & {o["line"] for o in fit.outliers}) >= 0.8 * len(lines)
+    assert all(o["kind"] == "distance" and "coordinate" not in o for o in fit.outliers)
 
 
 def test_one_station_on_the_table(machine, truth, clean, tmp_path):
