@@ -2374,6 +2374,26 @@ class Calibration(LeastSquaresProgram):
     def source(self) -> str:
         return self._source
 
+    #: The shipped budget (io.budget.default_budget: "scara" 000 Table 2, "machine" 001 Table 4) whose reading u the
+    #: residuals are judged against when the options and the solve name none; None: the readings' own.
+    budget_kind = None
+
+    def default_budget(self):
+        """The budget given to the kind's solve, else the shipped one of :attr:`budget_kind` (None without one)."""
+        from olti_drake.io.budget import default_budget
+
+        given = getattr(self, "_solve_budget", None)
+        return given or (default_budget(self.budget_kind) if self.budget_kind else None)
+
+    #: The campaign's columns (arrays of ``self.data``, one value per reading) that name a reading to the user in
+    #: its outlier listing: its file line first. Empty: the kind names its readings itself, or by row.
+    reading_keys = ()
+
+    def reading_label(self, k: int) -> dict:
+        if not self.reading_keys:
+            return super().reading_label(k)
+        return {key: int(getattr(self.data, key)[k]) for key in self.reading_keys}
+
     def implausible(self, x) -> list:
         """The measurement's (its stations, its position model's values) physically impossible values of x."""
         check = getattr(self.measurement, "implausible", None)

@@ -287,6 +287,8 @@ class FiveAxisIdentification(Calibration):
     …), ``tool<m>_{x,y,z}_mm``, then the stations' ``P<j>_{x,y,z}_mm`` and ``L0_<j>_mm``, the nests'
     ``nest<n>_{x,y,z}_mm``, the tracker frames' ``frame<g>_…``."""
 
+    budget_kind = "machine"  # (000 Table 2 / 001 Table 4: Calibration.default_budget)
+
     rank_hint = "add stations, nests or commands spread over the rotary axes' travel"
     #: The residuals beyond the readings' u are a model error every predicted tool point shares
     #: (:meth:`Calibration.lack_of_fit`): a geometric fit of a machine whose axes have error motions.
@@ -438,13 +440,6 @@ class FiveAxisIdentification(Calibration):
             out["tracker_frame_stands_on"] = [str(c.frame[rows][c.group[rows] == lab][0]) for lab in labels]
         out["held"] = list(self.position_model.held)
         return out
-
-    def default_budget(self):
-        """001 Table 4 (the readings' u the residuals are judged against, :meth:`Calibration.lack_of_fit`) unless
-        the options name a budget."""
-        from olti_drake.io.budget import default_budget
-
-        return default_budget("machine")
 
     def solve(self):
         """The fit (:meth:`Calibration.fit`: LM, the covariance and std of every parameter, k = 1)."""

@@ -159,6 +159,9 @@ class Identifier(Calibration):
     then call :meth:`solve`. Batched residuals for the Monte Carlo: :meth:`residual_rows`.
     """
 
+    budget_kind = "scara"  # (000 Table 2 / 001 Table 4: Calibration.default_budget)
+    reading_keys = ("line", "reflector")  # (Calibration.reading_label)
+
     rank_hint = "check the reflector layout (e.g. coincident reflectors) or fix a parameter"
     untouched_hint = "set a coarser map grid"
     #: A link length identified outside [1/f, f] x its nominal value is refused: the start or the units are wrong.
@@ -322,15 +325,6 @@ class Identifier(Calibration):
         beyond :attr:`MAX_DEVIATION_DEG` (:meth:`ScaraPositionModel.implausible`). The reflectors are bounded where
         the campaign is read (their readings' spread, :meth:`_check_reflectors`)."""
         return self.model.implausible(np.asarray(x, dtype=float)[:self.n_robot])
-
-    def default_budget(self):
-        """000 Table 2: the reading uncertainty the residual is compared with when no budget is named."""
-        from olti_drake.io.budget import default_budget
-
-        return default_budget("scara")
-
-    def reading_label(self, k: int) -> dict:
-        return {"line": int(self.data.line[k]), "reflector": int(self.data.reflector[k])}
 
     def layout(self, v, uncertainty: bool = False) -> dict:
         """A parameter-shaped vector (e.g. uncertainties) in the result's keys and shapes (formats.md)."""

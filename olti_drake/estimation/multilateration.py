@@ -260,6 +260,9 @@ class Multilateration(Calibration):
     is sparse (a reading touches one target and one station): :meth:`residuals` returns it as CSR. Units: mm.
     """
 
+    budget_kind = "machine"  # (000 Table 2 / 001 Table 4: Calibration.default_budget)
+    reading_keys = ("line", "station", "target")  # (Calibration.reading_label)
+
     rank_hint = "check the station layout: stations on one line with the targets cannot locate them"
     untouched_hint = "every target needs readings from the stations"
 
@@ -297,12 +300,6 @@ class Multilateration(Calibration):
         """(targets (N_i, D), stations (N_j, D), dead paths (N_j,)) of a parameter vector."""
         xm, stations, dead = self.measurement.split(x)
         return xm.reshape(-1, self.dim), stations, dead
-
-    def default_budget(self):
-        """The budget given to :meth:`solve`, else 001 Table 4: the residual is compared with its reading u."""
-        from olti_drake.io.budget import default_budget
-
-        return getattr(self, "_solve_budget", None) or default_budget("machine")
 
     def _check_counts(self):
         d, D = self.data, self.dim
@@ -359,10 +356,6 @@ class Multilateration(Calibration):
                 f"{flat}: a target's offset across it trades against the dead paths (rank deficient beyond the "
                 f"gauge; raise or lower {'one station off the line' if D == 2 else 'one or two heads off the plane'})",
                 [f"P{j}_{c}_mm" for j in range(d.n_stations) for c in "xyz"[:D]])
-
-    def reading_label(self, k: int) -> dict:
-        return {"line": int(self.data.line[k]), "station": int(self.data.station[k]),
-                "target": int(self.data.target[k])}
 
     def _station_fits(self, points_mm, rows, S=None):
         """(P_j, L0_j) of every station from known points (N_i, D) at the readings ``rows`` (bool mask)."""

@@ -278,6 +278,9 @@ class VolumetricIdentification(Calibration):
     position model of the campaign's targets (the free ones: :attr:`free_cols`, :attr:`n_model`).
     """
 
+    budget_kind = "machine"  # (000 Table 2 / 001 Table 4: Calibration.default_budget)
+    reading_keys = ("line", "station", "target")  # (Calibration.reading_label)
+
     rank_hint = "add stations, tool offsets or commands spread over the travel"
     untouched_hint = "every station needs readings of targets spread over the travel"
     #: The residuals beyond the readings' u are a model error every predicted tool point shares
@@ -399,15 +402,6 @@ class VolumetricIdentification(Calibration):
         (:meth:`~olti_drake.model.measurements.StationDistanceMeasurement.residual_rows`): the batched trials of
         :func:`~olti_drake.estimation.uncertainty.monte_carlo`. X (T, n), readings (K,) or (T, K) mm."""
         return self.measurement.residual_rows(X, displacement_mm)
-
-    def reading_label(self, k: int) -> dict:
-        d = self.data
-        return {"line": int(d.line[k]), "station": int(d.station[k]), "target": int(d.target[k])}
-
-    def default_budget(self):
-        from olti_drake.io.budget import default_budget
-
-        return getattr(self, "_solve_budget", None) or default_budget("machine")
 
     # -- solve ----------------------------------------------------------------------------------------
     def solve(self, budget=None) -> "VolumetricResult":
