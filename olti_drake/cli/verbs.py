@@ -522,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--knot-spacing-mm", type=cliargs.length_mm,
                    help="volumetric: largest B-spline knot interval of the error motions (default: up to 8 intervals "
                         "per axis, fewer when the campaign has few distinct positions); with --machine: the linear "
-                        "axes' knot interval (default: 3 intervals over the longest linear travel)")
+                        "axes' knot interval (default: 6 intervals over the longest linear travel)")
     p.add_argument("--topology", choices=("serial", "table-xy", "table-yx", "table-y"), default="serial",
                    help="volumetric: serial X-Y-Z (default); table-xy: table carries X on Y, column Z; table-yx: "
                         "table carries Y on X, column Z; table-y: table carries Y, column X, ram Z on X (the A/C "
