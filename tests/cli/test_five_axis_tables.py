@@ -21,7 +21,7 @@ from tests.estimation.test_five_axis_identify import SIX_TABLE_STATIONS, TRUNNIO
 from tests.estimation.test_five_axis_uncertainty import identified
 from tests.io.test_cnc_exports import _machine, with_motions
 from tests.model.test_five_axis_compensation import feasible_targets, write_targets
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 
 @pytest.fixture(scope="module")
@@ -92,9 +92,8 @@ def test_an_existing_file_of_the_export_is_refused_by_name_before_anything_is_wr
     content = b"# the operator's own file\r\n1,2,3\n"
     existing.write_bytes(content)
     extra = [] if how == "tables" else ["--cnc", how]
-    _, _, err = olti_in("compensate", result, targets, "--out", out, "--tables", tables, *extra, expect=2)
-    lines = err.strip().splitlines()
-    assert f"{existing} exists" in lines[0] and "--force" in lines[0] and "Traceback" not in lines[0], lines[0]
+    code, _, err = olti_in("compensate", result, targets, "--out", out, "--tables", tables, *extra, expect=2)
+    error_line(code, err, f"{existing} exists", "--force")
     assert existing.read_bytes() == content
     assert not out.exists()
     assert sorted(p.relative_to(tables).as_posix() for p in tables.rglob("*") if p.is_file()) == [EXISTING[how]]

@@ -11,7 +11,7 @@ from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.io.serial_io import write_serial_campaign
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 TOOL = (40.0, -25.0, 60.0)
 RANGES = np.array([[-90.0, 90.0]] * 6)
@@ -76,7 +76,7 @@ def test_the_wrong_campaign_is_refused(identified, tmp_path):
     (tmp_path / "other.csv").write_text("\n".join(lines[:-3]) + "\n")
     run = olti_sub("uncertainty", d / "result.json", tmp_path / "other.csv", "--method", "linear", "--out",
                    tmp_path / "u.json")
-    assert run.returncode == 2 and "not the campaign" in run.stderr and "Traceback" not in run.stderr
+    error_line(run.returncode, run.stderr, "not the campaign")
     assert not (tmp_path / "u.json").exists()
 
 

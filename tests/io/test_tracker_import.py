@@ -16,6 +16,7 @@ from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.io.serial_io import load_serial_result, read_serial_campaign, write_serial_campaign
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.model.serial import synthetic_campaign, synthetic_truth
+from olti_calls import error_line
 
 UR5 = os.path.join(PACKAGE_DIR, "models", "ur5.urdf")
 N = 80
@@ -102,8 +103,8 @@ def _refusal(files, capsys, export_text, args=(), joints="log.csv", suffix=".txt
     out = files / "refused.csv"
     code = main(["import-points", str(path), "--joints", str(files / joints), "--out", str(out), *args])
     err = capsys.readouterr().err
-    assert code != 0 and not out.exists()
-    assert len(err.strip().splitlines()) == 1 and err.startswith("error: "), err
+    error_line(code, err)
+    assert not out.exists()
     return err
 
 

@@ -3,7 +3,7 @@
 import json
 import re
 
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 from tests.sim.test_six_axis import SIX_AXIS
 
 SMALL = "{plan: {step_deg: 30.0, poses_per_node: 2}}"
@@ -41,4 +41,4 @@ def test_plan_report_predicts_what_the_campaign_then_identifies(tmp_path):
 
 def test_plan_refuses_a_scara_scenario_in_one_line(tmp_path):
     run = olti_sub("plan", SIX_AXIS.parent / "paper000_scara.yaml")
-    assert run.returncode == 2 and "six-axis" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    error_line(run.returncode, run.stderr, "six-axis")
