@@ -37,7 +37,7 @@ def test_bad_plan_file_is_one_line_error(tmp_path):
     (tmp_path / "plan.csv").write_text("theta1_deg,theta2_deg\n0,10\n5,oops\n")
     (tmp_path / "s.yaml").write_text("plan: !PlanFile {path: plan.csv}\n")
     r = olti_sub("simulate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "o"))
-    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr)
     assert "plan.csv" in r.stderr and "3" in r.stderr and "theta2_deg" in r.stderr
 
 

@@ -20,7 +20,7 @@ from olti_drake.model.scara import ScaraModel, inverse_kinematics
 from olti_drake.io.result import write_result
 from olti_drake.model.scara import TrueRobot
 from olti_drake.sim.scenario import Scenario
-from olti_calls import olti_sub
+from olti_calls import error_line, olti_sub
 
 ROOT = Path(__file__).resolve().parents[2]
 COMBOS = np.array(comp.DIRECTION_COMBOS, dtype=float)
@@ -165,7 +165,7 @@ def result_json(tmp_path_factory, noisy):
 def test_cli_rejects_unreachable_targets_with_line(tmp_path, result_json):
     t = _write_targets(tmp_path / "targets.csv", [(300, 100), (200, -300), (900, 0)])
     r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
-    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr)
     assert r.stderr.startswith(f"error: {t}:5: ") and "reach" in r.stderr
     # Reachable, but the commands leave the identified J1 map [-140, 60] deg: refused, no extrapolation.
     t = _write_targets(tmp_path / "targets2.csv", [(300, 100), (-300, 300)])
@@ -214,7 +214,7 @@ def test_cli_given_directions_are_kept(tmp_path, result_json, noisy):
 def test_cli_bad_inputs(tmp_path, result_json):
     t = _write_targets(tmp_path / "t.csv", [(300,), (200,)], header="x_mm")
     r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
-    assert r.returncode == 2 and "'y_mm'" in r.stderr and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr, "'y_mm'")
     t = _write_targets(tmp_path / "t2.csv", [(300, 100, 1), (200, 100, 0)], header="x_mm,y_mm,dir1")
     r = olti_sub("compensate", result_json, t, "--out", tmp_path / "c.csv")
     assert r.returncode == 2 and f"{t}:4: column 'dir1'" in r.stderr

@@ -17,7 +17,7 @@ from olti_drake.io.five_axis_io import (load_machine5_result, machine5_result_di
 from olti_drake.model.five_axis import FiveAxisMachine
 from olti_drake.model.five_axis_truth import synthetic_truth
 from tests.estimation.test_five_axis_identify import TABLE_STATIONS, TRUNNION, distance_campaign, no_dropped_truth
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 REGIONS = """regions:
 - {x_mm: [-900, 900], y_mm: [-900, 900], z_mm: [900, 1200], frame: base}
@@ -147,15 +147,15 @@ def test_bad_regions_and_options_are_refused_in_one_line(result, capsys, tmp_pat
     bad = tmp_path / "bad.yaml"
     bad.write_text("regions:\n- {x_mm: [0, 100], y_mm: [0, 100], z_mm: [0, 100], frame: table}\n")
     code, _, err = olti_in("design", result / "result.json", "--regions", bad, "--out", tmp_path / "d.json", capsys=capsys)
-    assert code != 0 and "regions[0].frame = 'table'" in err and err.count("\n") == 1, err
+    error_line(code, err, "regions[0].frame = 'table'")
     code, _, err = olti_in("design", result / "result.json", "--regions", result / "regions.yaml", "--plan",
                         "data/plan_paper000.csv", "--out", tmp_path / "d.json", capsys=capsys)
-    assert code != 0 and "--plan" in err and err.count("\n") == 1, err
+    error_line(code, err, "--plan")
     few = tmp_path / "few.yaml"
     few.write_text("regions:\n- {x_mm: [-600, 600], y_mm: [0, 0], z_mm: [50, 50], frame: workpiece}\n")
     code, _, err = olti_in("design", result / "result.json", "--regions", few, "--step-mm", 600,
                         "--stations", 5, "--out", tmp_path / "d.json", capsys=capsys)
-    assert code != 0 and err.count("\n") == 1 and "5" in err, err
+    error_line(code, err, "5")
 
 
 def test_too_few_readable_candidates_are_refused(problem):

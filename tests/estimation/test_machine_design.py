@@ -117,7 +117,7 @@ def test_olti_design_on_a_3d_multilateration_result(tmp_path, capsys):
     assert "one plane" in err and not (tmp_path / "d2.json").exists()
     code, out, err = olti_in("design", tmp_path / "r.json", "--regions", tmp_path / "r.yaml", "--stations",
                            3, "--step-mm", 300, "--out", tmp_path / "d3.json", capsys=capsys)
-    assert code == 2 and "at least 4 stations" in err and err.count("\n") == 1
+    error_line(code, err, "at least 4 stations")
 
 
 def test_a_bad_or_2d_machine_result_is_refused_in_one_line(tmp_path, capsys):
@@ -125,11 +125,11 @@ def test_a_bad_or_2d_machine_result_is_refused_in_one_line(tmp_path, capsys):
     (tmp_path / "bad.json").write_text(json.dumps({"format": "olti-multilateration/1", "gauge": "g"}))
     code, out, err = olti_in("design", tmp_path / "bad.json", "--regions", tmp_path / "r.yaml",
                            "--out", tmp_path / "d.json", capsys=capsys)
-    assert code == 2 and "bad.json" in err and "'targets_mm'" in err and err.count("\n") == 1
+    error_line(code, err, "bad.json", "'targets_mm'")
     flat = {"format": "olti-multilateration/1", "gauge": "g", "targets_mm": [[0, 0], [1, 0], [0, 1]],
             "stations_mm": [[5, 5]], "dead_paths_mm": [0]}
     (tmp_path / "two.json").write_text(json.dumps(flat))
     code, out, err = olti_in("design", tmp_path / "two.json", "--regions", tmp_path / "r.yaml",
                            "--out", tmp_path / "d.json", capsys=capsys)
-    assert code == 2 and "two.json" in err and "2D" in err and err.count("\n") == 1
+    error_line(code, err, "two.json", "2D")
     assert not (tmp_path / "d.json").exists()

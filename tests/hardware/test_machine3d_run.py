@@ -133,7 +133,7 @@ def test_module_runs_the_3d_machine_emulator_as_a_program(tmp_path):
     assert not os.path.lexists(link + "-robot")
     bad = subprocess.run([sys.executable, "-m", "olti_drake.cli.emulator", scenario, "--reflector", "1"],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)
-    assert bad.returncode == 2 and "--reflector do not apply" in bad.stderr and bad.stderr.count("\n") == 1
+    error_line(bad.returncode, bad.stderr, "--reflector do not apply")
 
 
 # ------------------------------------------------------------------ olti run on every station

@@ -292,7 +292,7 @@ def test_a_port_that_cannot_be_opened_leaves_no_run_directory_behind(tmp_path):
     scenario = _scenario(tmp_path, station="!Hardware {robot_port: /dev/olti-no-such-port, counter_port: /dev/x}")
     out = tmp_path / "run"
     r = _run(scenario, "--out", str(out))
-    assert r.returncode == 2 and "/dev/olti-no-such-port" in r.stderr and r.stderr.count("\n") == 1
+    error_line(r.returncode, r.stderr, "/dev/olti-no-such-port")
     assert not (out / "campaign.csv").exists() and not (out / "run.json").exists()
 
 
@@ -386,7 +386,7 @@ def test_a_step_recorded_twice_is_refused_on_resume(tmp_path, simulated_run):
     with pytest.raises(InputError, match=r"campaign\.csv:\d+: step \d+ is recorded twice"):
         CampaignLog.reopen(out)
     r = _run(scenario, "--out", out, "--resume")
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is recorded twice" in r.stderr
+    error_line(r.returncode, r.stderr, "is recorded twice")
 
 
 def test_a_resume_that_finds_every_reading_on_disk_marks_the_run_complete(tmp_path, simulated_run):

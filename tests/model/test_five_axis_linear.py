@@ -25,7 +25,7 @@ from olti_drake.model.five_axis_truth import synthetic_truth
 from olti_drake.model.volumetric3d import MachineConfig, tool_positions
 from olti_drake.model.volumetric3d import synthetic_truth as linear_truth
 from tests.estimation.test_five_axis_identify import distance_campaign, no_dropped_truth
-from olti_calls import olti_in
+from olti_calls import error_line, olti_in
 
 MODELS = files("olti_drake") / "models"
 SWIVEL = str(MODELS / "swivel_head_bc.urdf")
@@ -204,10 +204,10 @@ def test_what_does_not_fit_is_refused_in_one_line(swivel, thin_campaign, volumet
     path, vol_path = thin_campaign[0], volumetric_result[0]
     code, _, err = olti_in("identify", path, "--machine", SWIVEL, "--model", "geometric", "--linear",
                            thin_campaign[2], "--out", tmp_path / "r.json", capsys=capsys)
-    assert code != 0 and "'format' must be 'olti-volumetric/1'" in err and err.count("\n") == 1, err
+    error_line(code, err, "'format' must be 'olti-volumetric/1'")
     code, _, err = olti_in("identify", path, "--model", "volumetric", "--linear", vol_path, "--out",
                            tmp_path / "v.json", capsys=capsys)
-    assert code != 0 and "--linear" in err and "--machine" in err and err.count("\n") == 1, err
+    error_line(code, err, "--linear", "--machine")
     beyond = commands(swivel, 5, 10)
     beyond[2, 0] = 450.0  # (the volumetric travel of X: the machine's, [-400, 400] mm)
     with pytest.raises(InputError, match=r"travel_mm X \[-400, 400\] does not cover the X commands of the "
