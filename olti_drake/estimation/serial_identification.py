@@ -539,7 +539,8 @@ def resolution_check(chain, campaign, options, ident: SerialIdentification) -> O
     this, finer = ((f"a {step:g} deg grid", f"a {step / 2:g} deg grid") if options.grids is None else
                    ("the given grids", "the given grids with a node between each two"))
     check = Finer(this=this, finer=finer, rerun=f"--grid-step-deg {step / 2:g}" if options.grids is None else
-                  "a node between each two of the given grids", extra={"grid_step_deg": step})
+                  "a node between each two of the given grids",
+                  extra={} if options.grids is not None else {"grid_step_deg": step, "finer_grid_step_deg": step / 2})
     meas = ident.measurement
 
     def points(result, m):
@@ -554,7 +555,6 @@ def resolution_check(chain, campaign, options, ident: SerialIdentification) -> O
         other = _identify_once(chain, campaign, finer_options, ident.above)
         return points(other, other.measurement)
     check.points = finer_points
-    check.extra["finer_grid_step_deg"] = step / 2
     return compare_representations(*points(ident, meas), check)
 
 
