@@ -528,7 +528,7 @@ def resolution_check(chain, campaign, options, ident: SerialIdentification) -> O
     interpolates between them) and the tool points of the two at the campaign's commands compared against their
     stated u. None when there is nothing to check (a geometric model, no map, the check off, or the smoothness
     prior on the default grid -- see :attr:`SerialIdentificationOptions.check_resolution`)."""
-    from olti_drake.model.propagation import predicted_std
+    from olti_drake.model.serial import tool_point_uncertainty
 
     if options.model != "errormap" or not options.check_resolution or not ident.model.maps or (
             options.smoothing != "off" and options.grid_step_deg is None and options.grids is None):
@@ -547,8 +547,7 @@ def resolution_check(chain, campaign, options, ident: SerialIdentification) -> O
         model = m.model
         idx = [list(result.fit.names).index(n) for n in model.names]
         C = result.fit.covariance[np.ix_(idx, idx)]
-        p, jac = model.with_vector(result.fit.x[idx]).jacobian(meas.commands, meas.dirs)
-        return p, predicted_std(jac.tocsr(), C, dim=3)
+        return tool_point_uncertainty(model.with_vector(result.fit.x[idx]), meas.commands, meas.dirs, cov=C)
 
     def finer_points():
         check_serial_map_size(campaign, finer_options)

@@ -23,6 +23,7 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.model.propagation import predicted_std, with_lack_of_fit
+from olti_drake.model.serial import tool_point_uncertainty
 
 
 def calibration_at_result(result, campaign):
@@ -290,18 +291,6 @@ def zero_held_uncertainties(out: dict, measurement) -> dict:
             for row in block["stations_mm"]:
                 row[axis] = 0.0
     return out
-
-
-def tool_point_uncertainty(model, commands, dirs, cov=None, samples=None) -> tuple:
-    """(p (M, 3), u (M, 3)) mm: the predicted tool points and their standard uncertainties per coordinate.
-
-    ``cov``: (n, n) covariance of the model's parameters (``model.names``; the linear method), or
-    ``samples``: (T, n) Monte Carlo samples of them (their tool points' spread, ddof = 1)."""
-    p, jac = model.jacobian(commands, dirs)
-    if samples is not None:
-        pts = np.stack([model.positions(commands, dirs, s) for s in samples])
-        return p, pts.std(axis=0, ddof=1)
-    return p, predicted_std(jac.tocsr(), cov, dim=3)
 
 
 def reading_measurement(result, commands, dirs, station, time_s=None):

@@ -1311,3 +1311,17 @@ def synthetic_campaign(truth, n_poses: int, seed: int, *, ranges_deg=None, direc
                              None if dirs is None else np.tile(dirs, (nt, 1)),
                              dist + rng.normal(0, noise_mm, dist.shape) if noise_mm else dist,
                              points + rng.normal(0, noise_mm, points.shape) if noise_mm else points)
+
+
+def tool_point_uncertainty(model, commands, dirs, cov=None, samples=None) -> tuple:
+    """(p (M, 3), u (M, 3)) mm: the predicted tool points and their standard uncertainties per coordinate.
+
+    ``cov``: (n, n) covariance of the model's parameters (``model.names``; the linear method), or
+    ``samples``: (T, n) Monte Carlo samples of them (their tool points' spread, ddof = 1)."""
+    from olti_drake.model.propagation import predicted_std
+
+    p, jac = model.jacobian(commands, dirs)
+    if samples is not None:
+        pts = np.stack([model.positions(commands, dirs, s) for s in samples])
+        return p, pts.std(axis=0, ddof=1)
+    return p, predicted_std(jac.tocsr(), cov, dim=3)
