@@ -40,6 +40,7 @@ from olti_drake.estimation.calibration import FitRefused, SolverOptions, Unident
 from olti_drake.estimation.resolution import Finer, inflate, resolution_check as compare_representations
 from olti_drake.estimation.resolution import summary_line
 from olti_drake.model.chain import plane_frame, robot_plane
+from olti_drake.model.frames import rigid_fit, xyz_angles
 from olti_drake.model.serial import DistanceMeasurement, PointMeasurement, build_position_model, find_gauge
 
 #: Standard deviation of the weak prior ``regularize`` puts on a parameter the data cannot identify, by unit.
@@ -279,19 +280,12 @@ def _height_fit(q, d, P2):
 
 def start_frame(model, campaign) -> np.ndarray:
     """Tracker frame (t mm, Rx·Ry·Rz angles deg) of the rigid fit m ≈ R p + t of the nominal tool
-    points p to the measured ones m (Kabsch)."""
-    p = model.positions(campaign.commands, campaign.dirs)
-    m = campaign.points_mm
-    pc, mc = p - p.mean(axis=0), m - m.mean(axis=0)
-    u, _, vt = np.linalg.svd(mc.T @ pc)
-    s = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ s @ vt
-    t = m.mean(axis=0) - rot @ p.mean(axis=0)
-    b = np.arcsin(np.clip(rot[0, 2], -1.0, 1.0))
-    a = np.arctan2(-rot[1, 2], rot[2, 2])
-    c = np.arctan2(-rot[0, 1], rot[0, 0])
-    angles = np.degrees([a, b, c])
-    return np.concatenate([t, angles])
+    points p to the measured ones m (Kabsch, :func:`~olti_drake.model.frames.rigid_fit`)."""
+    try:
+        rot, t = rigid_fit(model.positions(campaign.commands, campaign.dirs), campaign.points_mm)
+    except InputError as e:
+        raise InputError(f"{campaign.source}: the tracker frame's start: {e}") from None
+    return np.concatenate([t, xyz_angles(rot)])
 
 
 def build_problem(chain, campaign, options: SerialIdentificationOptions, above=()):

@@ -30,25 +30,24 @@ from pydrake.systems.framework import DiagramBuilder
 from olti_drake.hardware.emscon import BeamLost, EmsconTracker
 from olti_drake.hardware.protocol import ProtocolError, Reading
 from olti_drake.hardware.station import M_TO_MM, HardwareStation, StationError
-from olti_drake.model.serial import _frame_rotation
+from olti_drake.model.frames import XYZ_CONVENTION, into_frame, xyz_rotation
 from olti_drake.sim.scenario import stream_seed
 from olti_drake.sim.systems import ReadingRecorder, ReadStatus, RowSequencer
 
 #: The tracker-frame convention (as PointMeasurement's tracker_frame).
-CONVENTION = "tracker point = R p + t, R = Rx(rx) Ry(ry) Rz(rz)"
+CONVENTION = XYZ_CONVENTION
 
 
 def tracker_frame(position_mm, rotation_deg) -> np.ndarray:
     """The frame (6: t mm, angles deg) of a tracker at ``position_mm`` (robot base frame) turned by
     ``rotation_deg``: m = R (p − position) = R p + t, t = −R·position."""
-    rot, _ = _frame_rotation(np.asarray(rotation_deg, float))
+    rot, _ = xyz_rotation(rotation_deg)
     return np.concatenate([-rot @ np.asarray(position_mm, float), np.asarray(rotation_deg, float)])
 
 
 def base_to_tracker(points_mm, frame) -> np.ndarray:
     """Robot-base points (M, 3) mm in the tracker frame ``frame`` (the inverse of ``model.serial.tracker_to_base``)."""
-    rot, _ = _frame_rotation(np.asarray(frame, float)[3:])
-    return np.atleast_2d(np.asarray(points_mm, float)) @ rot.T + np.asarray(frame, float)[:3]
+    return into_frame(points_mm, frame)
 
 
 def prepare_tracker(scenario):

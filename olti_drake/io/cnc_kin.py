@@ -28,6 +28,7 @@ import numpy as np
 
 from olti_drake.errors import InputError
 from olti_drake.model.five_axis import DEG, ROTARY, AxisLink, FiveAxisMachine
+from olti_drake.model.frames import rigid_fit, rotation_vector
 
 #: Commands of the residual: 10⁴ uniform within travel (a continuous axis: one turn), seeded.
 N_RESIDUAL, SEED = 10_000, 0
@@ -169,22 +170,13 @@ def model_points(machine, error_model, x, commands, directions) -> np.ndarray:
     return FiveAxisPositionModel(machine, error_model, commands, directions).positions(x)
 
 
-def rigid_fit(a, b):
-    """(R, t): the rigid transform minimizing Σ |R a_i + t − b_i|² (Kabsch)."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca
-
-
 def compare(file_points, model_points_) -> dict:
     """Residual of a file's tool points against the model's (µm): after the part set-up (best rigid transform of
     the workpiece frame) and raw; the set-up itself (translation mm, rotation vector µrad)."""
     raw = np.linalg.norm(file_points - model_points_, axis=1)
     R, t = rigid_fit(file_points, model_points_)
     after = np.linalg.norm(file_points @ R.T + t - model_points_, axis=1)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2
+    w = rotation_vector(R)
     return {"max_um": float(after.max() * 1e3), "rms_um": float(np.sqrt(np.mean(after ** 2)) * 1e3),
             "raw_max_um": float(raw.max() * 1e3), "raw_rms_um": float(np.sqrt(np.mean(raw ** 2)) * 1e3),
             "setup_translation_mm": t.tolist(), "setup_rotation_urad": (w * 1e6).tolist()}

@@ -15,9 +15,9 @@ five-axis machine) in three ways; the distances from stations are
   (µrad, R(w) = exp([w]×) -- µrad as the angular error motions of ISO 230-1 in this package: one µrad at a
   1 m lever moves a point one µm, so a frame's u in µrad is of the order of the readings' u in µm). Gauge: a
   tracker frame absorbs a rigid motion (3 translations, 3 rotations) of the points it sees.
-  :func:`rigid_fit` (Kabsch) starts each frame; the serial robot's
-  :class:`olti_drake.model.serial.PointMeasurement` (its own Rx·Ry·Rz angles in deg, its start
-  ``serial_identification.start_frame``) could delegate to it.
+  :func:`~olti_drake.model.frames.rigid_fit` (Kabsch) starts each frame. The serial robot's
+  :class:`olti_drake.model.serial.PointMeasurement` is the same residual with fixed angles in deg
+  (:mod:`olti_drake.model.frames` holds both conventions and their Jacobian).
 * :class:`CombinedMeasurement` -- several measurements of one model sharing its parameters, each with its own
   (stations, nests, tracker frames), residuals stacked; each measurement's rows weighed by its reading
   uncertainty σ (its ``sigma_mm``): rows scaled by σ_ref / σ_i, σ_ref = the first measurement's σ, so the engine's
@@ -38,10 +38,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from olti_drake.errors import InputError
+from olti_drake.model.frames import URAD, left_jacobian, rigid_fit, rotation_matrix, rotation_vector, turn_rows
 from olti_drake.model.measurements import own_roughness
 from olti_drake.model.scara import rows_to_csr
-
-URAD = 1e-6  # rad per µrad
 
 
 # ----------------------------------------------------------------------------------------------- checks
@@ -119,68 +118,6 @@ def _reference(model):
 def _broadcast_dp(dp, shape):
     """The model's ∂p_c rows (per coordinate, broadcastable) as one (T, K, 3, m) array."""
     return np.stack([np.broadcast_to(d, shape) for d in dp], axis=2)
-
-
-# ----------------------------------------------------------------------------------------- rotations
-def _skew(v):
-    """[v]× of (..., 3) vectors: (..., 3, 3)."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
-def _series(theta):
-    """(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³), exact below θ = 1e-4 rad by their Taylor series."""
-    small = theta < 1e-4
-    t = np.where(small, 1.0, theta)
-    t2 = theta * theta
-    a = np.where(small, 1 - t2 / 6, np.sin(t) / t)
-    b = np.where(small, 0.5 - t2 / 24, (1 - np.cos(t)) / t ** 2)
-    c = np.where(small, 1 / 6 - t2 / 120, (t - np.sin(t)) / t ** 3)
-    return a, b, c
-
-
-def rotation_matrix(w_rad) -> np.ndarray:
-    """R = exp([w]×) of rotation vectors w (..., 3) rad (Rodrigues): (..., 3, 3)."""
-    w = np.asarray(w_rad, float)
-    a, b, _ = _series(np.linalg.norm(w, axis=-1))
-    K = _skew(w)
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
-
-
-def left_jacobian(w_rad) -> np.ndarray:
-    """J_l(w) (..., 3, 3) of SO(3): exp([w + δ]×) = exp([J_l(w) δ]×) exp([w]×) to first order, so
-    ∂(R(w) p)/∂w = −[R(w) p]× J_l(w)."""
-    w = np.asarray(w_rad, float)
-    _, b, c = _series(np.linalg.norm(w, axis=-1))
-    K = _skew(w)
-    return np.eye(3) + b[..., None, None] * K + c[..., None, None] * (K @ K)
-
-
-def rotation_vector(R) -> np.ndarray:
-    """w (3,) rad with exp([w]×) = R (|w| ≤ π; the log map, robust near π)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(np.asarray(R, float)).as_rotvec()
-
-
-def rigid_fit(p_mm, q_mm):
-    """(R, t) minimizing Σ‖R p_k + t − q_k‖² over rotations R (Kabsch; det R = +1), mm.
-
-    The closed-form start of a tracker frame (q = tracker points, p = the start model's points); the same fit
-    as ``olti_drake.estimation.serial_identification.start_frame`` and ``report.six_axis_demo.rigid_fit``
-    (which could delegate here). Refuses (InputError) points on one line: the rotation about it is unknown."""
-    p, q = np.asarray(p_mm, float), np.asarray(q_mm, float)
-    pc, qc = p.mean(axis=0), q.mean(axis=0)
-    H = (p - pc).T @ (q - qc)
-    u, s, vt = np.linalg.svd(H)
-    if len(p) < 3 or s[1] <= 1e-9 * max(s[0], 1e-300):
-        raise InputError(f"rigid fit: the {len(p)} points lie on one line (or fewer than 3): the rotation about "
-                         f"it is unknown")
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return R, qc - R @ pc
 
 
 # ------------------------------------------------------------------------------------ R-test / 3D probe
@@ -411,7 +348,7 @@ class PointMeasurement(_GroupedPoints):
         readings = self.readings if xyz_mm is None else xyz_mm
         r = (q + frames[:, self.group, :3]).reshape(T, 3 * K) - readings
         d_model = np.einsum("tkac,tkcm->tkam", R, _broadcast_dp(dp, (T, K, m)))
-        d_rot = -_skew(q) @ left_jacobian(w)[:, self.group] * URAD  # (T, K, 3, 3)
+        d_rot = turn_rows(q, left_jacobian(w)[:, self.group], URAD)  # (T, K, 3, 3)
         base = self.frame_col + 6 * self.group  # (K,)
         cols = np.concatenate([np.repeat(pcols[:, None, :], 3, axis=1),
                                (base[:, None] + np.arange(3)[None, :])[..., None],

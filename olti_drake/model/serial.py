@@ -39,8 +39,8 @@ import scipy.sparse as sp
 
 from olti_drake.model.errormap import ErrorMap, Harmonic, HarmonicDeviation, approach_directions
 from olti_drake.model.chain import (DEG, FRAME_NAMES, GEOMETRIC_SUFFIXES, PLANAR_REASON, TOOL_NAMES,
-                                    UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, plane_frame, _axis_rotation,
-                                    _cross)
+                                    UNLIMITED_RANGE_DEG, SerialChain, base_parameter_set, plane_frame, _cross)
+from olti_drake.model.frames import XYZ_CONVENTION, into_frame, out_of_frame, turn_rows, xyz_rotation
 from olti_drake.model.measurements import distance_residual, lengths
 
 MODEL_KINDS = ("dh", "errormap")
@@ -903,7 +903,8 @@ class PointMeasurement(_Measurement):
 
     The tracker frame is unknown: own parameters ``frame_x_mm, frame_y_mm,
     frame_z_mm`` (t) and ``frame_rx_deg, frame_ry_deg, frame_rz_deg`` with
-    R = Rx·Ry·Rz (the chain's location-error convention). Residual rows are
+    R = Rx·Ry·Rz (the chain's location-error convention; :func:`~olti_drake.model.frames.xyz_rotation`, the
+    Jacobian by :func:`~olti_drake.model.frames.turn_rows` as the five-axis tracker's). Residual rows are
     x, y, z of reading 0, then reading 1, ...
     """
 
@@ -923,7 +924,7 @@ class PointMeasurement(_Measurement):
 
     def _own_layout(self, own, uncertainty=False) -> dict:
         return {"tracker_frame": {"translation_mm": own[:3].tolist(), "rotation_deg": own[3:].tolist(),
-                                  "convention": "tracker point = R p + t, R = Rx(rx) Ry(ry) Rz(rz)"}}
+                                  "convention": XYZ_CONVENTION}}
 
     def beam_lengths(self, x, residuals=None) -> np.ndarray:
         """Distance from the tracker (its frame's origin) to every tool point at x, mm (``residuals``: unused,
@@ -933,18 +934,17 @@ class PointMeasurement(_Measurement):
     def predict(self, x) -> np.ndarray:
         """Tool points in the tracker frame (M, 3) mm."""
         xm, frame = self._parts(x)
-        rot, _ = _frame_rotation(frame[3:])
-        return self.model.positions(self.commands, self.dirs, xm) @ rot.T + frame[:3]
+        return into_frame(self.model.positions(self.commands, self.dirs, xm), frame)
 
     def residuals(self, x):
         """r (3M,) mm and the sparse dr/dx (3M, P + 6): R·∂p/∂x, I for t, u_k × (R p) for the angles."""
         xm, frame = self._parts(x)
-        rot, axes = _frame_rotation(frame[3:])
+        rot, axes = xyz_rotation(frame[3:])
         p, jp = self._position_jacobian(xm)
         q = p @ rot.T
         r = (q + frame[:3] - self.points).ravel()
         m, pm = len(p), self.model.n_params
-        spin = np.stack([_cross(np.broadcast_to(a, q.shape), q) * DEG for a in axes], axis=2)  # (M, 3, 3)
+        spin = turn_rows(q, axes, DEG)  # (M, 3, 3), the frame's angles as the five-axis tracker's
         vals = np.concatenate([np.ones((m, 3, 1)), spin], axis=2).reshape(3 * m, 4)
         cols = np.column_stack([pm + np.tile(np.arange(3), m)] + [np.full(3 * m, pm + 3 + k) for k in range(3)])
         return r, jp.rotated(rot).tocsr(vals, cols, len(self.names))
@@ -988,19 +988,10 @@ class RootPositionMeasurement(_Measurement):
         return RootPositionMeasurement(model, commands, dirs, np.zeros((len(commands), 3)))
 
 
-def _frame_rotation(angles_deg):
-    """R = Rx·Ry·Rz of the angles (deg) and the world axes u_rx, u_ry, u_rz about which each
-    angle turns R·p (∂(R p)/∂a = u × R p)."""
-    rx, ry, rz = (_axis_rotation(e, a * DEG) for e, a in zip(np.eye(3), angles_deg))
-    return rx @ ry @ rz, (np.array([1.0, 0.0, 0.0]), rx[:, 1], (rx @ ry)[:, 2])
-
-
 def tracker_to_base(points_mm, frame) -> np.ndarray:
     """Points measured in a tracker's frame (M, 3) mm into the robot's base frame, by a tracker frame of
     :class:`PointMeasurement` (6: translation t mm, rotation angles deg, m = R·p + t): p = Rᵀ (m − t)."""
-    frame = np.asarray(frame, float).reshape(6)
-    rot, _ = _frame_rotation(frame[3:])
-    return (np.asarray(points_mm, float) - frame[:3]) @ rot
+    return out_of_frame(points_mm, frame)
 
 
 # --------------------------------------------------------------------- gauge
@@ -1305,8 +1296,7 @@ def synthetic_campaign(truth, n_poses: int, seed: int, *, ranges_deg=None, direc
     nt = len(truth.stations_mm)
     station = np.repeat(np.arange(nt), n_poses)
     dist = np.linalg.norm(np.tile(p, (nt, 1)) - truth.stations_mm[station], axis=1) - truth.dead_paths_mm[station]
-    rot, _ = _frame_rotation(truth.frame[3:])
-    points = p @ rot.T + truth.frame[:3]
+    points = into_frame(p, truth.frame)
     return SyntheticCampaign(commands, dirs, station, np.tile(commands, (nt, 1)),
                              None if dirs is None else np.tile(dirs, (nt, 1)),
                              dist + rng.normal(0, noise_mm, dist.shape) if noise_mm else dist,

@@ -190,10 +190,9 @@ def _residuals(result, campaign_path, camp=None):
         j = np.searchsorted(labels, camp.station)
         pred = np.linalg.norm(p - result.stations_mm[j], axis=1) - result.dead_paths_mm[j]
         return camp.displacement_mm - pred, camp.station, "station"
-    from olti_drake.model.serial import _frame_rotation
+    from olti_drake.model.frames import into_frame
 
-    rot, _ = _frame_rotation(result.tracker_frame[3:])
-    pred = p @ rot.T + result.tracker_frame[:3]
+    pred = into_frame(p, result.tracker_frame)
     return np.linalg.norm(camp.points_mm - pred, axis=1), np.zeros(len(pred), dtype=int), "tracker (distance)"
 
 
@@ -297,7 +296,7 @@ def iso9283_section(page, result, validation_path, tolerances=None) -> list:
     controller commands) and the **identified** model's prediction (what a compensation by this result would
     leave). RP is the same for both. Returns the verdict lines (``tolerances``: {characteristic: mm/deg})."""
     from olti_drake.io.serial_io import read_serial_campaign
-    from olti_drake.model.serial import tracker_to_base
+    from olti_drake.model.frames import out_of_frame as tracker_to_base
     from olti_drake.report.iso9283 import STANDARD_CYCLES, pose_characteristics, verdicts
 
     model = result.model

@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from olti_drake.io.resources import shipped
+from olti_drake.model.frames import rigid_fit
 
 #: Files the demo writes besides campaign.csv and truth.json (results and figures: replaced only with --force).
 RESULTS = ("result_dh.json", "result_errormap.json", "validation.json", "six_axis_maps.png",
@@ -97,14 +98,11 @@ def tracker_points(p_true_mm, rng) -> np.ndarray:
     return p_true_mm + u_mm[:, None] * rng.standard_normal(p_true_mm.shape)
 
 
-def rigid_fit(p_mm, q_mm):
-    """R, t minimizing Σ|R p + t − q|² (Kabsch), and the residual vectors q − (R p + t) (M, 3) mm."""
-    pc, qc = p_mm.mean(axis=0), q_mm.mean(axis=0)
-    u, _, vt = np.linalg.svd((p_mm - pc).T @ (q_mm - qc))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    t = qc - R @ pc
-    return R, t, q_mm - (p_mm @ R.T + t)
+def fitted_errors(p_mm, q_mm) -> np.ndarray:
+    """The residual vectors q − (R p + t) (M, 3) mm after the rigid fit (:func:`~olti_drake.model.frames.rigid_fit`)
+    of predicted points p to tracker points q: the tracker's frame taken out."""
+    R, t = rigid_fit(p_mm, q_mm)
+    return q_mm - (p_mm @ R.T + t)
 
 
 def _unseen(setup):
@@ -125,7 +123,7 @@ def _validate(setup, idents) -> dict:
         predicted[kind] = model.positions(cmd, dirs, ident.fit.x[:model.n_params])
     table = {"n_poses": N_UNSEEN, "commands_deg": cmd, "dirs": dirs, "models": {}}
     for name, p in predicted.items():
-        _, _, err = rigid_fit(p, measured)
+        err = fitted_errors(p, measured)
         e = np.linalg.norm(err, axis=1)
         table["models"][name] = {"rms_mm": float(np.sqrt(np.mean(e ** 2))), "max_mm": float(e.max()), "errors": err}
     return table

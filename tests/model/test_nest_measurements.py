@@ -10,8 +10,8 @@ import pytest
 
 from olti_drake.errors import InputError
 from olti_drake.estimation.calibration import Calibration, SolverOptions
-from olti_drake.model.displacements import (CombinedMeasurement, NestDisplacementMeasurement, PointMeasurement,
-                                            left_jacobian, rigid_fit, rotation_matrix, rotation_vector)
+from olti_drake.model.displacements import CombinedMeasurement, NestDisplacementMeasurement, PointMeasurement
+from olti_drake.model.frames import left_jacobian, rigid_fit, rotation_matrix, rotation_vector
 from olti_drake.model.free_points import FreePoints
 from olti_drake.model.measurements import StationDistanceMeasurement
 from olti_drake.model.volumetric3d import (MachineConfig, VolumetricModel, VolumetricPositionModel, synthetic_truth,

@@ -12,7 +12,8 @@ from olti_drake.cli.verbs import main
 from olti_drake.io.serial_io import write_serial_campaign
 from olti_drake.model.chain import load_serial_chain
 from olti_drake.io.resources import PACKAGE_DIR
-from olti_drake.model.serial import _frame_rotation, synthetic_campaign, synthetic_truth
+from olti_drake.model.frames import into_frame
+from olti_drake.model.serial import synthetic_campaign, synthetic_truth
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +32,7 @@ def case(tmp_path_factory):
     rng = np.random.default_rng(3)
     cmd, dirs = np.tile(poses.commands, (n, 1)), np.tile(poses.dirs, (n, 1))
     base = truth.positions(cmd, dirs) + 0.015 * rng.standard_normal((len(cmd), 3))  # 15 um repeatability
-    rot, _ = _frame_rotation(truth.frame[3:])
-    write_serial_campaign(d / "validation.csv", cmd, dirs, points_mm=base @ rot.T + truth.frame[:3])
+    write_serial_campaign(d / "validation.csv", cmd, dirs, points_mm=into_frame(base, truth.frame))
     return d
 
 

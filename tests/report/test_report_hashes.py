@@ -16,7 +16,8 @@ from olti_drake.cli.verbs import main
 from olti_drake.io.resources import PACKAGE_DIR
 from olti_drake.io.serial_io import write_serial_campaign
 from olti_drake.model.chain import load_serial_chain
-from olti_drake.model.serial import _frame_rotation, synthetic_campaign, synthetic_truth
+from olti_drake.model.frames import into_frame
+from olti_drake.model.serial import synthetic_campaign, synthetic_truth
 
 from tests.report.test_volumetric_report import simulate
 
@@ -97,9 +98,8 @@ def robot(tmp_path_factory):
                  str(d / "unc.json"), "--workspace-poses", "20"]) == 0
     poses = synthetic_campaign(truth, 3, seed=70)
     cmd, dirs = np.tile(poses.commands, (5, 1)), np.tile(poses.dirs, (5, 1))
-    rot, _ = _frame_rotation(truth.frame[3:])
     pts = truth.positions(cmd, dirs) + 0.01 * np.random.default_rng(2).standard_normal((len(cmd), 3))
-    write_serial_campaign(d / "validation.csv", cmd, dirs, points_mm=pts @ rot.T + truth.frame[:3])
+    write_serial_campaign(d / "validation.csv", cmd, dirs, points_mm=into_frame(pts, truth.frame))
     assert main(["report", str(d / "result.json"), str(d / "unc.json"), "--campaign", str(d / "points.csv"),
                  "--iso9283", str(d / "validation.csv"), "--out", str(d / "rep")]) == 0
     return d
