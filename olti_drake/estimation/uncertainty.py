@@ -10,7 +10,7 @@ Two methods from one reading-error model built from a budget (000 Table 2,
   nonlinear problem (10), collect the estimates. Trials are solved in batches:
   the exact gradient J(x)ᵀr(x) of every trial with the Hessian factorized once
   at the solution -- a chord iteration that converges to each trial's own
-  least-squares solution -- over worker processes: this machine's cores or a cluster's
+  least-squares solution; a trial it does not converge, Gauss-Newton at the trial's own point -- over worker processes: this machine's cores or a cluster's
   (:func:`olti_drake.estimation.trials.run_trials`, joblib: loky, Dask, Ray).
 
 Reading errors (per reading k at reflector distance D_k):
@@ -59,10 +59,54 @@ def round_trials(coverage: float) -> int:
 def _solution_map(ident, x):
     """B (n, n) with δx = −B g for a gradient g: the constrained Gauss-Newton step at x."""
     r, J = ident.residuals(x)
-    n = len(x)
-    Q = ident.quadratic_costs()[0]  # over all decision variables: the user's own follow the parameters
-    H = np.pad((J.T @ J).toarray(), ((0, len(Q) - n), (0, len(Q) - n))) + Q
-    return ident.within(H).inverse()[:n, :n], J  # the parameters' rows: the readings move only them
+    return _constrained_inverse(J, ident.quadratic_costs()[0], ident.within, len(x)), J
+
+
+def _constrained_inverse(J, Q_all, within, n):
+    """(JᵀJ + Q) within the program's equalities, inverted, the parameters' (n, n) block: ``Q_all`` over all
+    decision variables (a user's own follow the parameters; the readings move only the parameters), ``within``
+    H → :class:`~olti_drake.estimation.calibration.Within`."""
+    m = len(Q_all) - n
+    return within(np.pad((J.T @ J).toarray(), ((0, m), (0, m))) + Q_all).inverse()[:n, :n]
+
+
+class _Remap:
+    """The Gauss-Newton inverse at a trial's own point (:func:`_rescue`), from what travels with the trials:
+    the equalities (A, rows over all variables) and all quadratic costs, not the program (a Drake
+    MathematicalProgram does not pickle)."""
+
+    def __init__(self, ident):
+        from olti_drake.estimation.calibration import Within
+
+        self.Q_all = np.asarray(ident.quadratic_costs()[0], float)
+        self.A = ident._equality_rows()[0]
+        self.large = ident._large()
+        self._within = Within
+
+    def __call__(self, J, n):
+        return _constrained_inverse(J, self.Q_all, lambda H: self._within(H, self.A, large=self.large), n)
+
+
+#: Gauss-Newton steps (each at the trial's own point) for a trial the chord iteration did not converge.
+RESCUE_ITERATIONS = 30
+
+
+def _rescue(remap, xt, residual, q, Q, tol):
+    """A trial the chord iteration (B fixed at the estimate) did not converge, re-solved by Gauss-Newton at
+    its own point: where the trial lies far enough along a weakly determined, curved direction, B H(x_t)
+    has an eigenvalue near 2 and the chord steps stop shrinking; fresh normal equations do not.
+    ``residual(xt)`` -> (r against the trial's readings, J). Its solution (same objective, same
+    constraints) or None."""
+    for _ in range(RESCUE_ITERATIONS):
+        r, J = residual(xt)
+        step = (J.T @ r + Q @ xt + q) @ remap(J, len(xt))
+        xt = xt - step
+        size = np.max(np.abs(step) / tol)
+        if not np.isfinite(size):
+            return None
+        if size < 1.0:
+            return xt
+    return None
 
 
 def linear_covariance(ident, x, errors: ReadingErrors) -> np.ndarray:
@@ -135,8 +179,10 @@ def _mc_block(w, seed, size: int):
     workers."""
     E = draw_by_content(w["errors"], np.random.default_rng(seed), w["distance"], w["d_true"], size)
     if w["scatter"] is None:
-        return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], tol=w["tol"])
-    return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"], tol=w["tol"])
+        return _solve_trials_one_by_one(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], tol=w["tol"],
+                                        remap=w.get("remap"))
+    return _solve_trials(w["ident"], w["x"], w["B"], w["d_true"] + E, w["q"], w["Q"], w["scatter"], tol=w["tol"],
+                         remap=w.get("remap"))
 
 
 def _travelling_program(ident):
@@ -169,7 +215,7 @@ def _tolerance(x, tol=None):
     return 1e-13 * max(1.0, np.max(np.abs(x))) if tol is None else np.asarray(tol, float)
 
 
-def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=TRIAL_ITERATIONS, tol=None):
+def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=TRIAL_ITERATIONS, tol=None, remap=None):
     """:func:`_solve_trials` for a program without batched residuals (e.g. a
     :class:`~olti_drake.estimation.calibration.Calibration`): the same chord iteration on the exact gradient,
     trial by trial (each stops at its own convergence). Here a trial's row of D is r(x̂) + its errors, so that
@@ -177,7 +223,8 @@ def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=TRIAL_ITERATIONS, to
     where r and J are known, is one product for all trials. The iteration converges linearly: once the
     last two steps shrink by a rate ρ < 0.1 and the steps still to come (|step| ρ / (1 − ρ)) sum below a
     tenth of the tolerance, the trial is converged without one more evaluation (each costs a forward
-    kinematics of the campaign). Step sizes are measured in units of the tolerance (:func:`_tolerance`)."""
+    kinematics of the campaign). Step sizes are measured in units of the tolerance (:func:`_tolerance`). A
+    trial not converged in ``max_iter``: Gauss-Newton at its own point with ``remap`` (:func:`_rescue`)."""
     out = np.full((len(D), len(x)), np.nan)
     tol = _tolerance(x, tol)
     r, J = ident.residuals(x)
@@ -200,17 +247,26 @@ def _solve_trials_one_by_one(ident, x, B, D, q, Q, max_iter=TRIAL_ITERATIONS, to
                 previous = size
             if size < 1.0:
                 out[t] = xt
+            elif remap is not None:
+                def residual(z, d=d):
+                    r, J = ident.residuals(z)
+                    return r - d, J
+                xt = _rescue(remap, xt if np.all(np.isfinite(xt)) else first[t].copy(), residual, q, Q, tol)
+                if xt is not None:
+                    out[t] = xt
     return out
 
 
-def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=TRIAL_ITERATIONS, tol=None):
+def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=TRIAL_ITERATIONS, tol=None, remap=None):
     """Each row of D is a trial's readings; return each trial's least-squares solution (T, n).
 
     Chord iteration on the exact gradient: X ← X − (J(X)ᵀ r(X) + prior gradient) B. A trial whose last
     step is not below the tolerance after ``max_iter`` iterations (or not finite) did not converge: its
     row is NaN, for :func:`monte_carlo` to refuse. The iteration contracts linearly, at the rate the
     problem's curvature beside its information sets: a tolerance of 1e-6 u at a rate of 0.65 takes ~32
-    iterations (a five-axis campaign with its linear axes identified on 6 knot intervals).
+    iterations (a five-axis campaign with its linear axes identified on 6 knot intervals). ``remap``
+    (:class:`_Remap`): a trial not converged is re-solved by Gauss-Newton at its own point (:func:`_rescue`)
+    before it is given up.
     """
     X = np.tile(x, (len(D), 1))
     tol = _tolerance(x, tol)
@@ -223,6 +279,12 @@ def _solve_trials(ident, x, B, D, q, Q, scatter, max_iter=TRIAL_ITERATIONS, tol=
             last = np.max(np.abs(step) / tol, axis=1)
             if np.max(last) < 1.0:
                 break
+        for t in np.flatnonzero(~(last < 1.0)) if remap is not None else ():
+            def residual(z, d=D[t]):
+                return ident.residual_rows(z[None], d)[0][0], ident.residuals(z)[1]
+            xt = _rescue(remap, X[t] if np.all(np.isfinite(X[t])) else x.copy(), residual, q, Q, tol)
+            if xt is not None:
+                X[t], last[t] = xt, 0.0
     X[~(last < 1.0)] = np.nan  # also catches NaN steps
     return X
 
@@ -272,7 +334,9 @@ def monte_carlo(ident, x, errors: ReadingErrors, trials: int = 1000, seed: int =
         scatter = sp.csr_matrix((np.ones(k * m), (np.arange(k * m), cols.ravel())), shape=(k * m, len(x)))
     else:  # trials one by one on ident.residuals; the trial's readings relative to the campaign's
         model, scatter = ident.residuals(x)[0][None], None
+    remap = _Remap(ident) if hasattr(ident, "_equality_rows") else None
     work = dict(ident=ident, x=x, B=B, errors=errors, distance=distance, d_true=model[0], q=q, Q=Q, scatter=scatter,
+                remap=remap,
                 tol=getattr(ident, "trial_tolerance", None) if tolerance is None else tolerance)
     task = TrialTask(_mc_work, dict(work, ident=_travelling_program(ident)), _mc_block, local=work)
     if workers is None and backend == "loky" and not adaptive and trials < MIN_PARALLEL_BLOCKS * BATCH:

@@ -625,8 +625,9 @@ class FiveAxisPositionModel:
         """000's map smoothness rows (:meth:`JointMap.roughness`: each branch and the backlash) of every error
         motion over x, and (``linear``) the identified linear axes'
         (:func:`~olti_drake.model.volumetric3d.motion_roughness`); None without motions. An angular motion (µrad)
-        counts at the tool point it moves: times :meth:`roughness_lever_mm` · 10⁻⁶ (mm per µrad), so that one weight
-        serves mm and µrad alike (as the 3-axis machine's prior)."""
+        counts at the tool point it moves: times :meth:`roughness_lever_mm` of its rotary axis · 10⁻⁶ (mm per
+        µrad; the linear axes' angular motions at the linear travel's lever), so that one weight serves mm and
+        µrad alike (as the 3-axis machine's prior)."""
         blocks = self._roughness_blocks(linear)
         return blocks[0] if blocks is not None else None
 
@@ -641,7 +642,7 @@ class FiveAxisPositionModel:
         """(R over the free columns, the group label of each row), or None without motions."""
         em = self.errors
         blocks, labels = [], []
-        lever = self.roughness_lever_mm() * 1e-6
+        levers = {L: self.roughness_lever_mm(L) * 1e-6 for L in self.machine.rotary}
 
         def add(label, R, s):
             blocks.append(sp.hstack([sp.csr_matrix((R.shape[0], s.start)), R,
@@ -653,18 +654,32 @@ class FiveAxisPositionModel:
         for (L, c), jm in em.maps.items():
             R = jm.roughness()
             if R.shape[0]:
-                add(jm.joint, R * lever if unit(c) == "urad" else R, em.slices[jm.joint])
+                add(jm.joint, R * levers[L] if unit(c) == "urad" else R, em.slices[jm.joint])
         if not blocks:
             return None
         R = sp.vstack(blocks, format="csr")[:, self.free_cols]
         keep = np.flatnonzero(R.getnnz(axis=1))  # (rows on held motions only: none)
         return R[keep], tuple(np.asarray(labels, dtype=object)[keep])
 
-    def roughness_lever_mm(self) -> float:
-        """The lever (mm) at which an angular error motion's roughness counts as the tool point's: half the
-        diagonal of the span of the nominal tool points (an angle of ε µrad moves a point that far by
-        ε·lever·10⁻⁶ mm)."""
-        return roughness_lever_mm(self.positions(self.start_vector()))
+    def roughness_lever_mm(self, letter: Optional[str] = None) -> float:
+        """The lever (mm) at which an angular error motion's roughness counts as the tool point's (an angle
+        of ε µrad moves a point that far by ε·lever·10⁻⁶ mm).
+
+        ``letter`` a rotary axis: the largest distance of a nominal tool point from the axis' error link
+        (|∂p/∂e| / 10⁻⁶ over its three angles, :func:`_sensitivities`), as the linear axes' lever is the
+        largest distance from the centre of their travel. Not the span of the points: that is nil on one
+        R-test ball or nest while the ball's lever about the axis is not (the span gave 2·10⁻⁶ mm there,
+        so no smoothness prior on the angular motions at all). None (the linear axes' angular motions),
+        and an axis that moves no point: half the travel diagonal of the linear axes' commands, the
+        3-axis machine's lever (:func:`~olti_drake.model.volumetric3d.roughness_lever_mm`)."""
+        if letter is not None:
+            S = _sensitivities(self._state(self.theta(self.start_vector()))[1], letter)
+            # (a point r from the error link's origin moves by |e × r|: Σ over the three angles of |∂p/∂e|² = 2 r²)
+            lever = 0.0 if S is None else float(np.sqrt(np.max(np.sum(S[:, :, 3:] ** 2, axis=(1, 2))) / 2)) / URAD
+            if lever > 0.0:
+                return lever
+        m = self.machine
+        return roughness_lever_mm(self.commands[:, [m.axes.index(a) for a in m.axes if a not in m.rotary]])
 
     def gauge_constraints(self, full_turns: bool = True) -> Tuple[GaugeConstraint, ...]:
         """The error motions' gauge, A x = 0 (module docstring; :func:`gauge_patterns`): per motion the grid mean

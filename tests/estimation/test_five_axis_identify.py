@@ -143,8 +143,8 @@ def distance_fit(machine, truth, tmp_path_factory):
     t = no_dropped_truth(truth)
     path = tmp_path_factory.mktemp("d") / "campaign.csv"
     write_five_axis_campaign(path, distance_campaign(machine, t, DISTANCE_POSES, 1, SIX_TABLE_STATIONS, "workpiece"))
-    # (the default smoothing, 'auto': the angular maps' roughness counted at the tool point's lever; measured on
-    # two seeds of this campaign, unseen error / u 1.4-1.6 on the 15 deg grid, 1.0-1.1 on a 7.5 deg one)
+    # (the default smoothing, 'auto': the angular maps' roughness counted at each rotary axis' lever; measured on
+    # two seeds of this campaign, unseen error / u 1.1-1.2 on the 15 deg grid, 0.85-1.05 on a 7.5 deg one)
     ident, fit = identify(machine, path)
     return ident, fit, t, path
 

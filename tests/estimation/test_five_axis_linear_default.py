@@ -64,7 +64,7 @@ def test_identified_by_default_and_named(default_result):
 def test_location_errors_within_3u_and_unseen_points_covered(machine, default_result):
     """The rotary axes' location errors within 3 u of the truth with the linear axes' errors in the model, and the
     predicted tool points at unseen random commands from the result file with olti predict's u (the covariance's
-    and the lack of fit): RMS error within 0.5-2 u, <= 3 % of the coordinates beyond 3 u (perfect linear axes, the same campaign: location errors at up to 9 u)."""
+    and the lack of fit): RMS error within 0.5-2 u, <= 3 % of the coordinates beyond 3 u."""
     truth, d, doc, _ = default_result
     z = {n: abs(v - truth.location[n]) / doc["uncertainty"]["location_errors"][n]
          for n, v in doc["location_errors"].items() if n not in doc["dropped"]}
@@ -78,15 +78,27 @@ def test_location_errors_within_3u_and_unseen_points_covered(machine, default_re
     assert 0.5 <= ratio <= 2.0 and np.mean(e > 3 * u) <= 0.03, (ratio, np.mean(e > 3 * u))
 
 
+def unseen_prediction_error_mm(machine, truth, path):
+    """RMS error (mm) of a result's predicted tool points at 300 random commands the campaign did not hold."""
+    res = load_machine5_result(path)
+    c, dirs = random_commands(machine, 300, 41)
+    return float(np.sqrt(np.mean((res.position_model(c, dirs).positions(res.x) - truth.truth_positions(c, dirs)) ** 2)))
+
+
 def test_perfect_linear_axes_are_worse_on_this_truth(machine, default_result):
+    """The linear errors a ``--linear perfect`` model lacks stay in its residuals and in its predictions: a larger
+    lack of fit and a larger error at unseen commands than the default's (measured: 4.1 against 2.4 um, 8.7
+    against 6.2 um RMS). Not its location errors beyond their u: the rotary maps, smoothed at each axis' own lever,
+    absorb the linear errors' share near the axes (up to 2.8 u here)."""
     truth, d, doc, _ = default_result
     olti_in("identify", d / "c.csv", *MACHINE, "--model", "errormap", "--linear", "perfect", "--out", d / "p.json",
             expect=0)
     perfect = json.loads((d / "p.json").read_text())
     assert "linear" not in perfect and "linear" not in perfect["error_model"]
-    z = [abs(v - truth.location[n]) / perfect["uncertainty"]["location_errors"][n]
-         for n, v in perfect["location_errors"].items() if n not in perfect["dropped"]]
-    assert max(z) > 3.0  # (the linear errors the model lacks bias the location errors beyond their u)
+    lof = [load_machine5_result(d / f).lack_of_fit_mm for f in ("p.json", "r.json")]
+    assert lof[0] > 1.4 * lof[1], lof
+    worse, default = (unseen_prediction_error_mm(machine, truth, d / f) for f in ("p.json", "r.json"))
+    assert worse > 1.25 * default, (worse, default)
 
 
 def test_an_rtest_campaign_alone_keeps_them_perfect(machine, tmp_path):
